@@ -1,0 +1,283 @@
+"""Geometry → Mitsuba shapes.  The only module that knows about facets, curves and the origin.
+
+Branch representations (see BENCHMARKS.md for what each costs and how exact it is):
+
+``mesh``
+    One merged triangle mesh, every branch a closed k-facet prism (k-gon end caps).
+    The radius is scaled by π/(k·sin(π/k)) so the mean projected width over view
+    azimuths equals the cylinder's (a k-prism's mean width is k·sin(π/k)/π of it).
+``cylinder``
+    Mitsuba's analytic ``cylinder`` (one shape per branch; open, so the ends are
+    closed by one extra mesh of 32-gon caps).  Solved in float32 in a radius-scaled
+    frame: inexact for thin branches far away.
+``linearcurve``
+    One ``linearcurve`` shape, each branch a 2-point segment; rounded ends.
+
+All coordinates are taken relative to a float64 scene origin before they become
+float32, so a scene 1e5 m from the origin scans like one at the origin.  Zero-length
+segments are dropped (they would make the scene bounding box NaN) and counted.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ._mitsuba import mitsuba
+from .errors import ConfigError
+from .geometry import Branches, Leaves, Primitive
+
+log = logging.getLogger(__name__)
+
+REPRESENTATIONS = ("mesh", "cylinder", "linearcurve")
+CLASS_CODES = {"escape": 0, "ground": 1, "wood": 2, "leaf": 3}
+CAP_SIDES = 32
+MIN_LENGTH_M = 1e-9
+
+
+@dataclass
+class BuiltScene:
+    """A Mitsuba scene plus the tables that map hits back to our elements.
+
+    Element ids: wood hits report the branch's row in ``branches``; explicit
+    primitives report ``len(branches) + j``; leaf hits report the leaf id.
+    """
+
+    scene: object
+    origin_m: np.ndarray
+    shape_class: np.ndarray
+    shape_base: np.ndarray
+    prim_element: np.ndarray
+    n_branches: int
+    n_dropped: int
+    n_triangles: int
+    representation: str
+    facets: int
+    bbox_min_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    bbox_max_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+
+def _orthonormal(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors perpendicular to each row of ``axis`` (unit rows)."""
+    helper = np.where(np.abs(axis[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    u = np.cross(axis, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return u, np.cross(axis, u)
+
+
+def prism_mesh(p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, k: int,
+               caps: bool = True, sides: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices (V,3), faces (F,3) and owner (F,) of closed k-gon prisms around segments.
+
+    ``radius`` is the circumradius used as given (callers scale it).  Coordinates stay
+    float64 here; the caller converts after subtracting the origin.
+    """
+    n = len(radius)
+    axis = p1 - p0
+    axis = axis / np.linalg.norm(axis, axis=1, keepdims=True)
+    u, v = _orthonormal(axis)
+    phi = 2 * np.pi * np.arange(k) / k
+    ring = (np.cos(phi)[None, :, None] * u[:, None, :] + np.sin(phi)[None, :, None] * v[:, None, :])
+    ring *= radius[:, None, None]
+    verts = np.concatenate([p0[:, None, :] + ring, p1[:, None, :] + ring], axis=1)  # (n, 2k, 3)
+    j = np.arange(k)
+    jn = (j + 1) % k
+    local = []
+    if sides:
+        local += [np.stack([j, jn, k + j], 1), np.stack([jn, k + jn, k + j], 1)]
+    if caps and k >= 3:
+        t = np.arange(1, k - 1)
+        local += [np.stack([np.zeros_like(t), t + 1, t], 1), np.stack([k + np.zeros_like(t), k + t, k + t + 1], 1)]
+    local = np.concatenate(local).astype(np.int64)
+    faces = local[None, :, :] + (2 * k * np.arange(n))[:, None, None]
+    owner = np.repeat(np.arange(n), len(local))
+    return verts.reshape(-1, 3), faces.reshape(-1, 3), owner
+
+
+def _mi_mesh(mi, name: str, vertices: np.ndarray, faces: np.ndarray):
+    mesh = mi.Mesh(name, len(vertices), len(faces))
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = mi.Float(np.ascontiguousarray(vertices, np.float32).ravel())
+    params["faces"] = mi.UInt32(np.ascontiguousarray(faces, np.uint32).ravel())
+    params.update()
+    return mesh
+
+
+def clean_branches(branches: Branches) -> tuple[Branches, int, np.ndarray]:
+    """Validate branches; drop zero-length ones.  Returns (kept, n_dropped, kept_index)."""
+    if len(branches) == 0:
+        return branches, 0, np.zeros(0, np.int64)
+    for name in ("p0", "p1", "diameter"):
+        a = getattr(branches, name)
+        bad = ~np.isfinite(a)
+        if bad.any():
+            row = int(np.argwhere(bad)[0][0])
+            raise ConfigError("branch coordinates and diameters must be finite numbers",
+                              key=f"branches.{name}[{row}]", value=a[row].tolist())
+    if (branches.diameter <= 0).any():
+        row = int(np.argmax(branches.diameter <= 0))
+        raise ConfigError("branch diameters must be > 0 metres",
+                          key=f"branches.diameter[{row}]", value=float(branches.diameter[row]))
+    keep = branches.length > MIN_LENGTH_M
+    n_dropped = int((~keep).sum())
+    if n_dropped:
+        log.info("dropped %d zero-length branch segment(s)", n_dropped)
+    return branches.subset(keep), n_dropped, np.flatnonzero(keep)
+
+
+def default_origin(points_m: np.ndarray) -> np.ndarray:
+    """Centre of the bounding box, rounded to whole metres (keeps round numbers round)."""
+    if len(points_m) == 0:
+        return np.zeros(3)
+    return np.round(0.5 * (points_m.min(0) + points_m.max(0)))
+
+
+def _primitive_mesh(prim: Primitive, k: int, origin: np.ndarray, source: str | None):
+    """Triangles of an explicit primitive, already relative to the origin."""
+    p = prim.params
+    if prim.kind == "cylinder":
+        p0, p1 = np.asarray([p["p0_m"]], float), np.asarray([p["p1_m"]], float)
+        r = np.array([0.5 * float(p["diameter_m"])]) * np.pi / (k * np.sin(np.pi / k))
+        v, f, _ = prism_mesh(p0 - origin, p1 - origin, r, k)
+        return v, f
+    if prim.kind == "box":
+        lo, hi = np.asarray(p["min_m"], float) - origin, np.asarray(p["max_m"], float) - origin
+        c = np.array([[x, y, z] for z in (lo[2], hi[2]) for y in (lo[1], hi[1]) for x in (lo[0], hi[0])])
+        f = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
+                      [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])
+        return c, f
+    if prim.kind == "obj":
+        v, f = read_obj(p["path"], source)
+        return v - origin, f
+    raise ConfigError("unknown primitive type; valid: cylinder, box, obj", file=source,
+                      key="primitive.type", value=prim.kind)
+
+
+def read_obj(path: str, source: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and triangulated faces of a Wavefront OBJ file (v and f records only)."""
+    verts, faces = [], []
+    try:
+        with open(path, encoding="utf-8") as fh:
+            for lineno, line in enumerate(fh, 1):
+                parts = line.split()
+                if not parts:
+                    continue
+                if parts[0] == "v":
+                    verts.append([float(x) for x in parts[1:4]])
+                elif parts[0] == "f":
+                    idx = [int(x.split("/")[0]) for x in parts[1:]]
+                    idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
+                    faces += [[idx[0], idx[j], idx[j + 1]] for j in range(1, len(idx) - 1)]
+    except (OSError, UnicodeDecodeError, ValueError, IndexError) as exc:
+        raise ConfigError(f"cannot read OBJ mesh: {exc}", file=source, key="primitive.path",
+                          value=str(path)) from exc
+    v, f = np.asarray(verts, float).reshape(-1, 3), np.asarray(faces, np.int64).reshape(-1, 3)
+    if len(f) == 0 or f.max() >= len(v) or f.min() < 0 or not np.isfinite(v).all():
+        raise ConfigError("OBJ mesh has no faces, a face index out of range or a non-finite vertex",
+                          file=source, key="primitive.path", value=str(path))
+    return v, f
+
+
+def build_scene(branches: Branches, leaves: Leaves | None = None,
+                primitives: list[Primitive] = (), *, representation: str = "mesh",
+                facets: int = 8, origin_m=None, variant: str | None = None,
+                source: str | None = None) -> BuiltScene:
+    """Turn plain geometry into a Mitsuba scene for range/coverage integrators.
+
+    Parameters
+    ----------
+    branches : woody segments (real coordinates, metres).
+    leaves : leaf triangles, or None.
+    primitives : explicit calibration shapes.
+    representation : 'mesh', 'cylinder' or 'linearcurve'.
+    facets : k for the mesh representation (≥ 3).
+    origin_m : float64 scene origin; default the bbox centre rounded to metres.
+    """
+    if representation not in REPRESENTATIONS:
+        raise ConfigError(f"unknown branch representation; valid: {', '.join(REPRESENTATIONS)}",
+                          file=source, key="scene.representation", value=representation)
+    if int(facets) != facets or facets < 3:
+        raise ConfigError("facets must be an integer ≥ 3", file=source, key="scene.facets", value=facets)
+    mi = mitsuba(variant)
+    leaves = leaves if leaves is not None else Leaves.empty()
+    kept, n_dropped, kept_index = clean_branches(branches)
+    pts = [kept.p0, kept.p1, leaves.vertices.reshape(-1, 3)]
+    if origin_m is None:
+        origin = default_origin(np.concatenate(pts) if any(len(p) for p in pts) else np.zeros((0, 3)))
+    else:
+        origin = np.asarray(origin_m, np.float64)
+        if origin.shape != (3,) or not np.isfinite(origin).all():
+            raise ConfigError("origin_m must be three finite numbers", file=source,
+                              key="scene.origin_m", value=origin_m)
+
+    shapes: dict[str, object] = {}
+    groups: list[tuple[str, int, np.ndarray]] = []  # (shape key, class, element id per prim)
+    n_tri = 0
+    k = int(facets)
+    p0, p1 = kept.p0 - origin, kept.p1 - origin
+    radius = 0.5 * kept.diameter
+    elem_of_branch = kept_index.astype(np.uint32)  # ids refer to rows of the input branches
+    if len(kept):
+        if representation == "mesh":
+            v, f, owner = prism_mesh(p0, p1, radius * np.pi / (k * np.sin(np.pi / k)), k)
+            shapes["wood_mesh"] = _mi_mesh(mi, "wood_mesh", v, f)
+            groups.append(("wood_mesh", CLASS_CODES["wood"], elem_of_branch[owner]))
+            n_tri += len(f)
+        elif representation == "cylinder":
+            for j in range(len(kept)):
+                key = f"wood_cyl_{j:07d}"
+                shapes[key] = mi.load_dict({"type": "cylinder", "p0": p0[j].tolist(),
+                                            "p1": p1[j].tolist(), "radius": float(radius[j])})
+                groups.append((key, CLASS_CODES["wood"], elem_of_branch[j:j + 1]))
+            v, f, owner = prism_mesh(p0, p1, radius, CAP_SIDES, sides=False)
+            shapes["wood_caps"] = _mi_mesh(mi, "wood_caps", v, f)
+            groups.append(("wood_caps", CLASS_CODES["wood"], elem_of_branch[owner]))
+            n_tri += len(f)
+        else:  # linearcurve: Mitsuba reads curves from a text file, one blank line between curves
+            with tempfile.NamedTemporaryFile("w", suffix=".txt", delete=False) as fh:
+                rows = np.concatenate([p0, radius[:, None], p1, radius[:, None]], axis=1).astype(np.float32)
+                np.savetxt(fh, rows, fmt="%.9g %.9g %.9g %.9g\n%.9g %.9g %.9g %.9g\n")
+                curve_path = fh.name
+            try:
+                shapes["wood_curves"] = mi.load_dict({"type": "linearcurve", "filename": curve_path})
+            finally:
+                os.unlink(curve_path)
+            groups.append(("wood_curves", CLASS_CODES["wood"], elem_of_branch))
+    if len(leaves):
+        v = (leaves.vertices - origin).reshape(-1, 3)
+        f = np.arange(len(v)).reshape(-1, 3)
+        shapes["leaf_mesh"] = _mi_mesh(mi, "leaf_mesh", v, f)
+        groups.append(("leaf_mesh", CLASS_CODES["leaf"], leaves.leaf_id.astype(np.uint32)))
+        n_tri += len(f)
+    for j, prim in enumerate(primitives):
+        v, f = _primitive_mesh(prim, 64, origin, source)
+        key = f"primitive_{j:04d}"
+        shapes[key] = _mi_mesh(mi, key, v, f)
+        label = prim.label if prim.label in ("wood", "leaf") else "wood"
+        groups.append((key, CLASS_CODES[label], np.full(len(f), len(branches) + j, np.uint32)))
+        n_tri += len(f)
+
+    scene = mi.load_dict({"type": "scene", **shapes})
+    import drjit as dr  # noqa: PLC0415
+    reg_ids = dr.reinterpret_array(mi.UInt32, scene.shapes_dr()).numpy() if shapes else np.zeros(0, np.uint32)
+    by_key = {s.id(): int(r) for s, r in zip(scene.shapes(), reg_ids)}
+    size = (max(by_key.values()) + 1) if by_key else 1
+    shape_class = np.zeros(size, np.uint32)
+    shape_base = np.zeros(size, np.uint32)
+    prim_parts, offset = [], 0
+    for key, cls, elems in groups:
+        rid = by_key[key]
+        shape_class[rid], shape_base[rid] = cls, offset
+        prim_parts.append(elems)
+        offset += len(elems)
+    prim_element = np.concatenate(prim_parts) if prim_parts else np.zeros(1, np.uint32)
+    if len(shapes):
+        bb = scene.bbox()
+        lo, hi = np.array(bb.min, float) + origin, np.array(bb.max, float) + origin
+    else:
+        lo = hi = origin.copy()
+    return BuiltScene(scene, origin, shape_class, shape_base, prim_element.astype(np.uint32),
+                      len(kept), n_dropped, n_tri, representation, k, lo, hi)

@@ -1,0 +1,154 @@
+"""PNG writers for classification masks (photo and rendered gap-fraction images).
+
+A mask PNG lets a person check what was classified: foreground (vegetation,
+canopy, a ray hit) and background (soil, sky, a gap) in two clear colours, the
+analysed window outlined, and pixels outside the window shown dimmed for
+context. Files are written under a temporary name and renamed when complete,
+so a reader never sees a half-written PNG.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+from PIL import Image
+
+from ..errors import SimlidarError
+
+__all__ = ["write_mask_png", "render_mask_rgb", "FOREGROUND_RGB", "BACKGROUND_RGB", "WINDOW_RGB"]
+
+#: Default colours: dark green foreground, white background, magenta window
+#: outline (magenta contrasts with both green and white).
+FOREGROUND_RGB: tuple[int, int, int] = (0, 128, 0)
+BACKGROUND_RGB: tuple[int, int, int] = (255, 255, 255)
+WINDOW_RGB: tuple[int, int, int] = (255, 0, 255)
+_DIM_GREY = np.array([128, 128, 128], dtype=np.float64)
+
+
+def _check_window(window: Sequence[int], width: int, height: int) -> tuple[int, int, int, int]:
+    if len(window) != 4:
+        raise ValueError(f"window must be (x0, y0, x1, y1), got {window!r}")
+    x0, y0, x1, y1 = (int(v) for v in window)
+    if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
+        raise ValueError(f"window {window!r} is not a non-empty box inside the "
+                         f"{width}x{height} mask (0 <= x0 < x1 <= {width}, "
+                         f"0 <= y0 < y1 <= {height})")
+    return x0, y0, x1, y1
+
+
+def render_mask_rgb(mask: ArrayLike, window: Sequence[int] | None = None, *,
+                    foreground: Sequence[int] = FOREGROUND_RGB,
+                    background: Sequence[int] = BACKGROUND_RGB,
+                    outline: Sequence[int] = WINDOW_RGB) -> np.ndarray:
+    """Render a boolean mask as an RGB image (no file written).
+
+    Parameters
+    ----------
+    mask : array_like of bool, shape (height, width)
+        True for foreground (vegetation, canopy, hit), False for background.
+    window : (x0, y0, x1, y1), optional
+        Half-open pixel box (columns ``x0:x1``, rows ``y0:y1``) that was
+        analysed. Pixels outside it are blended halfway to grey and the box is
+        outlined. None means the whole mask was analysed.
+    foreground, background, outline : (r, g, b)
+        0–255 colours.
+
+    Returns
+    -------
+    numpy.ndarray of uint8, shape (height, width, 3)
+    """
+    m = np.asarray(mask)
+    if m.ndim != 2 or m.size == 0:
+        raise ValueError(f"mask must be a non-empty 2-D array, got shape {m.shape}")
+    m = m.astype(bool, copy=False)
+    h, w = m.shape
+    fg = np.asarray(foreground, dtype=np.float64)
+    bg = np.asarray(background, dtype=np.float64)
+    rgb = np.where(m[..., None], fg, bg)
+    if window is not None:
+        x0, y0, x1, y1 = _check_window(window, w, h)
+        inside = np.zeros((h, w), dtype=bool)
+        inside[y0:y1, x0:x1] = True
+        # dim, not hide: the context outside the window helps judge the crop
+        rgb[~inside] = 0.5 * rgb[~inside] + 0.5 * _DIM_GREY
+        # outline drawn just inside the window so it never falls off the image;
+        # about 1 px per 400 px of the short side, so it stays visible when scaled down
+        t = max(1, round(min(h, w) / 400))
+        t = min(t, (x1 - x0 + 1) // 2, (y1 - y0 + 1) // 2) or 1
+        col = np.asarray(outline, dtype=np.float64)
+        rgb[y0:y0 + t, x0:x1] = col
+        rgb[y1 - t:y1, x0:x1] = col
+        rgb[y0:y1, x0:x0 + t] = col
+        rgb[y0:y1, x1 - t:x1] = col
+    return np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+
+
+def write_mask_png(path: str | os.PathLike[str], mask: ArrayLike,
+                   window: Sequence[int] | None = None, *,
+                   foreground: Sequence[int] = FOREGROUND_RGB,
+                   background: Sequence[int] = BACKGROUND_RGB,
+                   outline: Sequence[int] = WINDOW_RGB) -> Path:
+    """Write a boolean mask as a two-colour PNG, atomically.
+
+    Parameters
+    ----------
+    path : path-like
+        Destination ``.png``. Its directory is created if missing.
+    mask : array_like of bool, shape (height, width)
+        True for foreground (drawn dark green by default), False for
+        background (white).
+    window : (x0, y0, x1, y1), optional
+        Half-open pixel box that was analysed; outlined in magenta, with the
+        pixels outside it dimmed. See :func:`render_mask_rgb`.
+    foreground, background, outline : (r, g, b)
+        0–255 colours.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    ValueError
+        If ``mask`` is not 2-D or ``window`` is not a box inside it.
+    SimlidarError
+        If the file cannot be written (message names the path).
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, pathlib
+    >>> m = np.zeros((4, 6), bool); m[1:3, 2:4] = True
+    >>> out = write_mask_png(pathlib.Path(tempfile.mkdtemp()) / "m.png", m, (1, 1, 5, 3))
+    >>> out.suffix
+    '.png'
+    """
+    rgb = render_mask_rgb(mask, window, foreground=foreground,
+                          background=background, outline=outline)
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise SimlidarError(f"cannot write PNG {path}: {exc.strerror or exc}") from exc
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            Image.fromarray(rgb).save(fh, format="PNG")
+            fh.flush()
+            os.fsync(fh.fileno())
+        # mkstemp creates 0600; give the PNG ordinary read permissions
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        if isinstance(exc, OSError):
+            raise SimlidarError(f"cannot write PNG {path}: {exc.strerror or exc}") from exc
+        raise
+    return path

@@ -1,0 +1,303 @@
+"""Scene files (TOML) → validated, typed settings.
+
+A scene file is a TOML document whose sections are listed in :data:`SECTIONS`; every
+key has a type, a default and a check, and anything else is refused with the file,
+the dotted key and the value.  ``--set section.key=value`` overrides are parsed as
+TOML values and validated the same way.
+
+Example (``scenes/apple_orchard.toml``)::
+
+    [scene]
+    seed = 2013
+    representation = "mesh"
+    facets = 8
+
+    [orchard]
+    n_trees = 4
+    [orchard.tree]
+    iterations = 5
+    stochastic = true
+
+    [scan]
+    x0_m = 1.0
+    z0_m = 1.0
+"""
+from __future__ import annotations
+
+import copy
+import hashlib
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from .errors import ConfigError
+
+Check = Callable[[Any], str | None]  # returns a complaint, or None when the value is fine
+
+
+@dataclass(frozen=True)
+class Key:
+    """One scene-file key: accepted Python types, default, and an extra check."""
+
+    types: tuple
+    default: Any = None
+    check: Check | None = None
+    doc: str = ""
+
+
+def _finite(v):
+    return None if math.isfinite(v) else "must be a finite number"
+
+
+def positive(v):
+    return _finite(v) or (None if v > 0 else "must be > 0")
+
+
+def nonneg(v):
+    return _finite(v) or (None if v >= 0 else "must be ≥ 0")
+
+
+def at_least(n):
+    return lambda v: None if v >= n else f"must be ≥ {n}"
+
+
+def one_of(*choices):
+    return lambda v: None if v in choices else f"must be one of {', '.join(map(repr, choices))}"
+
+
+def vec3(v):
+    if len(v) != 3 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+        return "must be a list of three numbers [x, y, z] in metres"
+    return None if all(math.isfinite(x) for x in v) else "must hold finite numbers"
+
+
+FLOAT = (int, float)
+INT = (int,)
+BOOL = (bool,)
+STR = (str,)
+LIST = (list,)
+
+SECTIONS: dict[str, dict[str, Key]] = {
+    "scene": {
+        "name": Key(STR, "scene"),
+        "seed": Key(INT, 0, nonneg, "master seed; every tree/plant gets a child stream"),
+        "representation": Key(STR, "mesh", one_of("mesh", "cylinder", "linearcurve")),
+        "facets": Key(INT, 8, at_least(3), "prism facets k of the mesh representation"),
+        "origin_m": Key(LIST, None, vec3, "float64 scene origin; default bbox centre"),
+        "variant": Key(STR, "llvm_ad_mono"),
+    },
+    "orchard": {
+        "n_trees": Key(INT, 1, at_least(1)),
+        "spacing_m": Key(FLOAT, 2.5, positive, "distance between trees along the row"),
+        "row_x_m": Key(FLOAT, 3.0, _finite, "x of the tree row (the scanner looks along +x)"),
+        "y_start_m": Key(FLOAT, 0.0, _finite, "y of the first tree"),
+    },
+    "orchard.tree": {
+        "iterations": Key(INT, 5, at_least(1)),
+        "angle_deg": Key(FLOAT, 20.0, _finite),
+        "rotation_deg": Key(FLOAT, 20.0, _finite),
+        "d_min_m": Key(FLOAT, 0.005, positive),
+        "h0_m": Key(FLOAT, 0.5, positive),
+        "pruning": Key(BOOL, True),
+        "stochastic": Key(BOOL, True),
+    },
+    "ground": {
+        "enabled": Key(BOOL, True),
+        "z_m": Key(FLOAT, 0.0, _finite),
+    },
+    "scan": {
+        "x0_m": Key(FLOAT, 1.0, _finite, "scanner line x"),
+        "z0_m": Key(FLOAT, 1.0, _finite, "scanner height"),
+        "y_start_m": Key(FLOAT, None, _finite, "first beam-centre y; default min y of the scene"),
+        "y_end_m": Key(FLOAT, None, _finite, "last y; default max y of the scene"),
+        "dy_m": Key(FLOAT, 0.002, positive),
+        "gap": Key(INT, 0, nonneg, "sweeps skipped between two recorded ones"),
+        "dtheta_deg": Key(FLOAT, 0.25, positive),
+        "theta_min_deg": Key(FLOAT, None, _finite, "default −atan(z0/(max x − x0)) (eq. 8)"),
+        "theta_max_deg": Key(FLOAT, None, _finite, "default atan((max z − z0)/(max x − x0))"),
+        "footprint": Key(INT, 0, nonneg, "dot-matrix precision P: (P+1)² sub-beams"),
+        "escape_m": Key(FLOAT, 1000.0, positive, "range reported for beams that hit nothing"),
+        "max_beams": Key(INT, 200_000_000, at_least(1), "refuse scans larger than this"),
+    },
+}
+# Sections that hold a list of tables ([[primitive]]).
+ARRAY_SECTIONS: dict[str, dict[str, Key]] = {
+    "primitive": {
+        "type": Key(STR, None, one_of("cylinder", "box", "obj")),
+        "p0_m": Key(LIST, None, vec3),
+        "p1_m": Key(LIST, None, vec3),
+        "diameter_m": Key(FLOAT, None, positive),
+        "min_m": Key(LIST, None, vec3),
+        "max_m": Key(LIST, None, vec3),
+        "path": Key(STR, None),
+        "label": Key(STR, "wood", one_of("wood", "leaf")),
+    },
+}
+PRIMITIVE_NEEDS = {"cylinder": ("p0_m", "p1_m", "diameter_m"), "box": ("min_m", "max_m"), "obj": ("path",)}
+
+
+@dataclass
+class SceneConfig:
+    """A validated scene file: ``sections[name][key]`` with defaults filled in."""
+
+    path: Path | None
+    sections: dict[str, dict[str, Any]]
+    arrays: dict[str, list[dict[str, Any]]]
+    present: set[str] = field(default_factory=set)
+    sha256: str = ""
+
+    @property
+    def source(self) -> str:
+        return str(self.path) if self.path else "<scene>"
+
+    def __getitem__(self, section: str) -> dict[str, Any]:
+        return self.sections[section]
+
+    def has(self, section: str) -> bool:
+        """True when the file itself contains ``section`` (not only its defaults)."""
+        return section in self.present
+
+    @property
+    def seed(self) -> int:
+        return int(self.sections["scene"]["seed"])
+
+
+def _check_value(spec: Key, value: Any, src: str, dotted: str) -> Any:
+    if isinstance(value, bool) and bool not in spec.types:
+        raise ConfigError(f"expected {_typename(spec.types)}, got a boolean", file=src, key=dotted, value=value)
+    if not isinstance(value, spec.types):
+        raise ConfigError(f"expected {_typename(spec.types)}, got {type(value).__name__}",
+                          file=src, key=dotted, value=value)
+    if spec.types == FLOAT:
+        value = float(value)
+    if spec.check is not None:
+        problem = spec.check(value)
+        if problem:
+            raise ConfigError(problem, file=src, key=dotted, value=value)
+    return value
+
+
+def _typename(types: tuple) -> str:
+    names = {int: "an integer", float: "a number", bool: "true/false", str: "a string", list: "a list"}
+    if types == FLOAT:
+        return "a number"
+    return " or ".join(names.get(t, t.__name__) for t in types)
+
+
+def _flatten(data: dict) -> dict[str, Any]:
+    """{'orchard': {'tree': {...}, 'n_trees': 4}} → {'orchard': {'n_trees': 4}, 'orchard.tree': {...}}."""
+    out: dict[str, Any] = {}
+    for name, value in data.items():
+        if not isinstance(value, dict):
+            out[name] = value
+            continue
+        own = {}
+        for key, inner in value.items():
+            if isinstance(inner, dict) and f"{name}.{key}" in SECTIONS:
+                out[f"{name}.{key}"] = inner
+            else:
+                own[key] = inner
+        out[name] = own
+    return out
+
+
+def parse_override(item: str) -> tuple[str, Any]:
+    """'scan.dtheta_deg=0.5' → ('scan.dtheta_deg', 0.5); values are TOML, bare words strings."""
+    if "=" not in item:
+        raise ConfigError("an override must look like section.key=value", key="--set", value=item)
+    key, raw = item.split("=", 1)
+    key, raw = key.strip(), raw.strip()
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    return key, value
+
+
+def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = (),
+               text: str | None = None) -> SceneConfig:
+    """Read, validate and fill in a scene file.
+
+    Parameters
+    ----------
+    path : the TOML file (or None with ``text``).
+    overrides : ``section.key=value`` strings applied after reading.
+    text : TOML text instead of a file (notebooks, tests).
+    """
+    src = str(path) if path is not None else "<scene>"
+    if text is None:
+        try:
+            raw_bytes = Path(path).read_bytes()
+        except OSError as exc:
+            raise ConfigError(f"cannot read scene file: {exc.strerror or exc}", file=src) from exc
+        try:
+            text = raw_bytes.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ConfigError("scene file is not UTF-8 text", file=src) from exc
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"not valid TOML: {exc}", file=src) from exc
+    digest = hashlib.sha256(text.encode("utf-8"))
+    for item in overrides:
+        digest.update(b"\0" + item.encode("utf-8"))
+
+    arrays_raw = {name: data.pop(name) for name in list(data) if name in ARRAY_SECTIONS}
+    flat = _flatten(data)
+    for item in overrides:
+        key, value = parse_override(item)
+        section, _, leaf = key.rpartition(".")
+        if section not in SECTIONS:
+            raise ConfigError(f"unknown section '{section}'; valid: {', '.join(SECTIONS)}",
+                              file=src, key=key, value=value)
+        flat.setdefault(section, {})[leaf] = value
+
+    sections: dict[str, dict[str, Any]] = {}
+    present: set[str] = set()
+    for name, table in flat.items():
+        if name not in SECTIONS:
+            raise ConfigError(f"unknown section or key; valid sections: {', '.join(SECTIONS)}",
+                              file=src, key=name, value=table if not isinstance(table, dict) else None)
+        if not isinstance(table, dict):
+            raise ConfigError("expected a table", file=src, key=name, value=table)
+        present.add(name)
+    for name, spec in SECTIONS.items():
+        table = flat.get(name, {})
+        values = {}
+        for key, value in table.items():
+            if key not in spec:
+                raise ConfigError(f"unknown key in [{name}]; valid: {', '.join(spec)}",
+                                  file=src, key=f"{name}.{key}", value=value)
+            values[key] = _check_value(spec[key], value, src, f"{name}.{key}")
+        for key, ks in spec.items():
+            values.setdefault(key, copy.deepcopy(ks.default))
+        sections[name] = values
+
+    arrays: dict[str, list[dict[str, Any]]] = {name: [] for name in ARRAY_SECTIONS}
+    for name, items in arrays_raw.items():
+        if not isinstance(items, list):
+            raise ConfigError(f"[[{name}]] must be an array of tables", file=src, key=name, value=items)
+        spec = ARRAY_SECTIONS[name]
+        for j, item in enumerate(items):
+            values = {}
+            for key, value in item.items():
+                dotted = f"{name}[{j}].{key}"
+                if key not in spec:
+                    raise ConfigError(f"unknown key; valid: {', '.join(spec)}", file=src, key=dotted, value=value)
+                values[key] = _check_value(spec[key], value, src, dotted)
+            for key, ks in spec.items():
+                values.setdefault(key, ks.default)
+            arrays[name].append(values)
+        present.add(name)
+    for j, prim in enumerate(arrays["primitive"]):
+        if prim["type"] is None:
+            raise ConfigError("missing; valid: cylinder, box, obj", file=src, key=f"primitive[{j}].type")
+        for need in PRIMITIVE_NEEDS[prim["type"]]:
+            if prim[need] is None:
+                raise ConfigError(f"a {prim['type']} primitive needs '{need}'", file=src,
+                                  key=f"primitive[{j}].{need}")
+        if prim["type"] == "obj" and path is not None:
+            prim["path"] = str((Path(path).parent / prim["path"]).resolve())
+    return SceneConfig(Path(path) if path else None, sections, arrays, present, digest.hexdigest())

@@ -1,0 +1,78 @@
+"""Scan products ↔ OpenEXR files (the OpenEXR 3.x Python package).
+
+Channels (all N × M, row = position y_i, column = angle θ_k):
+``range`` float32 metres, ``class`` uint32 (0 escape, 1 ground, 2 wood, 3 leaf),
+``branch_id`` uint32 (element id, 0xFFFFFFFF for none), ``theta_deg`` float32,
+``y_m`` float32 (y − origin_y, exact in float32 near the origin), and
+``hit_fraction`` float32 when a footprint was simulated.  Header attributes hold
+every scan setting, the seed, the scene file's SHA-256 and the float64 origin.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+
+from ..errors import SimlidarError
+from ..scan import ScanResult, ScanSettings
+from .atomic import atomic_file
+
+
+def _header_value(value):
+    # Plain floats would be stored as float32: keep float64 as 1-element arrays.
+    if isinstance(value, bool):
+        return int(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value) if abs(int(value)) < 2**31 else str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return np.array([float(value)], np.float64)
+    if isinstance(value, np.ndarray):
+        return np.asarray(value, np.float64)
+    return str(value)
+
+
+def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = None,
+                   scene_sha256: str = "", extra: dict | None = None) -> Path:
+    """Write ``result`` to ``path`` (ZIP compression); returns the path."""
+    s = result.settings
+    n, m = result.shape
+    channels = {
+        "range": np.ascontiguousarray(result.range_m, np.float32),
+        "class": np.ascontiguousarray(result.cls, np.uint32),
+        "branch_id": np.ascontiguousarray(result.element_id, np.uint32),
+        "theta_deg": np.ascontiguousarray(np.broadcast_to(s.theta_deg[None, :], (n, m)), np.float32),
+        "y_m": np.ascontiguousarray(np.broadcast_to((s.y_m - result.origin_m[1])[:, None], (n, m)), np.float32),
+    }
+    if s.footprint > 0:
+        channels["hit_fraction"] = np.ascontiguousarray(result.hit_fraction, np.float32)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              "origin_m": np.asarray(result.origin_m, np.float64),
+              "simlidar_settings": json.dumps(s.to_dict(), sort_keys=True),
+              "scene_sha256": scene_sha256,
+              "y_channel_note": "y_m channel is y minus origin_m[1]; range in metres"}
+    for key, value in s.to_dict().items():
+        header[f"scan_{key}"] = _header_value(value)
+    if seed is not None:
+        header["seed"] = _header_value(seed)
+    for key, value in (extra or {}).items():
+        header[key] = _header_value(value)
+    with atomic_file(path) as tmp:
+        # OpenEXR.File modifies the dicts it is given: pass copies.
+        with OpenEXR.File(dict(header), dict(channels)) as f:
+            f.write(str(tmp))
+    return Path(path)
+
+
+def read_scan_exr(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
+    """Channels and header of a scan EXR; ``header['settings']`` is a ScanSettings."""
+    try:
+        with OpenEXR.File(str(path)) as f:
+            header = dict(f.header())  # emptied when the file closes
+            channels = {k: np.array(v.pixels) for k, v in f.channels().items()}
+    except Exception as exc:  # OpenEXR raises plain exceptions for unreadable files
+        raise SimlidarError(f"{path}: cannot read EXR: {exc}") from exc
+    if "simlidar_settings" in header:
+        header["settings"] = ScanSettings(**json.loads(header["simlidar_settings"]))
+    return channels, header

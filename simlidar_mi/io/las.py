@@ -1,0 +1,51 @@
+"""Scan hits → LAS 1.4 point clouds (laspy), in real coordinates.
+
+Point format 6.  Classification follows ASPRS where it can: ground 2, leaves 5
+(high vegetation); wood has no ASPRS class and uses 64 (user-definable range).
+Extra dimensions: ``range_m`` (float32), ``scan_position`` (uint32, index i of the
+sweep), ``scan_angle_index`` (uint32, k), ``branch_id`` (uint32).  ``scan_angle``
+holds θ in the format's 0.006° units; escapes are not written.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+from ..mitsuba_scene import CLASS_CODES
+from ..scan import ScanResult
+from .atomic import atomic_file
+
+LAS_CLASS = {CLASS_CODES["ground"]: 2, CLASS_CODES["leaf"]: 5, CLASS_CODES["wood"]: 64}
+
+
+def write_scan_las(result: ScanResult, path: str | Path) -> Path:
+    """Write every non-escape first return of ``result`` to ``path``; returns the path."""
+    keep = result.cls != CLASS_CODES["escape"]
+    pts = result.points_m()[keep]
+    i_idx, k_idx = np.nonzero(keep)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.add_extra_dims([
+        laspy.ExtraBytesParams("range_m", np.float32, description="first-return range (m)"),
+        laspy.ExtraBytesParams("scan_position", np.uint32, description="sweep index i"),
+        laspy.ExtraBytesParams("scan_angle_index", np.uint32, description="angle index k"),
+        laspy.ExtraBytesParams("branch_id", np.uint32, description="element id"),
+    ])
+    header.scales = np.array([0.0001, 0.0001, 0.0001])  # 0.1 mm
+    header.offsets = np.floor(pts.min(axis=0)) if len(pts) else np.zeros(3)
+    header.generating_software = "simlidar-mi"
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+    cls = result.cls[keep]
+    las.classification = np.vectorize(LAS_CLASS.get, otypes=[np.uint8])(cls) if len(cls) else cls
+    theta = result.settings.theta_deg[k_idx]
+    las.scan_angle = np.round(theta / 0.006).astype(np.int16)
+    las.point_source_id = (i_idx % 65536).astype(np.uint16)
+    las.range_m = result.range_m[keep]
+    las.scan_position = i_idx.astype(np.uint32)
+    las.scan_angle_index = k_idx.astype(np.uint32)
+    las.branch_id = result.element_id[keep]
+    with atomic_file(path) as tmp:
+        las.write(str(tmp))
+    return Path(path)

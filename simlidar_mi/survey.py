@@ -1,0 +1,251 @@
+"""Scene file → geometry → scan → files: the calls behind ``simlidar-mi scan/measure/preview``.
+
+Every function here is one step a user can also call from a notebook::
+
+    from simlidar_mi.survey import load_scene, generate, build, run_scan
+    cfg = load_scene("scenes/apple_orchard.toml", ["scan.dtheta_deg=0.5"])
+    run = run_scan(cfg, "out/orchard")          # writes scan.exr, scan.png, points.las, measures.json
+    print(run.measures["A_IM_m2"], run.result.shape)
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .config import SceneConfig, load_scene
+from .errors import ConfigError
+from .geometry import Branches, Leaves, Primitive
+from .io.atomic import atomic_file, staged_dir
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SceneGeometry", "ScanRun", "load_scene", "generate", "build", "run_scan",
+           "measure", "preview"]
+
+
+@dataclass
+class SceneGeometry:
+    """Everything a scene file describes, as plain data."""
+
+    branches: Branches
+    leaves: Leaves
+    primitives: list[Primitive]
+    seconds: float = 0.0
+
+    def bounds_m(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned bounds of branches (with radius), leaves and primitives."""
+        lo, hi = [], []
+        if len(self.branches):
+            r = (0.5 * self.branches.diameter)[:, None]
+            for p in (self.branches.p0, self.branches.p1):
+                lo.append((p - r).min(0))
+                hi.append((p + r).max(0))
+        if len(self.leaves):
+            v = self.leaves.vertices.reshape(-1, 3)
+            lo.append(v.min(0))
+            hi.append(v.max(0))
+        for prim in self.primitives:
+            p = prim.params
+            if prim.kind == "cylinder":
+                ends = np.array([p["p0_m"], p["p1_m"]], float)
+                r = 0.5 * p["diameter_m"]
+                lo.append(ends.min(0) - r)
+                hi.append(ends.max(0) + r)
+            elif prim.kind == "box":
+                lo.append(np.asarray(p["min_m"], float))
+                hi.append(np.asarray(p["max_m"], float))
+            elif prim.kind == "obj":
+                from .mitsuba_scene import read_obj  # noqa: PLC0415
+                v, _ = read_obj(p["path"])
+                lo.append(v.min(0))
+                hi.append(v.max(0))
+        if not lo:
+            raise ConfigError("the scene holds no geometry: add [orchard] or [[primitive]]")
+        return np.min(lo, axis=0), np.max(hi, axis=0)
+
+
+def generate(cfg: SceneConfig) -> SceneGeometry:
+    """Build the plants and primitives a scene file asks for (no Mitsuba)."""
+    t0 = time.perf_counter()
+    parts: list[Branches] = []
+    if cfg.has("orchard") or cfg.has("orchard.tree"):
+        from .plants.apple import AppleTreeParams, orchard  # noqa: PLC0415
+        try:
+            params = AppleTreeParams(**cfg["orchard.tree"])
+        except ConfigError as exc:
+            raise ConfigError(str(exc), file=cfg.source) from exc
+        o = cfg["orchard"]
+        parts.append(orchard(params, n_trees=o["n_trees"], spacing_m=o["spacing_m"],
+                             row_x_m=o["row_x_m"], y_start_m=o["y_start_m"], seed=cfg.seed))
+    prims = []
+    for p in cfg.arrays["primitive"]:
+        params = {k: v for k, v in p.items() if k not in ("type", "label") and v is not None}
+        prims.append(Primitive(p["type"], params, p["label"]))
+    return SceneGeometry(Branches.concat(parts), Leaves.empty(), prims, time.perf_counter() - t0)
+
+
+def build(cfg: SceneConfig, geometry: SceneGeometry):
+    """Geometry → Mitsuba scene in the representation the scene file chose."""
+    from .mitsuba_scene import build_scene  # noqa: PLC0415
+    sc = cfg["scene"]
+    return build_scene(geometry.branches, geometry.leaves, geometry.primitives,
+                       representation=sc["representation"], facets=sc["facets"],
+                       origin_m=sc["origin_m"], variant=sc["variant"], source=cfg.source)
+
+
+def measure(cfg: SceneConfig, geometry: SceneGeometry | None = None) -> dict:
+    """Geometry measures (V_L, A_L, A_PR, A_PR_exact) in total and per tree, from geometry alone."""
+    from .measures import wood_measures  # noqa: PLC0415
+    geometry = geometry or generate(cfg)
+    return wood_measures(geometry.branches).to_dict()
+
+
+@dataclass
+class ScanRun:
+    """What ``run_scan`` produced: the scan product, the measures and the files written."""
+
+    result: object
+    measures: dict
+    files: dict[str, Path] = field(default_factory=dict)
+
+
+def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
+             overrides: list[str] | tuple = (), *, write_las: bool = True,
+             write_png: bool = True, progress: bool = False) -> ScanRun:
+    """Generate, build, scan and (with ``out_dir``) write scan.exr, scan.png, points.las, measures.json.
+
+    Files appear together when all are complete; a failure leaves ``out_dir`` as it was.
+    """
+    from .scan import resolve_settings, scan  # noqa: PLC0415
+    if not isinstance(cfg, SceneConfig):
+        cfg = load_scene(cfg, overrides)
+    steps = ["generate", "build", "scan", "write"]
+    bar = _progress(len(steps), progress)
+    seconds: dict[str, float] = {}
+
+    t = time.perf_counter()
+    geometry = generate(cfg)
+    lo, hi = geometry.bounds_m()
+    settings = resolve_settings(cfg["scan"], cfg["ground"], lo, hi, cfg.source)
+    seconds["generate"] = time.perf_counter() - t
+    bar(f"generated {len(geometry.branches)} branches")
+
+    t = time.perf_counter()
+    built = build(cfg, geometry)
+    seconds["build"] = time.perf_counter() - t
+    bar(f"built {built.representation} scene")
+
+    t = time.perf_counter()
+    result = scan(built, settings, cfg["scene"]["variant"])
+    seconds["scan"] = time.perf_counter() - t
+    bar(f"scanned {settings.n_beams} beams")
+
+    measures = _scan_measures(cfg, geometry, built, result)
+    files: dict[str, Path] = {}
+    t = time.perf_counter()
+    if out_dir is not None:
+        from .io.exr import write_scan_exr  # noqa: PLC0415
+        with staged_dir(out_dir) as stage:
+            write_scan_exr(result, stage / "scan.exr", seed=cfg.seed, scene_sha256=cfg.sha256,
+                           extra={"scene_file": cfg.source, "representation": built.representation,
+                                  "facets": built.facets})
+            files["exr"] = Path(out_dir) / "scan.exr"
+            if write_png:
+                from .io.plots import plot_scan_png  # noqa: PLC0415
+                plot_scan_png(result, stage / "scan.png", title=f"{cfg['scene']['name']}: range image")
+                files["png"] = Path(out_dir) / "scan.png"
+            if write_las:
+                from .io.las import write_scan_las  # noqa: PLC0415
+                write_scan_las(result, stage / "points.las")
+                files["las"] = Path(out_dir) / "points.las"
+            seconds["write"] = time.perf_counter() - t
+            measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}
+            with atomic_file(stage / "measures.json") as tmp:
+                tmp.write_text(json.dumps(measures, indent=2, sort_keys=True) + "\n")
+            files["measures"] = Path(out_dir) / "measures.json"
+    else:
+        measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}
+    bar("written")
+    return ScanRun(result, measures, files)
+
+
+def _scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, result) -> dict:
+    wm = {}
+    if len(geometry.branches):
+        from .measures import wood_measures  # noqa: PLC0415
+        wm = wood_measures(geometry.branches).to_dict()
+    n, m = result.shape
+    out = {
+        "scene": cfg.source, "scene_sha256": cfg.sha256, "seed": cfg.seed,
+        "representation": built.representation, "facets": built.facets,
+        "origin_m": [float(x) for x in built.origin_m],
+        "n_branches": int(len(geometry.branches)), "n_dropped_zero_length": built.n_dropped,
+        "N": n, "M": m, "footprint": result.settings.footprint,
+        "A_IM_m2": result.impacted_area_m2(), "A_IM_yz_m2": result.impacted_area_yz_m2(),
+        "hits": result.class_counts(),
+        "scan": result.settings.to_dict(),
+    }
+    for key in ("V_L_m3", "A_L_m2", "A_PR_m2", "A_PR_exact_m2", "per_tree"):
+        if key in wm:
+            out[key] = wm[key]
+    return out
+
+
+def _progress(total: int, enabled: bool):
+    """A tqdm bar over pipeline stages when ``enabled`` (CLI on a terminal)."""
+    if not enabled:
+        return lambda msg: None
+    from tqdm import tqdm  # noqa: PLC0415
+    bar = tqdm(total=total, unit="stage", leave=False)
+
+    def step(msg: str) -> None:
+        bar.set_description(msg)
+        bar.update(1)
+        if bar.n >= total:
+            bar.close()
+    return step
+
+
+def preview(cfg: SceneConfig | str | Path, path: str | Path, *, width: int = 1024,
+            spp: int = 16, overrides: list[str] | tuple = ()) -> Path:
+    """A shaded side view of the scene (looking along +x, like the scanner) as PNG."""
+    from ._mitsuba import mitsuba  # noqa: PLC0415
+    if not isinstance(cfg, SceneConfig):
+        cfg = load_scene(cfg, overrides)
+    geometry = generate(cfg)
+    built = build(cfg, geometry)
+    mi = mitsuba(cfg["scene"]["variant"])
+    lo, hi = built.bbox_min_m - built.origin_m, built.bbox_max_m - built.origin_m
+    centre = 0.5 * (lo + hi)
+    extent = hi - lo
+    half_w = 0.55 * max(extent[1], 1e-3)
+    half_h = 0.55 * max(extent[2], 1e-3)
+    height = max(16, int(round(width * half_h / half_w)))
+    eye = [lo[0] - 10.0 * max(extent.max(), 1.0), centre[1], centre[2]]
+    sensor = mi.load_dict({
+        "type": "orthographic",
+        "to_world": mi.ScalarTransform4f.look_at(origin=eye, target=centre.tolist(), up=[0, 0, 1])
+        @ mi.ScalarTransform4f.scale([half_w, half_h, 1.0]),
+        "film": {"type": "hdrfilm", "width": width, "height": height, "pixel_format": "rgb"
+                 if "rgb" in mi.variant() else "luminance"},
+        "sampler": {"type": "independent", "sample_count": spp},
+    })
+    shapes = {f"s{j}": s for j, s in enumerate(built.scene.shapes())}
+    scene = mi.load_dict({"type": "scene", "integrator": {"type": "direct"},
+                          "light": {"type": "constant", "radiance": {"type": "rgb", "value": 0.8}}
+                          if "rgb" in mi.variant() else {"type": "constant", "radiance": 0.8},
+                          "sun": {"type": "directional", "direction": [1.0, 0.4, -1.0], "irradiance": 2.0},
+                          **shapes})
+    img = np.array(mi.render(scene, sensor=sensor, spp=spp))
+    img = np.clip(img / max(np.percentile(img, 99.5), 1e-6), 0, 1) ** (1 / 2.2)
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = np.repeat(img, 3, axis=2)
+    from PIL import Image  # noqa: PLC0415
+    with atomic_file(path) as tmp:
+        Image.fromarray((img * 255).astype(np.uint8)).save(tmp, format="PNG")
+    return Path(path)

@@ -28,6 +28,85 @@ def command(name: str, help: str, add_arguments: Callable[[argparse.ArgumentPars
 # (each block: argument builder + run function calling one API function)
 
 
+def _scene_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", metavar="SCENE.toml", help="scene file (see scenes/)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scene key, e.g. --set scan.dtheta_deg=0.5 (repeatable)")
+    p.add_argument("--variant", default=None,
+                   help="Mitsuba variant (default llvm_ad_mono; cuda_ad_mono on a GPU)")
+
+
+def _overrides(args: argparse.Namespace) -> list[str]:
+    extra = [f'scene.variant="{args.variant}"'] if getattr(args, "variant", None) else []
+    return list(args.overrides) + extra
+
+
+def _scan_args(p: argparse.ArgumentParser) -> None:
+    _scene_args(p)
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder: scan.exr, scan.png, points.las, measures.json")
+    p.add_argument("--no-las", action="store_true", help="skip points.las")
+    p.add_argument("--no-png", action="store_true", help="skip scan.png")
+
+
+@command("scan", "Tractor LiDAR scan of a scene: range EXR, range PNG, LAS points, measures", _scan_args)
+def _scan_run(args: argparse.Namespace) -> int:
+    from .survey import run_scan
+
+    run = run_scan(args.scene, args.out, _overrides(args), write_las=not args.no_las,
+                   write_png=not args.no_png, progress=sys.stderr.isatty())
+    m = run.measures
+    print(f"{m['N']}×{m['M']} beams, {m['n_branches']} branches ({m['representation']}), "
+          f"hits {m['hits']}")
+    print(f"A_IM = {m['A_IM_m2']:.6g} m²" + (f", A_PR = {m['A_PR_m2']:.6g} m², A_L = {m['A_L_m2']:.6g} m²"
+                                           if "A_PR_m2" in m else ""))
+    print("seconds: " + ", ".join(f"{k} {v:.3f}" for k, v in m["seconds"].items()))
+    for kind, path in run.files.items():
+        print(f"wrote {path}")
+    return 0
+
+
+def _measure_args(p: argparse.ArgumentParser) -> None:
+    _scene_args(p)
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+
+@command("measure", "Vegetative measures V_L, A_L, A_PR, A_PR_exact of a scene, without scanning",
+         _measure_args)
+def _measure_run(args: argparse.Namespace) -> int:
+    import json
+
+    from .survey import load_scene, measure
+
+    m = measure(load_scene(args.scene, _overrides(args)))
+    if args.json:
+        print(json.dumps(m, indent=2, sort_keys=True))
+        return 0
+    per_tree = m.get("per_tree", [])
+    keys = [k for k in ("n_branches", "V_L_m3", "A_L_m2", "A_PR_m2", "A_PR_exact_m2") if k in m]
+    print("tree    " + "  ".join(f"{k:>14}" for k in keys))
+    for row in per_tree:
+        print(f"{row.get('tree_id', ''):<6}  " + "  ".join(f"{row[k]:>14.6g}" for k in keys))
+    print("total   " + "  ".join(f"{m[k]:>14.6g}" for k in keys))
+    return 0
+
+
+def _preview_args(p: argparse.ArgumentParser) -> None:
+    _scene_args(p)
+    p.add_argument("--out", default="preview.png", metavar="PNG", help="output PNG (default preview.png)")
+    p.add_argument("--width", type=int, default=1024, help="image width in pixels")
+    p.add_argument("--spp", type=int, default=16, help="samples per pixel")
+
+
+@command("preview", "Shaded side view of a scene, looking along +x like the scanner, to PNG",
+         _preview_args)
+def _preview_run(args: argparse.Namespace) -> int:
+    from .survey import preview
+
+    print(f"wrote {preview(args.scene, args.out, width=args.width, spp=args.spp, overrides=_overrides(args))}")
+    return 0
+
+
 def _photo_gap_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("photos", nargs="+", metavar="PHOTO", help="8-bit RGB photos (JPEG, PNG, ...)")
     p.add_argument("--method", required=True, choices=["canopeo", "exg-otsu", "blue-otsu"],

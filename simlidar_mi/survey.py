@@ -223,8 +223,8 @@ def preview(cfg: SceneConfig | str | Path, path: str | Path, *, width: int = 102
     lo, hi = built.bbox_min_m - built.origin_m, built.bbox_max_m - built.origin_m
     centre = 0.5 * (lo + hi)
     extent = hi - lo
-    half_w = 0.55 * max(extent[1], 1e-3)
-    half_h = 0.55 * max(extent[2], 1e-3)
+    half_w = 0.55 * max(extent[1], 0.6 * extent[2], 1e-3)
+    half_h = 0.55 * max(extent[2], 0.3 * extent[1], 1e-3)
     height = max(16, int(round(width * half_h / half_w)))
     eye = [lo[0] - 10.0 * max(extent.max(), 1.0), centre[1], centre[2]]
     sensor = mi.load_dict({
@@ -236,15 +236,21 @@ def preview(cfg: SceneConfig | str | Path, path: str | Path, *, width: int = 102
         "sampler": {"type": "independent", "sample_count": spp},
     })
     shapes = {f"s{j}": s for j, s in enumerate(built.scene.shapes())}
-    scene = mi.load_dict({"type": "scene", "integrator": {"type": "direct"},
+    scene = mi.load_dict({"type": "scene", "integrator": {"type": "direct", "hide_emitters": True},
                           "light": {"type": "constant", "radiance": {"type": "rgb", "value": 0.8}}
                           if "rgb" in mi.variant() else {"type": "constant", "radiance": 0.8},
                           "sun": {"type": "directional", "direction": [1.0, 0.4, -1.0], "irradiance": 2.0},
                           **shapes})
     img = np.array(mi.render(scene, sensor=sensor, spp=spp))
-    img = np.clip(img / max(np.percentile(img, 99.5), 1e-6), 0, 1) ** (1 / 2.2)
-    if img.ndim == 3 and img.shape[2] == 1:
-        img = np.repeat(img, 3, axis=2)
+    if img.ndim == 2:
+        img = img[..., None]
+    lum = img.mean(axis=2)
+    fg = lum > 0
+    scale = np.percentile(lum[fg], 99.5) if fg.any() else 1.0
+    shade = np.clip(lum / max(scale, 1e-6), 0, 1) ** (1 / 2.2)
+    # Wood in bark brown on a white background (emitters hidden: background renders 0).
+    bark = np.array([0.45, 0.30, 0.18])
+    img = np.where(fg[..., None], (0.25 + 0.75 * shade[..., None]) * bark / bark.max(), 1.0)
     from PIL import Image  # noqa: PLC0415
     with atomic_file(path) as tmp:
         Image.fromarray((img * 255).astype(np.uint8)).save(tmp, format="PNG")

@@ -148,6 +148,23 @@ def _photo_gap_run(args: argparse.Namespace) -> int:
     return 2 if failed else 0
 
 
+def _derive_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--generations", "-n", type=int, required=True, metavar="N",
+                   help="number of rewrites of the axiom F (the paper uses 4-7)")
+    p.add_argument("--stochastic", action="store_true",
+                   help="use the three-successor stochastic grammar (0.33/0.33/0.34)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the stochastic choices (default 0)")
+
+
+@command("derive", "Print the SIMLIDAR apple L-system derivation in the paper's Table 1 notation",
+         _derive_args)
+def _derive_run(args: argparse.Namespace) -> int:
+    from .plants.apple import apple_derivation_string
+
+    print(apple_derivation_string(args.generations, stochastic=args.stochastic, seed=args.seed))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
     p = argparse.ArgumentParser(prog="simlidar-mi", description=__doc__.splitlines()[0])

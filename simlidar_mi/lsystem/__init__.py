@@ -1,0 +1,27 @@
+"""L-systems: module strings, grammars, parallel derivation and the 3D turtle.
+
+Pure numpy; nothing here imports Mitsuba.
+
+>>> from simlidar_mi.lsystem import parse_grammar, derive, format_table1
+>>> g = parse_grammar("axiom: F\\nF -> InIn[r+InIn+F]In[R-InF]InF")
+>>> format_table1(derive(g, 1))
+'[I01I01[t+I01I01+F]I01[T-I01F]I01F]'
+"""
+from __future__ import annotations
+
+from .derive import DEFAULT_MAX_MODULES, derive, predict_size
+from .grammar import (Const, GenerationArg, Grammar, Production, Successor, Word,
+                      parse_grammar)
+from .modules import DEFAULT_ALPHABET, Module, ModuleString
+from .notation import format_table1
+from .turtle import (INITIAL_FRAME, branch_diameter_m, branch_length_m, interpret,
+                     match_brackets, prune_descending, turtle_segments)
+
+__all__ = [
+    "Module", "ModuleString", "DEFAULT_ALPHABET",
+    "Grammar", "Production", "Successor", "Word", "Const", "GenerationArg", "parse_grammar",
+    "derive", "predict_size", "DEFAULT_MAX_MODULES",
+    "format_table1",
+    "interpret", "turtle_segments", "prune_descending", "match_brackets",
+    "branch_length_m", "branch_diameter_m", "INITIAL_FRAME",
+]

@@ -99,9 +99,9 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "angle_deg": Key(FLOAT, 20.0, _finite),
         "rotation_deg": Key(FLOAT, 20.0, _finite),
         "d_min_m": Key(FLOAT, 0.005, positive),
-        "h0_m": Key(FLOAT, 0.5, positive),
-        "pruning": Key(BOOL, True),
-        "stochastic": Key(BOOL, True),
+        "h0_m": Key(FLOAT, 0.4, positive, "trunk element length (order 1)"),
+        "pruning": Key(BOOL, False),
+        "stochastic": Key(BOOL, False),
     },
     "ground": {
         "enabled": Key(BOOL, True),
@@ -120,6 +120,70 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "footprint": Key(INT, 0, nonneg, "dot-matrix precision P: (P+1)² sub-beams"),
         "escape_m": Key(FLOAT, 1000.0, positive, "range reported for beams that hit nothing"),
         "max_beams": Key(INT, 200_000_000, at_least(1), "refuse scans larger than this"),
+    },
+    # --- gap fraction (simlidar_mi.gapfraction); generators validate their own laws too
+    "random_leaves": {
+        "n_leaves": Key(INT, 1000, nonneg, "number of flat leaves N (before periodic copies)"),
+        "leaf_area_m2": Key(FLOAT, 0.001, positive, "one-sided area a of every leaf, m²"),
+        "plot_size_m": Key(LIST, [1.0, 1.0], lambda v: None if len(v) == 2 and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0
+            for x in v) else "must be [width_x, length_y], two numbers > 0 (metres)",
+            "periodic plot [0, w] × [0, l]"),
+        "height_range_m": Key(LIST, [0.0, 0.5], lambda v: None if len(v) == 2 and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+            for x in v) and v[0] <= v[1] else "must be [z_min, z_max], finite, z_min ≤ z_max (metres)",
+            "leaf-centre heights, uniform"),
+        "angle_law": Key(STR, "spherical", one_of("horizontal", "vertical", "spherical")),
+        "shape": Key(STR, "square", one_of("square", "disc")),
+        "n_sides": Key(INT, 16, at_least(3), "polygon sides of a disc leaf"),
+    },
+    "strawberry": {
+        "rows": Key(INT, 4, at_least(1), "rows run along x"),
+        "plants_per_row": Key(INT, 4, at_least(1)),
+        "inter_row_m": Key(FLOAT, 0.268, positive, "Table 3: 0.268 ± 0.03 m"),
+        "inter_row_sd_m": Key(FLOAT, 0.03, nonneg),
+        "intra_row_m": Key(FLOAT, 0.227, positive, "Table 3: 0.227 ± 0.02 m"),
+        "intra_row_sd_m": Key(FLOAT, 0.02, nonneg),
+        "leaves_per_plant_mean": Key(FLOAT, 42.0, positive, "Table 3: 42 ± 5"),
+        "leaves_per_plant_sd": Key(FLOAT, 5.0, nonneg),
+        "base_height_m": Key(FLOAT, 0.0, nonneg, "petioles' start point above the ground"),
+        "extraction": Key(LIST, [44, 39, 44], lambda v: None if all(
+            isinstance(x, int) and not isinstance(x, bool) and x >= 0 for x in v)
+            else "must be a list of integers ≥ 0 (leaves removed at each step)",
+            "leaves removed in successive steps (paper: 44, 39, 44)"),
+    },
+    "strawberry.leaf": {  # StrawberryLeafParams; omitted keys keep the paper's Tables 1–3
+        **{k: Key(FLOAT, None, _finite) for k in (
+            "area_mean_m2", "area_sd_m2", "b_over_a_mean", "b_over_a_sd", "c_over_b_mean",
+            "c_over_b_sd", "p_over_a_mean", "p_over_a_sd", "lateral_area_ratio",
+            "lateral_b_over_a_factor", "lateral_c_over_b_factor", "alpha_mean_deg", "alpha_sd_deg",
+            "beta_mean_deg", "beta_sd_deg", "gamma_mean_deg", "gamma_sd_deg", "lambda_mean_deg",
+            "lambda_sd_deg", "theta_mean_deg", "theta_sd_deg", "phi_mean_deg", "phi_sd_deg")},
+        "petiole_zenith": Key(STR, None, one_of("phi", "theta"),
+                              "which petiole angle is the zenith; the other is the divergence"),
+    },
+    "gapfraction": {
+        "cameras": Key(LIST, ["orthographic", "perspective"], lambda v: None if v and all(
+            x in ("orthographic", "perspective") for x in v) and len(set(v)) == len(v)
+            else "must be a non-empty list of distinct 'orthographic' / 'perspective'"),
+        "zeniths_deg": Key(LIST, [0.0, 15.0, 30.0], lambda v: None if v and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and 0 <= x <= 80 for x in v)
+            and len(set(v)) == len(v) else "must be a non-empty list of distinct angles in [0, 80] degrees",
+            "view zenith angles"),
+        "azimuth_deg": Key(FLOAT, 0.0, _finite, "view azimuth relative to the rows (0 = along them)"),
+        "resolution": Key(INT, 1024, at_least(1), "pixels on the long image side"),
+        "spp": Key(INT, 4, at_least(1), "samples per pixel (stratified)"),
+        "window": Key(STR, "auto", one_of("auto", "inset", "periodic"),
+                      "analysis window: inset from the plot edges, or a periodic tiling"),
+        "window_fraction": Key(FLOAT, 1.0, lambda v: None if 0 < v <= 1 else "must lie in (0, 1]",
+                               "window within this central fraction of the image"),
+        "margin_m": Key(FLOAT, None, nonneg, "inset from the plot edges; default one leaf size"),
+        "fov_deg": Key(FLOAT, 60.0, lambda v: None if 0 < v < 170 else "must lie in (0, 170) degrees",
+                       "perspective field of view along each image axis"),
+        "camera_height_m": Key(FLOAT, 1.0, positive, "perspective camera above the highest leaf"),
+        "jitter": Key(BOOL, False, None, "jitter samples in their strata (seeded by scene.seed)"),
+        "mask_threshold": Key(FLOAT, 0.5, lambda v: None if 0 < v <= 1 else "must lie in (0, 1]",
+                              "coverage drawn as vegetation in mask PNGs (display only)"),
     },
 }
 # Sections that hold a list of tables ([[primitive]]).

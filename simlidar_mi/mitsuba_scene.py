@@ -3,7 +3,8 @@
 Branch representations (see BENCHMARKS.md for what each costs and how exact it is):
 
 ``mesh``
-    One merged triangle mesh, every branch a closed k-facet prism (k-gon end caps).
+    One merged triangle mesh, every branch a k-facet prism, with k-gon caps on the
+    ends that beams can meet (tips, bases, steps down in diameter; see exposed_ends).
     The radius is scaled by π/(k·sin(π/k)) so the mean projected width over view
     azimuths equals the cylinder's (a k-prism's mean width is k·sin(π/k)/π of it).
 ``cylinder``
@@ -69,11 +70,12 @@ def _orthonormal(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def prism_mesh(p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, k: int,
-               caps: bool = True, sides: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Vertices (V,3), faces (F,3) and owner (F,) of closed k-gon prisms around segments.
+               caps=True, sides: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices (V,3), faces (F,3) and owner (F,) of k-gon prisms around segments.
 
-    ``radius`` is the circumradius used as given (callers scale it).  Coordinates stay
-    float64 here; the caller converts after subtracting the origin.
+    ``radius`` is the circumradius used as given (callers scale it).  ``caps`` is a bool,
+    or a pair of (n,) bool arrays saying which p0 and p1 ends get a k-gon cap.
+    Coordinates stay float64 here; the caller converts after subtracting the origin.
     """
     n = len(radius)
     axis = p1 - p0
@@ -85,16 +87,44 @@ def prism_mesh(p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, k: int,
     verts = np.concatenate([p0[:, None, :] + ring, p1[:, None, :] + ring], axis=1)  # (n, 2k, 3)
     j = np.arange(k)
     jn = (j + 1) % k
-    local = []
+    if isinstance(caps, (bool, np.bool_)):
+        caps = (np.full(n, bool(caps)), np.full(n, bool(caps)))
+    local, which = [], []  # which: 0 side, 1 cap at p0, 2 cap at p1
     if sides:
         local += [np.stack([j, jn, k + j], 1), np.stack([jn, k + jn, k + j], 1)]
-    if caps and k >= 3:
-        t = np.arange(1, k - 1)
-        local += [np.stack([np.zeros_like(t), t + 1, t], 1), np.stack([k + np.zeros_like(t), k + t, k + t + 1], 1)]
+        which += [0] * (2 * k)
+    t = np.arange(1, k - 1)
+    local += [np.stack([np.zeros_like(t), t + 1, t], 1), np.stack([k + np.zeros_like(t), k + t, k + t + 1], 1)]
+    which += [1] * len(t) + [2] * len(t)
     local = np.concatenate(local).astype(np.int64)
+    which = np.asarray(which)
+    keep = np.ones((n, len(local)), bool)
+    keep[:, which == 1] = np.asarray(caps[0])[:, None]
+    keep[:, which == 2] = np.asarray(caps[1])[:, None]
     faces = local[None, :, :] + (2 * k * np.arange(n))[:, None, None]
-    owner = np.repeat(np.arange(n), len(local))
-    return verts.reshape(-1, 3), faces.reshape(-1, 3), owner
+    owner = np.broadcast_to(np.arange(n)[:, None], keep.shape)
+    return verts.reshape(-1, 3), faces[keep], owner[keep]
+
+
+def exposed_ends(p0: np.ndarray, p1: np.ndarray, diameter: np.ndarray,
+                 tol_m: float = 1e-7) -> tuple[np.ndarray, np.ndarray]:
+    """Which segment ends need a cap: those not continued by a segment at least as thick.
+
+    A joint where the next segment (same or larger diameter) starts covers the end
+    disc up to a thin wedge on the outer side of the bend; free tips, bases and steps
+    down in diameter stay open to beams and are capped.
+    """
+    n = len(diameter)
+    keys = np.round(np.concatenate([p0, p1]) / tol_m).astype(np.int64)
+    _, inv = np.unique(keys, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    start_d = np.zeros(inv.max() + 1 if n else 0)  # thickest segment starting at each point
+    end_d = np.zeros_like(start_d)  # thickest segment ending at each point
+    np.maximum.at(start_d, inv[:n], diameter)
+    np.maximum.at(end_d, inv[n:], diameter)
+    cap0 = end_d[inv[:n]] < diameter
+    cap1 = start_d[inv[n:]] < diameter
+    return cap0, cap1
 
 
 def _mi_mesh(mi, name: str, vertices: np.ndarray, faces: np.ndarray):
@@ -222,7 +252,8 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     elem_of_branch = kept_index.astype(np.uint32)  # ids refer to rows of the input branches
     if len(kept):
         if representation == "mesh":
-            v, f, owner = prism_mesh(p0, p1, radius * np.pi / (k * np.sin(np.pi / k)), k)
+            caps = exposed_ends(kept.p0, kept.p1, kept.diameter)
+            v, f, owner = prism_mesh(p0, p1, radius * np.pi / (k * np.sin(np.pi / k)), k, caps=caps)
             shapes["wood_mesh"] = _mi_mesh(mi, "wood_mesh", v, f)
             groups.append(("wood_mesh", CLASS_CODES["wood"], elem_of_branch[owner]))
             n_tri += len(f)
@@ -232,7 +263,8 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
                 shapes[key] = mi.load_dict({"type": "cylinder", "p0": p0[j].tolist(),
                                             "p1": p1[j].tolist(), "radius": float(radius[j])})
                 groups.append((key, CLASS_CODES["wood"], elem_of_branch[j:j + 1]))
-            v, f, owner = prism_mesh(p0, p1, radius, CAP_SIDES, sides=False)
+            v, f, owner = prism_mesh(p0, p1, radius, CAP_SIDES, sides=False,
+                                     caps=exposed_ends(kept.p0, kept.p1, kept.diameter))
             shapes["wood_caps"] = _mi_mesh(mi, "wood_caps", v, f)
             groups.append(("wood_caps", CLASS_CODES["wood"], elem_of_branch[owner]))
             n_tri += len(f)

@@ -299,3 +299,20 @@ def test_failed_write_keeps_previous_outputs(tmp_path, monkeypatch):
     assert (out / "scan.exr").read_bytes() == before
     assert sorted(p.name for p in out.iterdir()) == ["measures.json", "scan.exr"]
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_caps_only_on_exposed_ends():
+    """A chain trunk → trunk → thinner twig: caps at the base, where the twig steps down, and at the tip."""
+    from simlidar_mi.mitsuba_scene import exposed_ends
+    p0 = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 2.0]])
+    p1 = np.array([[0, 0, 1], [0, 0, 2], [0, 0.5, 2.5]])
+    d = np.array([0.1, 0.1, 0.05])
+    cap0, cap1 = exposed_ends(p0, p1, d)
+    np.testing.assert_array_equal(cap0, [True, False, False])  # twig's base sits inside the trunk end
+    np.testing.assert_array_equal(cap1, [False, True, True])   # trunk top only continued by a thinner twig
+    # A beam straight down the trunk's axis from above meets the capped top at z = 2.
+    b = Branches(p0, p1, d, np.ones(3, np.int32), np.zeros(3, np.int32))
+    built = build_scene(b, representation="mesh", facets=8)
+    s = ScanSettings(0.0, 3.0, -0.001, 0.002, 0, 1, -90.0, 1.0, 1, ground=False)
+    res = scan(built, s)
+    assert res.cls[0, 0] == 2 and res.range_m[0, 0] == pytest.approx(1.0, abs=1e-5)

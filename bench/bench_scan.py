@@ -1,0 +1,186 @@
+"""What accuracy costs in time for the tractor LiDAR scan (results go to BENCHMARKS.md).
+
+    .venv/bin/python bench/bench_scan.py [--quick] [--only reps|table3|linear]
+
+Tables (markdown on stdout, also bench/out/scan_bench.md):
+1. representation (mesh k = 6, 8, 12, 24; cylinder; linearcurve) × footprint P = 0..3 on
+   the 7-iteration, 4-tree orchard: build s, scan s, beams/s, A_IM, and the error against
+   the float64 reference (simlidar_mi.reference) on a sample of ≥ 100k beams;
+2. SIMLIDAR Table 3 (iterations 4–7 × 1–4 trees): branches, N×M, seconds per stage and end
+   to end, peak RSS (each row in a fresh process), next to the paper's minutes;
+3. scan time against beam count (linearity) at P = 0.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from simlidar_mi.config import load_scene  # noqa: E402
+from simlidar_mi.reference import compare, reference_scan  # noqa: E402
+from simlidar_mi.scan import resolve_settings, scan  # noqa: E402
+from simlidar_mi.survey import build, generate  # noqa: E402
+
+SCENE = REPO / "scenes" / "simlidar_table3_7x4.toml"
+PAPER_TABLE3 = {  # (iterations, trees): (branches, N×M, minutes) — SIMLIDAR Table 3
+    (4, 1): (360, 558930, 2), (5, 1): (1497, 561935, 4), (6, 1): (5564, 504840, 11),
+    (7, 1): (15168, 579965, 26), (4, 2): (928, 931550, 6), (5, 2): (3056, 1063770, 12),
+    (6, 2): (10415, 1039730, 31), (7, 2): (29779, 1319195, 96), (4, 3): (1011, 1271115, 7),
+    (5, 3): (5112, 1550580, 24), (6, 3): (15229, 1562600, 61), (7, 3): (48250, 1571615, 174),
+    (4, 4): (2064, 1634720, 15), (5, 4): (4991, 2482130, 32), (6, 4): (20020, 2404000, 135),
+    (7, 4): (44658, 2467105, 210),
+}
+
+
+def machine() -> str:
+    cpu = "unknown CPU"
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import drjit
+    import mitsuba
+    return (f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, "
+            f"Python {platform.python_version()}, mitsuba {mitsuba.__version__}, drjit {drjit.__version__}, "
+            f"libLLVM {os.environ.get('DRJIT_LIBLLVM_PATH', '?')}")
+
+
+def timed(fn, *a, **k):
+    t = time.perf_counter()
+    out = fn(*a, **k)
+    return out, time.perf_counter() - t
+
+
+def representations(quick: bool) -> str:
+    reps = [("mesh", 6), ("mesh", 8), ("mesh", 12), ("mesh", 24), ("cylinder", 8), ("linearcurve", 8)]
+    footprints = [0, 1] if quick else [0, 1, 2, 3]
+    cfg = load_scene(SCENE)
+    geo = generate(cfg)
+    lo, hi = geo.bounds_m()
+    rows = ["| representation | P | build s | scan s | beams/s | A_IM m² | ref beams | "
+            "hit/miss disagree % | false hit % | false miss % | abs Δrange median mm | abs Δrange p99 mm |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    refs = {}
+    for P in footprints:
+        settings = resolve_settings({**cfg["scan"], "footprint": P}, cfg["ground"], lo, hi)
+        # ≥ 100k beams: evenly spaced sweeps across the whole row.
+        n_pos = int(np.ceil(100_000 / settings.n_angles))
+        positions = np.unique(np.linspace(0, settings.n_positions - 1, n_pos).round().astype(int))
+        ref, t_ref = timed(reference_scan, geo.branches, settings, positions)
+        refs[P] = (settings, positions, ref)
+        print(f"  reference P={P}: {len(positions) * settings.n_angles} beams in {t_ref:.1f} s",
+              file=sys.stderr)
+    for rep, k in reps:
+        cfg_r = load_scene(SCENE, [f'scene.representation="{rep}"', f"scene.facets={k}"])
+        built, t_build = timed(build, cfg_r, geo)
+        for P in footprints:
+            settings, positions, ref = refs[P]
+            scan(built, settings)  # warm the kernel cache: timings are steady-state
+            res, t_scan = timed(scan, built, settings)
+            st = compare(res.range_m[positions], res.cls[positions], ref, settings.escape_m)
+            name = f"mesh k={k}" if rep == "mesh" else rep
+            rows.append(f"| {name} | {P} | {t_build:.2f} | {t_scan:.3f} | {settings.n_beams / t_scan / 1e6:.1f} M | "
+                        f"{res.impacted_area_m2():.4f} | {st['n_beams']} | {st['disagree_pct']:.3f} | "
+                        f"{st['false_hit_pct']:.3f} | {st['false_miss_pct']:.3f} | "
+                        f"{1e3 * st['drange_median_m']:.3f} | {1e3 * st['drange_p99_m']:.2f} |")
+            print(rows[-1], file=sys.stderr)
+        del built
+    s0 = refs[0][0]
+    return (f"Scene `{SCENE.relative_to(REPO)}`: {len(geo.branches)} branches, N×M = "
+            f"{s0.n_positions}×{s0.n_angles} = {s0.n_beams} beams, (P+1)² sub-beams each.\n\n" + "\n".join(rows))
+
+
+ROW_SCRIPT = r"""
+import json, sys, time, resource
+t0 = time.perf_counter()
+from simlidar_mi.survey import run_scan
+from simlidar_mi.config import load_scene
+cfg = load_scene(sys.argv[1], sys.argv[3:])
+run = run_scan(cfg, sys.argv[2], write_las=False, write_png=False)
+m = run.measures
+print(json.dumps({"n_branches": m["n_branches"], "N": m["N"], "M": m["M"], "seconds": m["seconds"],
+                  "wall": time.perf_counter() - t0,
+                  "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+"""
+
+
+def table3(quick: bool) -> str:
+    rows = ["| iterations | trees | branches (paper) | branches | N×M (paper) | N×M | generate s | build s | "
+            "scan s | write EXR s | end to end s | process s | peak RSS MB | paper min |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    out = REPO / "bench" / "out" / "table3"
+    combos = [(it, n) for n in (1, 2, 3, 4) for it in (4, 5, 6, 7)]
+    if quick:
+        combos = [(4, 1), (7, 4)]
+    for it, n in combos:
+        args = [sys.executable, "-c", ROW_SCRIPT, str(SCENE), str(out / f"{it}x{n}"),
+                f"orchard.tree.iterations={it}", f"orchard.n_trees={n}"]
+        t = time.perf_counter()
+        proc = subprocess.run(args, capture_output=True, text=True, cwd=REPO)
+        wall = time.perf_counter() - t
+        if proc.returncode:
+            raise SystemExit(proc.stderr)
+        r = json.loads(proc.stdout.strip().splitlines()[-1])
+        s = r["seconds"]
+        e2e = sum(s.values())
+        pb, pnm, pmin = PAPER_TABLE3[(it, n)]
+        rows.append(f"| {it} | {n} | {pb} | {r['n_branches']} | {pnm:,} | {r['N'] * r['M']:,} | "
+                    f"{s['generate']:.2f} | {s['build']:.2f} | {s['scan']:.2f} | {s['write']:.2f} | "
+                    f"{e2e:.2f} | {wall:.2f} | {r['rss_mb']:.0f} | {pmin} |")
+        print(rows[-1], file=sys.stderr)
+    return "\n".join(rows)
+
+
+def linearity() -> str:
+    cfg = load_scene(SCENE)
+    geo = generate(cfg)
+    built = build(cfg, geo)
+    lo, hi = geo.bounds_m()
+    rows = ["| Δy m | Δθ ° | beams | scan s | beams/s | s per M beams |", "|---|---|---|---|---|---|"]
+    for dy, dth in [(0.008, 0.5), (0.004, 0.5), (0.004, 0.25), (0.002, 0.25), (0.001, 0.25), (0.001, 0.125)]:
+        st = resolve_settings({**cfg["scan"], "dy_m": dy, "dtheta_deg": dth}, cfg["ground"], lo, hi)
+        scan(built, st)
+        best = min(timed(scan, built, st)[1] for _ in range(3))
+        rows.append(f"| {dy} | {dth} | {st.n_beams:,} | {best:.3f} | {st.n_beams / best / 1e6:.1f} M | "
+                    f"{best / st.n_beams * 1e6:.4f} |")
+        print(rows[-1], file=sys.stderr)
+    return "\n".join(rows)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer rows (smoke run)")
+    ap.add_argument("--only", choices=["reps", "table3", "linear"])
+    a = ap.parse_args()
+    parts = [f"Machine: {machine()}  \nDate: {time.strftime('%Y-%m-%d')}  \n"
+             f"Command: `.venv/bin/python bench/bench_scan.py{' --quick' if a.quick else ''}"
+             f"{' --only ' + a.only if a.only else ''}`\n"]
+    if a.only in (None, "table3"):
+        parts.append("### SIMLIDAR Table 3 on Mitsuba 3\n\n" + table3(a.quick))
+    if a.only in (None, "reps"):
+        parts.append("### Representation × footprint (7 iterations, 4 trees)\n\n" + representations(a.quick))
+    if a.only in (None, "linear"):
+        parts.append("### Scan time against beam count (default representation, P = 0)\n\n" + linearity())
+    text = "\n\n".join(parts) + "\n"
+    out = REPO / "bench" / "out"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"scan_bench{'_' + a.only if a.only else ''}.md").write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

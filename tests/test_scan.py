@@ -313,6 +313,6 @@ def test_caps_only_on_exposed_ends():
     # A beam straight down the trunk's axis from above meets the capped top at z = 2.
     b = Branches(p0, p1, d, np.ones(3, np.int32), np.zeros(3, np.int32))
     built = build_scene(b, representation="mesh", facets=8)
-    s = ScanSettings(0.0, 3.0, -0.001, 0.002, 0, 1, -90.0, 1.0, 1, ground=False)
+    s = ScanSettings(0.0, 3.0, -0.04, 0.002, 0, 1, -90.0, 1.0, 1, ground=False)  # clear of the twig
     res = scan(built, s)
     assert res.cls[0, 0] == 2 and res.range_m[0, 0] == pytest.approx(1.0, abs=1e-5)

@@ -84,7 +84,7 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "name": Key(STR, "scene"),
         "seed": Key(INT, 0, nonneg, "master seed; every tree/plant gets a child stream"),
         "representation": Key(STR, "mesh", one_of("mesh", "cylinder", "linearcurve")),
-        "facets": Key(INT, 8, at_least(3), "prism facets k of the mesh representation"),
+        "facets": Key(INT, 12, at_least(3), "prism facets k of the mesh representation"),
         "origin_m": Key(LIST, None, vec3, "float64 scene origin; default bbox centre"),
         "variant": Key(STR, "llvm_ad_mono"),
     },

@@ -213,7 +213,7 @@ def read_obj(path: str, source: str | None = None) -> tuple[np.ndarray, np.ndarr
 
 def build_scene(branches: Branches, leaves: Leaves | None = None,
                 primitives: list[Primitive] = (), *, representation: str = "mesh",
-                facets: int = 8, origin_m=None, variant: str | None = None,
+                facets: int = 12, origin_m=None, variant: str | None = None,
                 source: str | None = None) -> BuiltScene:
     """Turn plain geometry into a Mitsuba scene for range/coverage integrators.
 

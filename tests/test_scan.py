@@ -16,7 +16,7 @@ from simlidar_mi.reference import compare, reference_scan
 from simlidar_mi.scan import ScanSettings, resolve_settings, scan
 from simlidar_mi.survey import run_scan
 
-REPRESENTATIONS = [("mesh", 8), ("mesh", 24), ("cylinder", 8), ("linearcurve", 8)]
+REPRESENTATIONS = [("mesh", 12), ("mesh", 8), ("cylinder", 8), ("linearcurve", 8)]  # mesh 12: the default
 
 
 def one_branch(p0, p1, d) -> Branches:
@@ -316,3 +316,10 @@ def test_caps_only_on_exposed_ends():
     s = ScanSettings(0.0, 3.0, -0.04, 0.002, 0, 1, -90.0, 1.0, 1, ground=False)  # clear of the twig
     res = scan(built, s)
     assert res.cls[0, 0] == 2 and res.range_m[0, 0] == pytest.approx(1.0, abs=1e-5)
+
+
+@pytest.mark.parametrize("diameter,coord", [(-0.01, 0.0), (float("nan"), 0.0), (0.01, float("inf"))])
+def test_bad_branch_values_are_refused(diameter, coord):
+    b = one_branch([2.0, 0.0, coord], [2.0, 0.0, 1.0], diameter)
+    with pytest.raises(ConfigError, match=r"branches\.(diameter|p0)\[0\]"):
+        build_scene(b)

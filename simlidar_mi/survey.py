@@ -230,7 +230,7 @@ def preview(cfg: SceneConfig | str | Path, path: str | Path, *, width: int = 102
     sensor = mi.load_dict({
         "type": "orthographic",
         "to_world": mi.ScalarTransform4f.look_at(origin=eye, target=centre.tolist(), up=[0, 0, 1])
-        @ mi.ScalarTransform4f.scale([half_w, half_h, 1.0]),
+        @ mi.ScalarTransform4f.scale([half_w, half_w, 1.0]),  # Mitsuba applies the film aspect to y
         "film": {"type": "hdrfilm", "width": width, "height": height, "pixel_format": "rgb"
                  if "rgb" in mi.variant() else "luminance"},
         "sampler": {"type": "independent", "sample_count": spp},

@@ -56,10 +56,13 @@ def _scan_run(args: argparse.Namespace) -> int:
     run = run_scan(args.scene, args.out, _overrides(args), write_las=not args.no_las,
                    write_png=not args.no_png, progress=sys.stderr.isatty())
     m = run.measures
-    print(f"{m['N']}×{m['M']} beams, {m['n_branches']} branches ({m['representation']}), "
-          f"hits {m['hits']}")
-    print(f"A_IM = {m['A_IM_m2']:.6g} m²" + (f", A_PR = {m['A_PR_m2']:.6g} m², A_L = {m['A_L_m2']:.6g} m²"
-                                           if "A_PR_m2" in m else ""))
+    grids = [(m["N"], m["M"])] if "N" in m else [(leg["N"], leg["M"]) for leg in m["legs"]]
+    print(f"{' + '.join(f'{n}×{k}' for n, k in grids)} beams ({m['platform']}), {m['n_branches']} branches "
+          f"({m['representation']}), {m['n_leaf_triangles']} leaf triangles, hits {m['hits']}")
+    areas = [f"{name} = {m[key]:.6g} m²" for name, key in
+             (("A_IM", "A_IM_m2"), ("A_PR", "A_PR_m2"), ("A_L", "A_L_m2")) if key in m]
+    if areas:
+        print(", ".join(areas))
     print("seconds: " + ", ".join(f"{k} {v:.3f}" for k, v in m["seconds"].items()))
     for kind, path in run.files.items():
         print(f"wrote {path}")

@@ -73,6 +73,32 @@ def vec3(v):
     return None if all(math.isfinite(x) for x in v) else "must hold finite numbers"
 
 
+def _numbers(v, n=None):
+    return (isinstance(v, list) and (n is None or len(v) == n)
+            and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v))
+
+
+def range3(v):
+    if not _numbers(v, 3):
+        return "must be [min, max, step] in degrees"
+    return None if v[2] > 0 and v[1] > v[0] else "needs max > min and step > 0"
+
+
+def vec2(v):
+    return None if _numbers(v, 2) else "must be a list of two numbers [x, y] in metres"
+
+
+def azimuth(v):
+    if isinstance(v, list):
+        return range3(v)
+    return None if math.isfinite(v) else "must be a finite number"
+
+
+def waypoints(v):
+    ok = isinstance(v, list) and len(v) >= 2 and all(_numbers(p, 3) for p in v)
+    return None if ok else "must be a list of at least two [x, y, z] points"
+
+
 FLOAT = (int, float)
 INT = (int,)
 BOOL = (bool,)
@@ -122,6 +148,22 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "max_beams": Key(INT, 200_000_000, at_least(1), "refuse scans larger than this"),
     },
     # --- gap fraction (simlidar_mi.gapfraction); generators validate their own laws too
+    "platform": {  # where the scanner is; "tractor" uses [scan]'s x0_m/z0_m/dy_m/dtheta_deg
+        "kind": Key(STR, "tractor", one_of("tractor", "static", "path", "airborne")),
+        "position_m": Key(LIST, None, vec3, "static: scanner position"),
+        "elevation_deg": Key(LIST, [-30.0, 60.0, 0.25], range3, "static/path: [min, max, step]"),
+        "azimuth_deg": Key((int, float, list), 0.0, azimuth, "static: one angle (2D) or [start, stop, step] (3D)"),
+        "waypoints_m": Key(LIST, None, waypoints, "path: [[x, y, z], ...] straight legs between points"),
+        "step_m": Key(FLOAT, 0.01, positive, "path: distance between sweeps"),
+        "side": Key(STR, "right", one_of("right", "left"), "path: side the scanner looks to"),
+        "start_xy_m": Key(LIST, None, vec2, "airborne: start of the flight line"),
+        "end_xy_m": Key(LIST, None, vec2, "airborne: end of the flight line"),
+        "altitude_m": Key(FLOAT, 100.0, positive, "airborne: height above the ground"),
+        "swath_deg": Key(FLOAT, 40.0, positive, "airborne: full scan angle across track"),
+        "speed_m_s": Key(FLOAT, 30.0, positive),
+        "pulse_rate_hz": Key(FLOAT, 300_000.0, positive),
+        "pulses_per_line": Key(INT, 400, at_least(1)),
+    },
     "random_leaves": {
         "n_leaves": Key(INT, 1000, nonneg, "number of flat leaves N (before periodic copies)"),
         "leaf_area_m2": Key(FLOAT, 0.001, positive, "one-sided area a of every leaf, m²"),

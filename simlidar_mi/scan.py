@@ -16,6 +16,7 @@ import numpy as np
 from ._mitsuba import mitsuba
 from .errors import ConfigError
 from .mitsuba_scene import CLASS_CODES, BuiltScene
+from .platforms import BeamPattern, elevation_dirs
 
 CLASS_NAMES = {v: k for k, v in CLASS_CODES.items()}
 NO_ID = 0xFFFFFFFF
@@ -55,6 +56,16 @@ class ScanSettings:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    def pattern(self) -> BeamPattern:
+        """The tractor's beams as a general :class:`~simlidar_mi.platforms.BeamPattern`."""
+        y = self.y_m
+        origins = np.stack([np.full_like(y, self.x0_m), y, np.full_like(y, self.z0_m)], axis=1)
+        return BeamPattern("tractor", origins, np.zeros(len(y)), self.theta_deg,
+                           elevation_dirs(self.theta_deg), np.array([0.0, self.dy_m, 0.0]),
+                           self.dtheta_deg, self.footprint, y, "scanner position y (m)",
+                           "beam elevation θ (°)", self.escape_m, self.ground, self.ground_z_m,
+                           {"angle_kind": "elevation"})
 
 
 def resolve_settings(scan: dict, ground: dict, bbox_min_m, bbox_max_m,
@@ -115,7 +126,7 @@ def resolve_settings(scan: dict, ground: dict, bbox_min_m, bbox_max_m,
 
 @dataclass
 class ScanResult:
-    """An N × M scan: row i = position y_i, column k = angle θ_k.
+    """An N × M scan: row i = platform pose (tractor: position y_i), column k = beam angle.
 
     ``range_m`` is float32 metres (escape distance where nothing was hit), ``cls``
     uint8 (0 escape, 1 ground, 2 wood, 3 leaf), ``element_id`` uint32 (branch row,
@@ -123,7 +134,7 @@ class ScanResult:
     ``hit_fraction`` float32 share of sub-beams meeting vegetation.
     """
 
-    settings: ScanSettings
+    settings: ScanSettings | None  # the tractor's settings; None for other platforms
     range_m: np.ndarray
     cls: np.ndarray
     element_id: np.ndarray
@@ -131,6 +142,11 @@ class ScanResult:
     origin_m: np.ndarray
     seconds: float = 0.0
     metadata: dict = field(default_factory=dict)
+    pattern: BeamPattern | None = None
+
+    def __post_init__(self) -> None:
+        if self.pattern is None:
+            self.pattern = self.settings.pattern()
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -146,13 +162,9 @@ class ScanResult:
 
     def points_m(self) -> np.ndarray:
         """(N, M, 3) float64 first-return points in real coordinates (escapes included)."""
-        s = self.settings
-        th = np.deg2rad(s.theta_deg)
-        r = self.range_m.astype(np.float64)
-        x = s.x0_m + r * np.cos(th)[None, :]
-        z = s.z0_m + r * np.sin(th)[None, :]
-        y = np.broadcast_to(s.y_m[:, None], r.shape)
-        return np.stack([x, y, z], axis=-1)
+        p = self.pattern
+        r = self.range_m.astype(np.float64)[..., None]
+        return p.row_origin_m[:, None, :] + r * p.world_dirs()
 
     def impacted_area_m2(self) -> float:
         """A_IM, the paper's eq. 2: Σ over vegetation hits of Δy·l·(sin θ⁺ − sin θ⁻).
@@ -180,31 +192,41 @@ class ScanResult:
         return float(s.dy_m * np.nansum(np.where(self._hit_weight() > 0, area, 0.0)))
 
     def _hit_weight(self) -> np.ndarray:
+        if self.settings is None:
+            raise ValueError("impacted areas are defined for the tractor scan (paper eq. 2) only")
         if self.settings.footprint > 0:
             return np.where(self.vegetation(), self.hit_fraction, 0.0).astype(np.float64)
         return self.vegetation().astype(np.float64)
 
 
-def scan(built: BuiltScene, settings: ScanSettings, variant: str | None = None) -> ScanResult:
-    """Fire every beam of ``settings`` into ``built`` and return the N × M product."""
+def scan(built: BuiltScene, settings: ScanSettings | BeamPattern,
+         variant: str | None = None) -> ScanResult:
+    """Fire every beam of ``settings`` (tractor) or of a platform's pattern into ``built``."""
     mi = mitsuba(variant)
     o = built.origin_m
-    s = settings
-    sensor = mi.load_dict({
-        "type": "tractor_lidar",
-        "n_positions": s.n_positions, "n_angles": s.n_angles,
-        "y_start": s.y_start_m - o[1], "dy": s.dy_m, "gap": s.gap,
-        "theta_min_deg": s.theta_min_deg, "dtheta_deg": s.dtheta_deg,
-        "x0": s.x0_m - o[0], "z0": s.z0_m - o[2], "footprint": s.footprint,
-        "film": {"type": "hdrfilm", "width": s.n_angles, "height": s.n_positions,
-                 "pixel_format": "luminance", "rfilter": {"type": "box"}},
-    })
-    integrator = mi.load_dict({"type": "lidar_range", "escape": s.escape_m, "ground": s.ground,
-                               "ground_z": s.ground_z_m - o[2]})
+    if isinstance(settings, ScanSettings):
+        s = settings
+        pattern = s.pattern()
+        sensor = mi.load_dict({
+            "type": "tractor_lidar",
+            "n_positions": s.n_positions, "n_angles": s.n_angles,
+            "y_start": s.y_start_m - o[1], "dy": s.dy_m, "gap": s.gap,
+            "theta_min_deg": s.theta_min_deg, "dtheta_deg": s.dtheta_deg,
+            "x0": s.x0_m - o[0], "z0": s.z0_m - o[2], "footprint": s.footprint,
+            "film": _film(s.n_angles, s.n_positions),
+        })
+    else:
+        s, pattern = None, settings
+        sensor = mi.load_dict({"type": "lidar_pattern", "n_positions": pattern.n_rows,
+                               "n_angles": pattern.n_cols, "footprint": pattern.footprint,
+                               "film": _film(pattern.n_cols, pattern.n_rows)})
+        sensor.set_tables(*pattern.sub_tables(o))
+    integrator = mi.load_dict({"type": "lidar_range", "escape": pattern.escape_m,
+                               "ground": pattern.ground, "ground_z": pattern.ground_z_m - o[2]})
     integrator.set_tables(built.shape_class, built.shape_base, built.prim_element)
     t0 = time.perf_counter()
     out = integrator.trace(built.scene, sensor)
-    shape = (s.n_positions, s.n_angles)
+    shape = (pattern.n_rows, pattern.n_cols)
     # .numpy() is a view of Dr.Jit memory: copy before the arrays are released.
     rng = out["range"].numpy().reshape(shape).copy()
     cls = out["class"].numpy().reshape(shape).astype(np.uint8)
@@ -213,4 +235,9 @@ def scan(built: BuiltScene, settings: ScanSettings, variant: str | None = None) 
     seconds = time.perf_counter() - t0
     return ScanResult(s, rng, cls, elem, frac, built.origin_m.copy(), seconds,
                       {"representation": built.representation, "facets": built.facets,
-                       "n_branches": built.n_branches, "n_dropped": built.n_dropped})
+                       "n_branches": built.n_branches, "n_dropped": built.n_dropped}, pattern)
+
+
+def _film(width: int, height: int) -> dict:
+    return {"type": "hdrfilm", "width": width, "height": height, "pixel_format": "luminance",
+            "rfilter": {"type": "box"}}

@@ -114,14 +114,46 @@ class ScanRun:
     files: dict[str, Path] = field(default_factory=dict)
 
 
+def scan_patterns(cfg: SceneConfig, lo_m, hi_m) -> list:
+    """The beam patterns the scene's [platform] asks for (tractor: [scan] settings, eqs. 6-8)."""
+    from .platforms import airborne_pattern, path_patterns, static_pattern  # noqa: PLC0415
+    from .scan import resolve_settings  # noqa: PLC0415
+    pf, sc, gr = cfg["platform"], cfg["scan"], cfg["ground"]
+    common = {"footprint": sc["footprint"], "ground": gr["enabled"], "ground_z_m": gr["z_m"],
+              "source": cfg.source}
+    kind = pf["kind"]
+
+    def need(key):
+        if pf[key] is None:
+            raise ConfigError(f"a {kind} platform needs this key", file=cfg.source, key=f"platform.{key}")
+        return pf[key]
+    if kind == "tractor":
+        return [resolve_settings(sc, gr, lo_m, hi_m, cfg.source)]
+    if kind == "static":
+        az = pf["azimuth_deg"]
+        return [static_pattern(need("position_m"), tuple(pf["elevation_deg"]),
+                               tuple(az) if isinstance(az, list) else float(az),
+                               escape_m=sc["escape_m"], **common)]
+    if kind == "path":
+        return path_patterns(need("waypoints_m"), pf["step_m"], tuple(pf["elevation_deg"]),
+                             side=pf["side"], escape_m=sc["escape_m"], **common)
+    escape = max(sc["escape_m"], 10 * pf["altitude_m"])
+    return [airborne_pattern(need("start_xy_m"), need("end_xy_m"), pf["altitude_m"], pf["swath_deg"],
+                             pf["speed_m_s"], pf["pulse_rate_hz"], pf["pulses_per_line"],
+                             escape_m=escape, **common)]
+
+
 def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
              overrides: list[str] | tuple = (), *, write_las: bool = True,
              write_png: bool = True, progress: bool = False) -> ScanRun:
-    """Generate, build, scan and (with ``out_dir``) write scan.exr, scan.png, points.las, measures.json.
+    """Generate, build, scan and (with ``out_dir``) write the scan's files.
 
-    Files appear together when all are complete; a failure leaves ``out_dir`` as it was.
+    The tractor writes scan.exr, scan.png, points.las and measures.json.  Other
+    platforms write the same, and a multi-leg path one scan_legJ.exr / scan_legJ.png
+    per leg with every leg's points in the one LAS file.  Files appear together when
+    all are complete; a failure leaves ``out_dir`` as it was.
     """
-    from .scan import resolve_settings, scan  # noqa: PLC0415
+    from .scan import scan  # noqa: PLC0415
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, overrides)
     steps = ["generate", "build", "scan", "write"]
@@ -131,9 +163,13 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     t = time.perf_counter()
     geometry = generate(cfg)
     lo, hi = geometry.bounds_m()
-    settings = resolve_settings(cfg["scan"], cfg["ground"], lo, hi, cfg.source)
+    patterns = scan_patterns(cfg, lo, hi)
+    n_beams = sum(p.n_beams for p in patterns)
+    if n_beams * (cfg["scan"]["footprint"] + 1) ** 2 > cfg["scan"]["max_beams"]:
+        raise ConfigError(f"{n_beams} beams exceed scan.max_beams = {cfg['scan']['max_beams']}",
+                          file=cfg.source, key="scan.max_beams", value=cfg["scan"]["max_beams"])
     seconds["generate"] = time.perf_counter() - t
-    bar(f"generated {len(geometry.branches)} branches")
+    bar(f"generated {len(geometry.branches)} branches, {len(geometry.leaves)} leaf triangles")
 
     t = time.perf_counter()
     built = build(cfg, geometry)
@@ -141,27 +177,30 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     bar(f"built {built.representation} scene")
 
     t = time.perf_counter()
-    result = scan(built, settings, cfg["scene"]["variant"])
+    results = [scan(built, p, cfg["scene"]["variant"]) for p in patterns]
     seconds["scan"] = time.perf_counter() - t
-    bar(f"scanned {settings.n_beams} beams")
+    bar(f"scanned {n_beams} beams")
 
-    measures = _scan_measures(cfg, geometry, built, result)
+    measures = _scan_measures(cfg, geometry, built, results)
     files: dict[str, Path] = {}
     t = time.perf_counter()
     if out_dir is not None:
         from .io.exr import write_scan_exr  # noqa: PLC0415
         with staged_dir(out_dir) as stage:
-            write_scan_exr(result, stage / "scan.exr", seed=cfg.seed, scene_sha256=cfg.sha256,
-                           extra={"scene_file": cfg.source, "representation": built.representation,
-                                  "facets": built.facets})
-            files["exr"] = Path(out_dir) / "scan.exr"
-            if write_png:
-                from .io.plots import plot_scan_png  # noqa: PLC0415
-                plot_scan_png(result, stage / "scan.png", title=f"{cfg['scene']['name']}: range image")
-                files["png"] = Path(out_dir) / "scan.png"
+            for j, res in enumerate(results):
+                stem = "scan" if len(results) == 1 else f"scan_leg{j}"
+                write_scan_exr(res, stage / f"{stem}.exr", seed=cfg.seed, scene_sha256=cfg.sha256,
+                               extra={"scene_file": cfg.source, "representation": built.representation,
+                                      "facets": built.facets})
+                files[f"exr{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.exr"
+                if write_png:
+                    from .io.plots import plot_scan_png  # noqa: PLC0415
+                    leg = "" if len(results) == 1 else f", leg {j}"
+                    plot_scan_png(res, stage / f"{stem}.png", title=f"{cfg['scene']['name']}: range image{leg}")
+                    files[f"png{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.png"
             if write_las:
                 from .io.las import write_scan_las  # noqa: PLC0415
-                write_scan_las(result, stage / "points.las")
+                write_scan_las(results if len(results) > 1 else results[0], stage / "points.las")
                 files["las"] = Path(out_dir) / "points.las"
             seconds["write"] = time.perf_counter() - t
             measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}
@@ -171,25 +210,32 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     else:
         measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}
     bar("written")
-    return ScanRun(result, measures, files)
+    return ScanRun(results[0] if len(results) == 1 else results, measures, files)
 
 
-def _scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, result) -> dict:
+def _scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results) -> dict:
     wm = {}
     if len(geometry.branches):
         from .measures import wood_measures  # noqa: PLC0415
         wm = wood_measures(geometry.branches).to_dict()
-    n, m = result.shape
+    first = results[0]
     out = {
         "scene": cfg.source, "scene_sha256": cfg.sha256, "seed": cfg.seed,
         "representation": built.representation, "facets": built.facets,
         "origin_m": [float(x) for x in built.origin_m],
         "n_branches": int(len(geometry.branches)), "n_dropped_zero_length": built.n_dropped,
-        "N": n, "M": m, "footprint": result.settings.footprint,
-        "A_IM_m2": result.impacted_area_m2(), "A_IM_yz_m2": result.impacted_area_yz_m2(),
-        "hits": result.class_counts(),
-        "scan": result.settings.to_dict(),
+        "n_leaf_triangles": int(len(geometry.leaves)),
+        "platform": cfg["platform"]["kind"], "footprint": first.pattern.footprint,
     }
+    if first.settings is not None:  # the tractor: the paper's N × M and impacted areas
+        n, m = first.shape
+        out.update({"N": n, "M": m, "A_IM_m2": first.impacted_area_m2(),
+                    "A_IM_yz_m2": first.impacted_area_yz_m2(), "hits": first.class_counts(),
+                    "scan": first.settings.to_dict()})
+    else:
+        out["legs"] = [{"N": r.shape[0], "M": r.shape[1], "hits": r.class_counts(),
+                        "pattern": r.pattern.to_dict()} for r in results]
+        out["hits"] = {k: sum(leg["hits"][k] for leg in out["legs"]) for k in first.class_counts()}
     for key in ("V_L_m3", "A_L_m2", "A_PR_m2", "A_PR_exact_m2", "per_tree"):
         if key in wm:
             out[key] = wm[key]

@@ -36,24 +36,31 @@ def _header_value(value):
 def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = None,
                    scene_sha256: str = "", extra: dict | None = None) -> Path:
     """Write ``result`` to ``path`` (ZIP compression); returns the path."""
-    s = result.settings
+    s, p = result.settings, result.pattern
     n, m = result.shape
     channels = {
         "range": np.ascontiguousarray(result.range_m, np.float32),
         "class": np.ascontiguousarray(result.cls, np.uint32),
         "branch_id": np.ascontiguousarray(result.element_id, np.uint32),
-        "theta_deg": np.ascontiguousarray(np.broadcast_to(s.theta_deg[None, :], (n, m)), np.float32),
-        "y_m": np.ascontiguousarray(np.broadcast_to((s.y_m - result.origin_m[1])[:, None], (n, m)), np.float32),
     }
-    if s.footprint > 0:
-        channels["hit_fraction"] = np.ascontiguousarray(result.hit_fraction, np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
-              "origin_m": np.asarray(result.origin_m, np.float64),
-              "simlidar_settings": json.dumps(s.to_dict(), sort_keys=True),
-              "scene_sha256": scene_sha256,
-              "y_channel_note": "y_m channel is y minus origin_m[1]; range in metres"}
-    for key, value in s.to_dict().items():
-        header[f"scan_{key}"] = _header_value(value)
+              "origin_m": np.asarray(result.origin_m, np.float64), "scene_sha256": scene_sha256}
+    if s is not None:  # the tractor: θ and y channels, every setting in the header
+        channels["theta_deg"] = np.ascontiguousarray(np.broadcast_to(s.theta_deg[None, :], (n, m)), np.float32)
+        channels["y_m"] = np.ascontiguousarray(
+            np.broadcast_to((s.y_m - result.origin_m[1])[:, None], (n, m)), np.float32)
+        header["simlidar_settings"] = json.dumps(s.to_dict(), sort_keys=True)
+        header["y_channel_note"] = "y_m channel is y minus origin_m[1]; range in metres"
+        for key, value in s.to_dict().items():
+            header[f"scan_{key}"] = _header_value(value)
+    else:  # other platforms: column angle and row coordinate, the pattern in the header
+        channels["angle_deg"] = np.ascontiguousarray(np.broadcast_to(p.col_angle_deg[None, :], (n, m)), np.float32)
+        channels["row_coord"] = np.ascontiguousarray(np.broadcast_to(p.row_coord[:, None], (n, m)), np.float32)
+        header["simlidar_pattern"] = json.dumps(p.to_dict(), sort_keys=True)
+        header["row_coord_label"] = p.row_label
+        header["angle_label"] = p.col_label
+    if p.footprint > 0:
+        channels["hit_fraction"] = np.ascontiguousarray(result.hit_fraction, np.float32)
     if seed is not None:
         header["seed"] = _header_value(seed)
     for key, value in (extra or {}).items():
@@ -75,4 +82,6 @@ def read_scan_exr(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
         raise SimlidarError(f"{path}: cannot read EXR: {exc}") from exc
     if "simlidar_settings" in header:
         header["settings"] = ScanSettings(**json.loads(header["simlidar_settings"]))
+    if "simlidar_pattern" in header:
+        header["pattern"] = json.loads(header["simlidar_pattern"])
     return channels, header

@@ -15,15 +15,18 @@ from .atomic import atomic_file  # noqa: E402
 
 
 def plot_scan_png(result: ScanResult, path: str | Path, title: str = "") -> Path:
-    """Range image: y (m) across, θ (°) up, colour = range of vegetation hits.
+    """Range image: rows (tractor: y in m) across, beam angle (tractor: θ in °) up,
+    colour = range of vegetation hits.
 
-    Ground returns are drawn light brown and escapes white so the canopy stands out.
+    Ground returns are drawn beige and escapes pale so the canopy stands out.
     """
-    s = result.settings
-    img = np.ma.masked_where(~result.vegetation(), result.range_m).T  # (M, N): θ up
-    extent = [s.y_m[0] - s.dy_m / 2, s.y_m[-1] + s.dy_m / 2,
-              s.theta_deg[0] - s.dtheta_deg / 2, s.theta_deg[-1] + s.dtheta_deg / 2]
-    width = 10 if s.n_positions > s.n_angles else 7
+    p = result.pattern
+    img = np.ma.masked_where(~result.vegetation(), result.range_m).T  # (M, N): angle up
+    rows, ang = p.row_coord, p.col_angle_deg
+    half_row = 0.5 * (rows[1] - rows[0]) if len(rows) > 1 else 0.5
+    extent = [rows[0] - half_row, rows[-1] + half_row,
+              ang[0] - p.col_span_deg / 2, ang[-1] + p.col_span_deg / 2]
+    width = 10 if p.n_rows > p.n_cols else 7
     fig, ax = plt.subplots(figsize=(width, 4.8), dpi=120)
     backdrop = np.where(result.cls.T == CLASS_CODES["ground"], 0.85, 1.0)
     ax.imshow(np.dstack([backdrop, backdrop, backdrop]) *
@@ -32,10 +35,10 @@ def plot_scan_png(result: ScanResult, path: str | Path, title: str = "") -> Path
     im = ax.imshow(img, origin="lower", extent=extent, aspect="auto", cmap="viridis",
                    interpolation="nearest")
     fig.colorbar(im, ax=ax, label="range to vegetation (m)")
-    ax.set_xlabel("scanner position y (m)")
-    ax.set_ylabel("beam elevation θ (°)")
+    ax.set_xlabel(p.row_label)
+    ax.set_ylabel(p.col_label)
     counts = result.class_counts()
-    ax.set_title(title or f"{s.n_positions}×{s.n_angles} beams: {counts['wood'] + counts['leaf']} "
+    ax.set_title(title or f"{p.n_rows}×{p.n_cols} beams: {counts['wood'] + counts['leaf']} "
                           f"vegetation, {counts['ground']} ground, {counts['escape']} escape")
     fig.tight_layout()
     with atomic_file(path) as tmp:

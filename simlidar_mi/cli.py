@@ -168,6 +168,29 @@ def _derive_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _gapfraction_args(p: argparse.ArgumentParser) -> None:
+    _scene_args(p)
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder: gap_fraction.csv, gap_fraction.json, a mask PNG and a "
+                        "coverage EXR per image")
+    p.add_argument("--no-images", action="store_true", help="write only the CSV and JSON")
+
+
+@command("gapfraction", "Gap-fraction images (orthographic/perspective, 0/15/30°) of a "
+         "random_leaves or strawberry scene: P0 table, masks, coverage EXRs", _gapfraction_args)
+def _gapfraction_run(args: argparse.Namespace) -> int:
+    from .gapfraction import run_gapfraction
+
+    run = run_gapfraction(args.scene, args.out, _overrides(args), write_images=not args.no_images)
+    print(f"{'camera':<12}  {'zenith':>6}  {'step':>4}  {'p0':>7}  {'lai':>6}  {'spp':>4}  "
+          f"{'size':>10}  {'seconds':>7}")
+    for img in run.images:
+        print(f"{img.camera.kind:<12}  {img.camera.zenith_deg:>6g}  {img.step:>4}  {img.p0:7.4f}  "
+              f"{img.lai:6.3f}  {img.spp:>4}  {f'{img.width}x{img.height}':>10}  {img.seconds:7.3f}")
+    print(f"wrote {run.files['csv']} and {len(run.files) - 2} image files")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
     p = argparse.ArgumentParser(prog="simlidar-mi", description=__doc__.splitlines()[0])

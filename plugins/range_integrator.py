@@ -7,7 +7,9 @@ For every beam of a ``tractor_lidar`` (or any sensor exposing ``n_positions``,
 - ``range``: distance to the first return in metres; ``escape`` for beams that meet
   nothing (above the horizon, or with the ground disabled);
 - ``class``: 0 escape, 1 ground, 2 wood, 3 leaf;
-- ``element_id``: branch index for wood, leaf index for leaves, 0xFFFFFFFF otherwise;
+- ``element_id``: branch index for wood, leaf index for leaves, 0xFFFFFFFF otherwise
+  (for instanced trees, the index within the tree's prototype);
+- ``tree_id`` (scenes with instances only): the instance's tree;
 - ``hit_fraction``: share of sub-beams whose first return is vegetation (wood or leaf).
 
 .. pluginparameters::
@@ -51,14 +53,24 @@ class RangeIntegrator(mi.SamplingIntegrator):
         self._class = mi.UInt32(np.zeros(1, np.uint32))
         self._base = mi.UInt32(np.zeros(1, np.uint32))
         self._prim = mi.UInt32(np.full(1, NO_ID, np.uint32))
+        self._instanced = False
 
     def set_tables(self, shape_class: np.ndarray, shape_base: np.ndarray,
-                   prim_element: np.ndarray) -> None:
+                   prim_element: np.ndarray, instance_tree: np.ndarray | None = None,
+                   instance_proto: np.ndarray | None = None, group_class: np.ndarray | None = None,
+                   group_base: np.ndarray | None = None) -> None:
         """Per-shape class and offset (indexed by Dr.Jit registry id), and the element
-        id of every primitive (triangle, cylinder, curve segment) at shape_base + prim_index."""
-        self._class = mi.UInt32(np.ascontiguousarray(shape_class, np.uint32))
-        self._base = mi.UInt32(np.ascontiguousarray(shape_base, np.uint32))
-        self._prim = mi.UInt32(np.ascontiguousarray(prim_element, np.uint32))
+        id of every primitive (triangle, cylinder, curve segment) at shape_base + prim_index.
+
+        Scenes with instances also give, per instance registry id, its tree id and its
+        prototype's first row in ``group_class``/``group_base`` (rows: prototype ×
+        shape index within the shape group)."""
+        u32 = lambda a: mi.UInt32(np.ascontiguousarray(a, np.uint32))  # noqa: E731
+        self._class, self._base, self._prim = u32(shape_class), u32(shape_base), u32(prim_element)
+        self._instanced = instance_tree is not None
+        if self._instanced:
+            self._inst_tree, self._inst_proto = u32(instance_tree), u32(instance_proto)
+            self._group_class, self._group_base = u32(group_class), u32(group_base)
 
     def trace(self, scene: mi.Scene, sensor: mi.Sensor) -> dict:
         """Cast every beam; return Dr.Jit arrays of length N·M (row-major: position, angle)."""
@@ -77,10 +89,18 @@ class RangeIntegrator(mi.SamplingIntegrator):
         pi = scene.ray_intersect_preliminary(ray, coherent=True)
         hit = pi.is_valid()
         sid = dr.reinterpret_array(mi.UInt32, pi.shape)
-        cls = dr.select(hit, dr.gather(mi.UInt32, self._class, sid, hit), ESCAPE)
-        elem = dr.select(hit, dr.gather(mi.UInt32, self._prim,
-                                        dr.gather(mi.UInt32, self._base, sid, hit) + pi.prim_index,
-                                        hit), NO_ID)
+        cls = dr.gather(mi.UInt32, self._class, sid, hit)
+        base = dr.gather(mi.UInt32, self._base, sid, hit)
+        tree = None
+        if self._instanced:  # only scenes with instances pay for these lookups
+            iid = dr.reinterpret_array(mi.UInt32, pi.instance)
+            in_inst = hit & (iid != 0)
+            row = dr.gather(mi.UInt32, self._inst_proto, iid, in_inst) + pi.shape_index
+            cls = dr.select(in_inst, dr.gather(mi.UInt32, self._group_class, row, in_inst), cls)
+            base = dr.select(in_inst, dr.gather(mi.UInt32, self._group_base, row, in_inst), base)
+            tree = dr.select(in_inst, dr.gather(mi.UInt32, self._inst_tree, iid, in_inst), NO_ID)
+        cls = dr.select(hit, cls, ESCAPE)
+        elem = dr.select(hit, dr.gather(mi.UInt32, self._prim, base + pi.prim_index, hit), NO_ID)
         t = dr.select(hit, pi.t, dr.inf)
         if self.ground:
             # Ground after vegetation: a beam that passes every shape meets the plane.
@@ -90,18 +110,24 @@ class RangeIntegrator(mi.SamplingIntegrator):
             t = dr.select(use_ground, t_ground, t)
             cls = dr.select(use_ground, GROUND, cls)
             elem = dr.select(use_ground, NO_ID, elem)
+            if tree is not None:
+                tree = dr.select(use_ground, NO_ID, tree)
         veg = (cls == WOOD) | (cls == LEAF)
         if S > 1:
             t_min = dr.block_reduce(dr.ReduceOp.Min, t, S)
             first = t == dr.gather(mi.Float, t_min, beam)
             cls_first = dr.block_reduce(dr.ReduceOp.Min, dr.select(first, cls, 255), S)
             elem = dr.block_reduce(dr.ReduceOp.Min, dr.select(first, elem, NO_ID), S)
+            if tree is not None:
+                tree = dr.block_reduce(dr.ReduceOp.Min, dr.select(first, tree, NO_ID), S)
             hit_fraction = dr.block_reduce(dr.ReduceOp.Add, dr.select(veg, 1.0, 0.0), S) / S
             t, cls = t_min, dr.select(dr.isinf(t_min), ESCAPE, cls_first)
         else:
             hit_fraction = dr.select(veg, 1.0, 0.0)
         rng = dr.select(dr.isinf(t), self.escape, t)
         out = {"range": rng, "class": cls, "element_id": elem, "hit_fraction": hit_fraction}
+        if tree is not None:
+            out["tree_id"] = tree
         dr.eval(out)  # one kernel: reading the arrays one by one would trace twice
         return out
 

@@ -39,12 +39,34 @@ CAP_SIDES = 32
 MIN_LENGTH_M = 1e-9
 
 
+@dataclass(frozen=True)
+class Instances:
+    """Identical geometry built once and placed many times (forests).
+
+    ``prototypes[p]`` is (Branches, Leaves) in the prototype's own frame (tree base at
+    the origin); tree t places prototype ``proto_index[t]`` scaled by ``scale[t]``,
+    turned by ``yaw_deg[t]`` about z and moved to ``translation_m[t]`` (float64, real).
+    """
+
+    prototypes: list
+    proto_index: np.ndarray
+    translation_m: np.ndarray
+    yaw_deg: np.ndarray
+    scale: np.ndarray
+    tree_id: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.proto_index)
+
+
 @dataclass
 class BuiltScene:
     """A Mitsuba scene plus the tables that map hits back to our elements.
 
     Element ids: wood hits report the branch's row in ``branches``; explicit
-    primitives report ``len(branches) + j``; leaf hits report the leaf id.
+    primitives report ``len(branches) + j``; leaf hits report the leaf id.  Hits on
+    instances report the row or leaf id within their prototype, and the tree id through
+    ``instance_tree`` (indexed by the instance's registry id).
     """
 
     scene: object
@@ -59,6 +81,22 @@ class BuiltScene:
     facets: int
     bbox_min_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
     bbox_max_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    # Instancing: per instance registry id, its tree id and prototype; per (prototype,
+    # shape index in the group), class and offset into prim_element.
+    instance_tree: np.ndarray | None = None
+    instance_proto: np.ndarray | None = None
+    group_class: np.ndarray | None = None
+    group_base: np.ndarray | None = None
+    n_instances: int = 0
+
+    def integrator_tables(self) -> dict:
+        """Keyword arguments for the range integrator's ``set_tables``."""
+        tables = {"shape_class": self.shape_class, "shape_base": self.shape_base,
+                  "prim_element": self.prim_element}
+        if self.n_instances:
+            tables.update(instance_tree=self.instance_tree, instance_proto=self.instance_proto,
+                          group_class=self.group_class, group_base=self.group_base)
+        return tables
 
 
 def _orthonormal(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -214,7 +252,7 @@ def read_obj(path: str, source: str | None = None) -> tuple[np.ndarray, np.ndarr
 def build_scene(branches: Branches, leaves: Leaves | None = None,
                 primitives: list[Primitive] = (), *, representation: str = "mesh",
                 facets: int = 12, origin_m=None, variant: str | None = None,
-                source: str | None = None) -> BuiltScene:
+                source: str | None = None, instances: Instances | None = None) -> BuiltScene:
     """Turn plain geometry into a Mitsuba scene for range/coverage integrators.
 
     Parameters
@@ -225,6 +263,7 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     representation : 'mesh', 'cylinder' or 'linearcurve'.
     facets : k for the mesh representation (≥ 3).
     origin_m : float64 scene origin; default the bbox centre rounded to metres.
+    instances : prototypes placed as Mitsuba instances (mesh representation only).
     """
     if representation not in REPRESENTATIONS:
         raise ConfigError(f"unknown branch representation; valid: {', '.join(REPRESENTATIONS)}",
@@ -235,6 +274,8 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     leaves = leaves if leaves is not None else Leaves.empty()
     kept, n_dropped, kept_index = clean_branches(branches)
     pts = [kept.p0, kept.p1, leaves.vertices.reshape(-1, 3)]
+    if instances is not None and len(instances):
+        pts.append(np.asarray(instances.translation_m, np.float64))
     if origin_m is None:
         origin = default_origin(np.concatenate(pts) if any(len(p) for p in pts) else np.zeros((0, 3)))
     else:
@@ -292,6 +333,11 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
         groups.append((key, CLASS_CODES[label], np.full(len(f), len(branches) + j, np.uint32)))
         n_tri += len(f)
 
+    group_rows: list[tuple[int, int, int, np.ndarray]] = []  # (prototype, shape index, class, elements)
+    instance_keys: list[tuple[str, int, int]] = []
+    if instances is not None and len(instances):
+        n_tri += _add_instances(mi, instances, origin, k, shapes, group_rows, instance_keys)
+
     scene = mi.load_dict({"type": "scene", **shapes})
     import drjit as dr  # noqa: PLC0415
     reg_ids = dr.reinterpret_array(mi.UInt32, scene.shapes_dr()).numpy() if shapes else np.zeros(0, np.uint32)
@@ -305,6 +351,24 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
         shape_class[rid], shape_base[rid] = cls, offset
         prim_parts.append(elems)
         offset += len(elems)
+    inst = {}
+    if instance_keys:
+        n_groups = max(g[1] for g in group_rows) + 1
+        n_proto = len(instances.prototypes)
+        inst["group_class"] = np.zeros(n_proto * n_groups, np.uint32)
+        inst["group_base"] = np.zeros(n_proto * n_groups, np.uint32)
+        for proto, gidx, cls, elems in group_rows:
+            inst["group_class"][proto * n_groups + gidx] = cls
+            inst["group_base"][proto * n_groups + gidx] = offset
+            prim_parts.append(elems)
+            offset += len(elems)
+        size_i = max(by_key[key] for key, _, _ in instance_keys) + 1
+        inst["instance_tree"] = np.zeros(size_i, np.uint32)
+        inst["instance_proto"] = np.zeros(size_i, np.uint32)
+        for key, tree, proto in instance_keys:
+            inst["instance_tree"][by_key[key]] = tree
+            inst["instance_proto"][by_key[key]] = proto * n_groups  # premultiplied row
+        inst["n_instances"] = len(instance_keys)
     prim_element = np.concatenate(prim_parts) if prim_parts else np.zeros(1, np.uint32)
     if len(shapes):
         bb = scene.bbox()
@@ -312,4 +376,45 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     else:
         lo = hi = origin.copy()
     return BuiltScene(scene, origin, shape_class, shape_base, prim_element.astype(np.uint32),
-                      len(kept), n_dropped, n_tri, representation, k, lo, hi)
+                      len(kept), n_dropped, n_tri, representation, k, lo, hi, **inst)
+
+
+def _add_instances(mi, instances: Instances, origin: np.ndarray, k: int, shapes: dict,
+                   group_rows: list, instance_keys: list) -> int:
+    """One shapegroup per prototype (wood mesh, then leaf mesh), one instance per tree.
+
+    Returns the triangles built (each prototype once, however often it is placed)."""
+    n_tri = 0
+    groups = []
+    for p, (branches, leaves) in enumerate(instances.prototypes):
+        members = {}
+        kept, _, kept_index = clean_branches(branches)
+        if len(kept):
+            caps = exposed_ends(kept.p0, kept.p1, kept.diameter)
+            r = 0.5 * kept.diameter * np.pi / (k * np.sin(np.pi / k))
+            v, f, owner = prism_mesh(kept.p0, kept.p1, r, k, caps=caps)
+            members["a_wood"] = _mi_mesh(mi, f"proto{p}_wood", v, f)
+            group_rows.append((p, len(members) - 1, CLASS_CODES["wood"], kept_index[owner].astype(np.uint32)))
+            n_tri += len(f)
+        if leaves is not None and len(leaves):
+            v = leaves.vertices.reshape(-1, 3)
+            members["b_leaf"] = _mi_mesh(mi, f"proto{p}_leaf", v, np.arange(len(v)).reshape(-1, 3))
+            group_rows.append((p, len(members) - 1, CLASS_CODES["leaf"], leaves.leaf_id.astype(np.uint32)))
+            n_tri += len(leaves)
+        # Shape index inside a group follows insertion order: wood 0, leaf 1.
+        group = mi.load_dict({"type": "shapegroup", **members}) if members else None
+        if group is not None:
+            shapes[f"proto_{p:05d}"] = group
+        groups.append(group)
+    T = mi.ScalarTransform4f
+    for t in range(len(instances)):
+        p = int(instances.proto_index[t])
+        if groups[p] is None:
+            continue
+        pos = (np.asarray(instances.translation_m[t], np.float64) - origin).tolist()
+        to_world = T().translate(pos) @ T().rotate([0, 0, 1], float(instances.yaw_deg[t])) \
+            @ T().scale(float(instances.scale[t]))
+        key = f"tree_{t:07d}"
+        shapes[key] = mi.load_dict({"type": "instance", "shapegroup": groups[p], "to_world": to_world})
+        instance_keys.append((key, int(instances.tree_id[t]), p))
+    return n_tri

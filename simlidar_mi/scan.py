@@ -143,6 +143,7 @@ class ScanResult:
     seconds: float = 0.0
     metadata: dict = field(default_factory=dict)
     pattern: BeamPattern | None = None
+    tree_id: np.ndarray | None = None  # uint32 (N, M), scenes with instanced trees only
 
     def __post_init__(self) -> None:
         if self.pattern is None:
@@ -223,7 +224,7 @@ def scan(built: BuiltScene, settings: ScanSettings | BeamPattern,
         sensor.set_tables(*pattern.sub_tables(o))
     integrator = mi.load_dict({"type": "lidar_range", "escape": pattern.escape_m,
                                "ground": pattern.ground, "ground_z": pattern.ground_z_m - o[2]})
-    integrator.set_tables(built.shape_class, built.shape_base, built.prim_element)
+    integrator.set_tables(**built.integrator_tables())
     t0 = time.perf_counter()
     out = integrator.trace(built.scene, sensor)
     shape = (pattern.n_rows, pattern.n_cols)
@@ -232,10 +233,11 @@ def scan(built: BuiltScene, settings: ScanSettings | BeamPattern,
     cls = out["class"].numpy().reshape(shape).astype(np.uint8)
     elem = out["element_id"].numpy().reshape(shape).copy()
     frac = out["hit_fraction"].numpy().reshape(shape).copy()
+    tree = out["tree_id"].numpy().reshape(shape).copy() if "tree_id" in out else None
     seconds = time.perf_counter() - t0
     return ScanResult(s, rng, cls, elem, frac, built.origin_m.copy(), seconds,
                       {"representation": built.representation, "facets": built.facets,
-                       "n_branches": built.n_branches, "n_dropped": built.n_dropped}, pattern)
+                       "n_branches": built.n_branches, "n_dropped": built.n_dropped}, pattern, tree)
 
 
 def _film(width: int, height: int) -> dict:

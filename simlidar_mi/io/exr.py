@@ -59,6 +59,8 @@ def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = N
         header["simlidar_pattern"] = json.dumps(p.to_dict(), sort_keys=True)
         header["row_coord_label"] = p.row_label
         header["angle_label"] = p.col_label
+    if result.tree_id is not None:
+        channels["tree_id"] = np.ascontiguousarray(result.tree_id, np.uint32)
     if p.footprint > 0:
         channels["hit_fraction"] = np.ascontiguousarray(result.hit_fraction, np.float32)
     if seed is not None:

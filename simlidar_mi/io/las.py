@@ -3,7 +3,8 @@
 Point format 6.  Classification follows ASPRS where it can: ground 2, leaves 5
 (high vegetation); wood has no ASPRS class and uses 64 (user-definable range).
 Extra dimensions: ``range_m`` (float32), ``scan_position`` (uint32, index i of the
-sweep), ``scan_angle_index`` (uint32, k), ``branch_id`` (uint32).  ``scan_angle``
+sweep), ``scan_angle_index`` (uint32, k), ``branch_id`` (uint32), and ``tree_id``
+(uint32) for scenes with instanced trees.  ``scan_angle``
 holds the column angle (θ for the tractor) in the format's 0.006° units;
 ``point_source_id`` is the leg index for multi-leg scans, else the row index mod 65536.
 Escapes are not written.
@@ -33,16 +34,19 @@ def write_scan_las(result: ScanResult | list[ScanResult], path: str | Path) -> P
     for leg, res in enumerate(results):
         keep = res.cls != CLASS_CODES["escape"]
         i_idx, k_idx = np.nonzero(keep)
+        tree = res.tree_id[keep] if res.tree_id is not None else np.full(len(i_idx), 0xFFFFFFFF, np.uint32)
         parts.append((res.points_m()[keep], res.cls[keep], res.pattern.col_angle_deg[k_idx],
                       res.range_m[keep], i_idx, k_idx, res.element_id[keep],
-                      np.full(len(i_idx), leg) if len(results) > 1 else i_idx % 65536))
-    pts, cls, theta, rng, i_idx, k_idx, elem, source = (np.concatenate(c) for c in zip(*parts))
+                      np.full(len(i_idx), leg) if len(results) > 1 else i_idx % 65536, tree))
+    pts, cls, theta, rng, i_idx, k_idx, elem, source, tree = (np.concatenate(c) for c in zip(*parts))
+    with_tree = any(r.tree_id is not None for r in results)
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.add_extra_dims([
         laspy.ExtraBytesParams("range_m", np.float32, description="first-return range (m)"),
         laspy.ExtraBytesParams("scan_position", np.uint32, description="sweep index i"),
         laspy.ExtraBytesParams("scan_angle_index", np.uint32, description="angle index k"),
         laspy.ExtraBytesParams("branch_id", np.uint32, description="element id"),
+        *([laspy.ExtraBytesParams("tree_id", np.uint32, description="instanced tree id")] if with_tree else []),
     ])
     header.scales = np.array([0.0001, 0.0001, 0.0001])  # 0.1 mm
     header.offsets = np.floor(pts.min(axis=0)) if len(pts) else np.zeros(3)
@@ -56,6 +60,8 @@ def write_scan_las(result: ScanResult | list[ScanResult], path: str | Path) -> P
     las.scan_position = i_idx.astype(np.uint32)
     las.scan_angle_index = k_idx.astype(np.uint32)
     las.branch_id = elem
+    if with_tree:
+        las.tree_id = tree
     with atomic_file(path) as tmp:
         las.write(str(tmp))
     return Path(path)

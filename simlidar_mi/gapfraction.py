@@ -64,6 +64,7 @@ import csv
 import json
 import logging
 import math
+import numbers
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -325,13 +326,15 @@ def make_camera(kind: str, canopy: Canopy, zenith_deg: float, *, azimuth_deg: fl
     if kind not in CAMERAS:
         raise ConfigError(f"unknown camera; valid: {', '.join(CAMERAS)}", key="gapfraction.cameras",
                           value=kind)
-    if not (isinstance(zenith_deg, (int, float)) and 0.0 <= zenith_deg <= MAX_ZENITH_DEG):
+    if not (isinstance(zenith_deg, numbers.Real) and not isinstance(zenith_deg, bool)
+            and 0.0 <= zenith_deg <= MAX_ZENITH_DEG):
         raise ConfigError(f"view zenith must lie in [0, {MAX_ZENITH_DEG:g}] degrees",
                           key="gapfraction.zeniths_deg", value=zenith_deg)
-    if not (isinstance(resolution, int) and resolution >= 1):
+    if not (isinstance(resolution, numbers.Integral) and not isinstance(resolution, bool)
+            and resolution >= 1):
         raise ConfigError("resolution must be an integer ≥ 1 pixel", key="gapfraction.resolution",
                           value=resolution)
-    zenith_deg, azimuth_deg = float(zenith_deg), float(azimuth_deg)
+    zenith_deg, azimuth_deg, resolution = float(zenith_deg), float(azimuth_deg), int(resolution)
     h, d, up, right = _view_frame(zenith_deg, azimuth_deg)
     z_lo, z_hi = canopy.z_range_m()
     z_ref = 0.5 * (z_lo + z_hi)
@@ -604,6 +607,10 @@ class GapImage:
     seed: int = 0
 
     @property
+    def zenith_deg(self) -> float:
+        return self.camera.zenith_deg
+
+    @property
     def width(self) -> int:
         return int(self.coverage.shape[1])
 
@@ -642,7 +649,7 @@ def render_gap(built, canopy: Canopy, camera: Camera, window: Window, *, spp: in
                integrator=None) -> GapImage:
     """Render ``camera``'s coverage image of ``built`` (from :func:`build_canopy_scene`)."""
     from ._mitsuba import mitsuba  # noqa: PLC0415
-    if not (isinstance(spp, int) and spp >= 1):
+    if not (isinstance(spp, numbers.Integral) and not isinstance(spp, bool) and spp >= 1):
         raise ConfigError("samples per pixel must be an integer ≥ 1", key="gapfraction.spp", value=spp)
     mi = mitsuba(variant)
     sensor = mi.load_dict(camera.sensor_dict(mi, built.origin_m, spp))

@@ -28,6 +28,8 @@ $(STAMP): pyproject.toml
 
 demo: llvm $(STAMP)
 	$(VENV)/bin/simlidar-mi scan $(SCENE) --out $(OUT)/apple_orchard
+	$(VENV)/bin/simlidar-mi preview $(SCENE) --out $(OUT)/apple_orchard/preview.png
+	$(VENV)/bin/simlidar-mi gapfraction scenes/strawberry_plot.toml --out $(OUT)/strawberry
 	@echo "outputs in $(OUT)/"
 
 test: llvm $(STAMP)

@@ -69,6 +69,31 @@ def _scan_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _study_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", metavar="SCENE.toml", help="base orchard scene (e.g. scenes/apple_orchard.toml)")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder: study.csv, regression.json, correlations.png, rows/")
+    p.add_argument("--workers", type=int, default=1, help="Dask worker processes (default 1)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="applied to every orchard of the grid (e.g. scan.dtheta_deg=0.5)")
+
+
+@command("study", "SIMLIDAR §5 study: scan the 96-orchard grid, fit A_PR and A_L against A_IM "
+         "(resumes an interrupted run)", _study_args)
+def _study_run(args: argparse.Namespace) -> int:
+    from .study import paper_grid, run_study
+
+    grid = [list(args.overrides) + g for g in paper_grid()]
+    res = run_study(args.scene, args.out, grid, workers=args.workers, progress=sys.stderr.isatty())
+    for key, name in (("A_PR_vs_A_IM", "A_PR"), ("A_L_vs_A_IM", "A_L")):
+        fit, paper = res.regression[key], res.regression["paper"][key]
+        print(f"{name} = {fit['slope']:.4f}·A_IM (R² {fit['r2']:.3f}, n {fit['n']}); "
+              f"paper: {paper['slope']}·A_IM (R² {paper['r2']})")
+    for path in res.files.values():
+        print(f"wrote {path}")
+    return 0
+
+
 def _measure_args(p: argparse.ArgumentParser) -> None:
     _scene_args(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")

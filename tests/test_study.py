@@ -1,0 +1,61 @@
+"""The §5 study: orchards in a grid, resumable rows, regressions through the origin."""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from simlidar_mi.errors import ConfigError
+from simlidar_mi.study import fit_through_origin, paper_grid, run_study
+from tests.conftest import SCENES
+
+
+def test_paper_grid_is_the_full_factorial():
+    grid = paper_grid()
+    assert len(grid) == 4 * 3 * 2 * 2 * 2
+    assert len({tuple(g) for g in grid}) == len(grid)
+
+
+def test_fit_through_origin_matches_least_squares():
+    rng = np.random.default_rng(1)
+    x = rng.uniform(0.1, 2, 40)
+    y = 3.6 * x + rng.normal(0, 0.2, 40)
+    fit = fit_through_origin(x, y)
+    slope = np.linalg.lstsq(x[:, None], y, rcond=None)[0][0]
+    assert fit["slope"] == pytest.approx(slope, rel=1e-12)
+    assert fit["r2"] == pytest.approx(1 - np.sum((y - slope * x) ** 2) / np.sum((y - y.mean()) ** 2))
+    assert fit_through_origin(x, 2 * x)["r2"] == pytest.approx(1.0)
+
+
+def test_small_study_runs_and_resumes(tmp_path):
+    grid = [[f"orchard.tree.iterations={it}", "orchard.n_trees=1", "scan.dtheta_deg=1.0",
+             "scan.dy_m=0.01", f"orchard.tree.d_min_m={d}"] for it in (4, 5) for d in (0.005, 0.007)]
+    out = tmp_path / "study"
+    res = run_study(SCENES / "apple_orchard.toml", out, grid)
+    assert sorted(p.name for p in out.iterdir()) == ["correlations.png", "regression.json", "rows", "study.csv"]
+    assert len(res.rows) == 4
+    for r in res.rows:
+        assert 0 < r["A_IM_m2"] <= r["A_PR_m2"] < r["A_L_m2"]  # paper: A_IM ≤ A_PR; A_L = π·Σdh > A_PR
+        assert r["A_L_m2"] == pytest.approx(np.pi * r["A_PR_m2"])
+    # Thicker branches (d_m 7 vs 5 mm) scale A_PR by exactly 7/5 with the same seed.
+    by = {(r["iterations"], r["d_min_m"]): r for r in res.rows}
+    assert by[(4, 0.007)]["A_PR_m2"] == pytest.approx(by[(4, 0.005)]["A_PR_m2"] * 7 / 5)
+    reg = json.loads((out / "regression.json").read_text())
+    assert reg["A_L_vs_A_IM"]["slope"] == pytest.approx(np.pi * reg["A_PR_vs_A_IM"]["slope"])
+    # Resume: only the missing row is computed again.
+    rows = sorted((out / "rows").iterdir())
+    kept_mtime = rows[1].stat().st_mtime_ns
+    os.unlink(rows[0])
+    again = run_study(SCENES / "apple_orchard.toml", out, grid)
+    assert rows[1].stat().st_mtime_ns == kept_mtime and rows[0].exists()
+    assert [r["A_IM_m2"] for r in again.rows] == [r["A_IM_m2"] for r in res.rows]
+
+
+def test_bad_base_scene_is_refused_before_any_task(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[scan]\ndy_m = -1\n")
+    with pytest.raises(ConfigError, match="scan.dy_m"):
+        run_study(bad, tmp_path / "out", [["orchard.n_trees=1"]])
+    assert not (tmp_path / "out").exists()

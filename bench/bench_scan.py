@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import resource
 import subprocess
 import sys
@@ -26,6 +24,8 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "bench"))
+from _machine import machine  # noqa: E402
 
 from simlidar_mi.config import load_scene  # noqa: E402
 from simlidar_mi.reference import compare, reference_scan  # noqa: E402
@@ -41,22 +41,6 @@ PAPER_TABLE3 = {  # (iterations, trees): (branches, N×M, minutes) — SIMLIDAR 
     (4, 4): (2064, 1634720, 15), (5, 4): (4991, 2482130, 32), (6, 4): (20020, 2404000, 135),
     (7, 4): (44658, 2467105, 210),
 }
-
-
-def machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import drjit
-    import mitsuba
-    return (f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, "
-            f"Python {platform.python_version()}, mitsuba {mitsuba.__version__}, drjit {drjit.__version__}, "
-            f"libLLVM {os.environ.get('DRJIT_LIBLLVM_PATH', '?')}")
 
 
 def timed(fn, *a, **k):

@@ -20,8 +20,6 @@ render of the same view, so the Dr.Jit kernel compile is not counted.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import sys
 import tempfile
 import time
@@ -31,6 +29,8 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "bench"))
+from _machine import machine  # noqa: E402
 
 from simlidar_mi._mitsuba import mitsuba  # noqa: E402
 from simlidar_mi.config import load_scene  # noqa: E402
@@ -39,18 +39,6 @@ from simlidar_mi.gapfraction import (DEFAULTS, analysis_window, build_canopy_sce
                                      run_gapfraction)
 
 SCENE = REPO / "scenes" / "strawberry_plot.toml"
-
-
-def machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}"
 
 
 def accuracy_table(scene: Path, resolutions, spps, zeniths, steps, ref_res: int, ref_spp: int):

@@ -76,6 +76,7 @@ from .config import SceneConfig, load_scene
 from .errors import ConfigError, SimlidarError
 from .geometry import Branches, Leaves
 from .io.atomic import atomic_file, staged_dir
+from .io.exr import header_value
 
 log = logging.getLogger(__name__)
 
@@ -749,21 +750,6 @@ def canopy_from_random_leaves(rl) -> Canopy:
 
 
 # ----------------------------------------------------------------------------- files
-def _header_value(value):
-    # OpenEXR stores a plain float as float32: keep float64 as a 1-element array.
-    if isinstance(value, bool):
-        return int(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value) if abs(int(value)) < 2**31 else str(int(value))
-    if isinstance(value, (float, np.floating)):
-        return np.array([float(value)], np.float64)
-    if isinstance(value, (np.ndarray, list, tuple)):
-        flat = [float(x) for x in np.asarray(value, np.float64).ravel()]
-        # OpenEXR has float64 vector attributes of 1 to 3 elements only.
-        return np.asarray(flat, np.float64) if 1 <= len(flat) <= 3 else json.dumps(flat)
-    return str(value)
-
-
 def write_gap_exr(image: GapImage, path: str | Path, *, extra: dict | None = None) -> Path:
     """Write the coverage of ``image`` (float32 channel ``coverage``) with its settings.
 
@@ -783,7 +769,7 @@ def write_gap_exr(image: GapImage, path: str | Path, *, extra: dict | None = Non
             "fov_deg": cam.fov_deg, "camera_height_m": cam.camera_height_m,
             "ortho_half_extent_m": list(cam.half_extent_m)}
     for key, value in {**flat, **(extra or {})}.items():
-        header[key] = _header_value(value)
+        header[key] = header_value(value)
     channels = {"coverage": np.ascontiguousarray(image.coverage, np.float32)}
     with atomic_file(path) as tmp:
         # OpenEXR.File modifies the dicts it is given: pass copies.

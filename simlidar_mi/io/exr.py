@@ -20,16 +20,22 @@ from ..scan import ScanResult, ScanSettings
 from .atomic import atomic_file
 
 
-def _header_value(value):
-    # Plain floats would be stored as float32: keep float64 as 1-element arrays.
+def header_value(value):
+    """A Python value as an OpenEXR header attribute that keeps its precision.
+
+    A plain float would be stored as float32, so floats and short vectors become
+    float64 arrays (OpenEXR has float64 vectors of 1 to 3 elements only); longer
+    vectors are stored as JSON text.
+    """
     if isinstance(value, bool):
         return int(value)
     if isinstance(value, (int, np.integer)):
         return int(value) if abs(int(value)) < 2**31 else str(int(value))
     if isinstance(value, (float, np.floating)):
         return np.array([float(value)], np.float64)
-    if isinstance(value, np.ndarray):
-        return np.asarray(value, np.float64)
+    if isinstance(value, (np.ndarray, list, tuple)):
+        flat = [float(x) for x in np.asarray(value, np.float64).ravel()]
+        return np.asarray(flat, np.float64) if 1 <= len(flat) <= 3 else json.dumps(flat)
     return str(value)
 
 
@@ -52,7 +58,7 @@ def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = N
         header["simlidar_settings"] = json.dumps(s.to_dict(), sort_keys=True)
         header["y_channel_note"] = "y_m channel is y minus origin_m[1]; range in metres"
         for key, value in s.to_dict().items():
-            header[f"scan_{key}"] = _header_value(value)
+            header[f"scan_{key}"] = header_value(value)
     else:  # other platforms: column angle and row coordinate, the pattern in the header
         channels["angle_deg"] = np.ascontiguousarray(np.broadcast_to(p.col_angle_deg[None, :], (n, m)), np.float32)
         channels["row_coord"] = np.ascontiguousarray(np.broadcast_to(p.row_coord[:, None], (n, m)), np.float32)
@@ -64,9 +70,9 @@ def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = N
     if p.footprint > 0:
         channels["hit_fraction"] = np.ascontiguousarray(result.hit_fraction, np.float32)
     if seed is not None:
-        header["seed"] = _header_value(seed)
+        header["seed"] = header_value(seed)
     for key, value in (extra or {}).items():
-        header[key] = _header_value(value)
+        header[key] = header_value(value)
     with atomic_file(path) as tmp:
         # OpenEXR.File modifies the dicts it is given: pass copies.
         with OpenEXR.File(dict(header), dict(channels)) as f:

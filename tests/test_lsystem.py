@@ -137,10 +137,11 @@ def test_other_grammar_errors():
         parse_grammar("axiom: F\nF -> IF\nF -> IIF")
     with pytest.raises(GrammarError, match="no 'axiom:'"):
         parse_grammar("F -> IF")
-    with pytest.raises(GrammarError, match="not supported"):
+    # parametric syntax is supported (tests/test_parametric.py); names must be bound
+    with pytest.raises(GrammarError, match="unknown name 'l'"):
         parse_grammar("alphabet: A\naxiom: A(1)\nA -> A(l*2)")
-    with pytest.raises(GrammarError, match="parametric or conditional"):
-        parse_grammar("alphabet: A\naxiom: A(1)\nA(l) -> A(1)")
+    with pytest.raises(GrammarError, match="context-sensitive"):
+        parse_grammar("alphabet: A B\naxiom: A(1)\nB < A(l) -> A(1)")
     with pytest.raises(GrammarError, match="must follow a symbol"):
         parse_grammar("axiom: F\nF -> nF")
     with pytest.raises(GrammarError, match="takes no parameters"):

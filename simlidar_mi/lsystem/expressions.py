@@ -103,6 +103,7 @@ class ExpressionError(SimlidarError, ArithmeticError):
 
     Attributes
     ----------
+    reason : what went wrong (the message without the location).
     text : the whole expression.
     subexpression : the part that failed (e.g. the divisor).
     values : parameter values at the failing module, ``{name: float}``.
@@ -113,6 +114,7 @@ class ExpressionError(SimlidarError, ArithmeticError):
     def __init__(self, message: str, *, text: str, subexpression: str | None = None,
                  values: Mapping[str, Any] | None = None, index: int | None = None,
                  source: str | None = None) -> None:
+        self.reason = message
         self.text = text
         self.subexpression = subexpression
         self.values = dict(values or {})

@@ -13,9 +13,9 @@ and interpretation run on numpy arrays instead of Python strings:
     ``(n, k)`` float64, parameters, left-aligned; ``k`` is the widest module
     (``k = 0`` for a non-parametric word). Entries past ``nargs`` are 0.
 
-This layout already carries everything an ABOP parametric L-system needs
-(``A(l,w)`` is code of ``A`` with two parameters), so a later expression
-language only has to compute new parameter columns; the storage does not change.
+This layout carries everything an ABOP parametric L-system needs (``A(l,w)``
+is the code of ``A`` with two parameters): parametric productions only
+compute new parameter columns (:mod:`simlidar_mi.lsystem.derive`).
 """
 from __future__ import annotations
 
@@ -31,7 +31,9 @@ CLOSE = "]"
 #: Reserved successor token: "the generation that wrote this module" (``In``).
 GENERATION_TOKEN = "n"
 #: Characters that can never be symbols (syntax of grammars and module strings).
-RESERVED_CHARS = frozenset("()|,#:" + GENERATION_TOKEN)
+#: ``|`` separates stochastic alternatives, but it may be declared as a symbol (ABOP's
+#: turn-around); the grammar then reads ``|`` as a separator only before ``(p)``.
+RESERVED_CHARS = frozenset("(),#:" + GENERATION_TOKEN)
 #: Symbols of the SIMLIDAR apple grammar and its turtle (paper, Table 2).
 DEFAULT_ALPHABET: tuple[str, ...] = ("F", "I", OPEN, CLOSE, "+", "-", "R", "r", "T", "t")
 

@@ -95,14 +95,44 @@ def _study_run(args: argparse.Namespace) -> int:
 
 
 def _measure_args(p: argparse.ArgumentParser) -> None:
-    _scene_args(p)
+    # _scene_args with the scene optional: --preset measures a plant without a scene
+    p.add_argument("scene", metavar="SCENE.toml", nargs="?", default=None,
+                   help="scene file (see scenes/); omit with --preset")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scene key, e.g. --set scan.dtheta_deg=0.5 (repeatable)")
+    p.add_argument("--variant", default=None,
+                   help="Mitsuba variant (default llvm_ad_mono; cuda_ad_mono on a GPU)")
+    p.add_argument("--preset", default=None, metavar="NAME",
+                   help="measure one plant of a named L-system preset instead of a scene "
+                        "(honda-a, ternary, conifer-whorl, ...; an unknown name lists them)")
+    p.add_argument("--generations", "-n", type=int, default=None, metavar="N",
+                   help="with --preset: number of generations (default: the preset's)")
+    p.add_argument("--seed", type=int, default=0, help="with --preset: seed (default 0)")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 
-@command("measure", "Vegetative measures V_L, A_L, A_PR, A_PR_exact of a scene, without scanning",
-         _measure_args)
+@command("measure", "Vegetative measures V_L, A_L, A_PR, A_PR_exact of a scene, without scanning; "
+         "with --preset, size, leaf and wood measures of one L-system plant", _measure_args)
 def _measure_run(args: argparse.Namespace) -> int:
     import json
+
+    from .errors import ConfigError
+
+    if args.preset is not None:
+        from .lsystem.presets import format_measures, measures_json, preset_measures
+
+        if args.scene is not None:
+            raise ConfigError("give a scene file or --preset, not both", key="preset",
+                              value=args.preset)
+        m = preset_measures(args.preset, args.generations, args.seed)
+        print(measures_json(m) if args.json else format_measures(m))
+        return 0
+    if args.scene is None:
+        raise ConfigError("give a scene file (SCENE.toml) or --preset NAME", key="scene",
+                          value=None)
+    if args.generations is not None:
+        raise ConfigError("--generations only applies with --preset", key="generations",
+                          value=args.generations)
 
     from .survey import load_scene, measure
 

@@ -1,4 +1,9 @@
-"""L-systems: module strings, grammars, parallel derivation and the 3D turtle.
+"""L-systems: module strings, grammars, parallel derivation and the 3D turtles.
+
+Parametric, conditional and stochastic productions (ABOP §1.10) are in
+:mod:`.grammar` and :mod:`.derive`; the SIMLIDAR apple turtle is :mod:`.turtle`,
+the ABOP turtle (branches, leaves, tropism) is :mod:`.abop`, and named plants
+are in :mod:`.presets`.
 
 Pure numpy; nothing here imports Mitsuba.
 
@@ -9,8 +14,10 @@ Pure numpy; nothing here imports Mitsuba.
 """
 from __future__ import annotations
 
-from .derive import DEFAULT_MAX_MODULES, derive, predict_size
-from .grammar import (Const, GenerationArg, Grammar, Production, Successor, Word,
+from .abop import LeafTable, TurtleConfig, TurtleGeometry, interpret_abop
+from .derive import DEFAULT_MAX_MODULES, apply_interpretation, derive, predict_size
+from .expressions import ExpressionError
+from .grammar import (Const, ExprArg, GenerationArg, Grammar, Production, Successor, Word,
                       parse_grammar)
 from .modules import DEFAULT_ALPHABET, Module, ModuleString
 from .notation import format_table1
@@ -19,8 +26,10 @@ from .turtle import (INITIAL_FRAME, branch_diameter_m, branch_length_m, interpre
 
 __all__ = [
     "Module", "ModuleString", "DEFAULT_ALPHABET",
-    "Grammar", "Production", "Successor", "Word", "Const", "GenerationArg", "parse_grammar",
-    "derive", "predict_size", "DEFAULT_MAX_MODULES",
+    "Grammar", "Production", "Successor", "Word", "Const", "GenerationArg", "ExprArg",
+    "parse_grammar", "ExpressionError",
+    "derive", "apply_interpretation", "predict_size", "DEFAULT_MAX_MODULES",
+    "interpret_abop", "TurtleConfig", "TurtleGeometry", "LeafTable",
     "format_table1",
     "interpret", "turtle_segments", "prune_descending", "match_brackets",
     "branch_length_m", "branch_diameter_m", "INITIAL_FRAME",

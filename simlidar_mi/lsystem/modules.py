@@ -130,7 +130,7 @@ class ModuleString:
 
     @classmethod
     def from_text(cls, text: str, alphabet: Sequence[str] = DEFAULT_ALPHABET) -> "ModuleString":
-        """Parse ``'I(1)I(1)[r+I(2)F]'`` (numeric parameters only; whitespace ignored).
+        """Parse ``'I(1)I(1)[r+I(2)F]'`` (numbers or constant expressions; whitespace ignored).
 
         Raises
         ------

@@ -13,9 +13,9 @@ simlidar-apple-stochastic  the same, three successors 0.33/0.33/0.34
 honda-a ... honda-d        Honda's monopodial trees, ABOP Fig. 2.6 / Table 2.1
 sympodial                  Aono & Kunii's sympodial tree, ABOP Fig. 2.7
 ternary                    ternary tree with tropism, ABOP Fig. 2.8a
-deciduous-apex             forest species: apex-branching broadleaf, ~13 m
+deciduous-apex             forest species: apex-branching broadleaf (elm-like), ~12 m
 conifer-whorl              forest species: spruce-like conifer with whorls, ~15 m
-broadleaf-monopodial       forest species: Honda-type monopodial broadleaf, ~18 m
+broadleaf-monopodial       forest species: Honda-type monopodial broadleaf, ~20 m
 shrub                      forest species: multi-stemmed shrub, ~4 m
 ========================== =====================================================
 
@@ -26,9 +26,10 @@ trunk. The ternary tree's ``F(200)`` and ``F(50)`` read as centimetres and its
 widths as centimetres. Forest species are written in metres throughout.
 
 Forest species are this project's own grammars (not from a paper), with sizes
-from common field values: trunk diameters of tens of centimetres, heights of
-4–20 m, leaves of a few centimetres. Each is stochastic (a seed gives one
-tree) and puts leaves on its shoots with an ``interpretation:`` section.
+from common field values: trunk diameters of 5–45 cm, heights of 4–20 m,
+leaves of 6–12 cm. Each is stochastic (a seed gives one tree) and puts leaves
+on its young shoots and apices with an ``interpretation:`` section; one tree
+has 7–80 thousand leaves (one-sided leaf area 40–180 m²).
 
 Example
 -------
@@ -49,7 +50,7 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import ConfigError
-from ..geometry import Branches, Leaves
+from ..geometry import Leaves
 from .abop import LeafTable, TurtleConfig, TurtleGeometry, interpret_abop
 from .derive import DEFAULT_MAX_MODULES, apply_interpretation, derive
 from .grammar import Grammar, parse_grammar
@@ -292,10 +293,10 @@ def _build_registry() -> dict[str, Preset]:
         turtle_config=TurtleConfig(length_scale_m=0.01, width_scale_m=0.01,
                                    tropism=(0.0, 0.0, -1.0), elasticity=0.22))
     reg["deciduous-apex"] = Preset(
-        "deciduous-apex", "Apex-branching deciduous tree (birch/elm-like), ~13 m, leaves",
+        "deciduous-apex", "Apex-branching deciduous tree (elm-like vase), ~12 m, leaves",
         DECIDUOUS_APEX_GRAMMAR, "abop", None, units="metres",
         source=f"{_FOREST_SOURCE}. Divergence angles d1, d2 from ABOP Fig. 2.8; leaves "
-               f"6.5 × 4.5 cm (birch), trunk ~0.2 m",
+               f"9 × 5 cm (elm), trunk ~0.23 m",
         turtle_config=TurtleConfig(tropism=(0.0, 0.0, -1.0), elasticity=0.03,
                                    leaf_shape="rhombus"))
     reg["conifer-whorl"] = Preset(
@@ -306,16 +307,16 @@ def _build_registry() -> dict[str, Preset]:
         turtle_config=TurtleConfig(tropism=(0.0, 0.0, -1.0), elasticity=0.03,
                                    leaf_shape="rhombus"))
     reg["broadleaf-monopodial"] = Preset(
-        "broadleaf-monopodial", "Monopodial broadleaf (beech/ash-like), ~18 m, leaves",
+        "broadleaf-monopodial", "Monopodial broadleaf (beech/ash-like), ~20 m, leaves",
         BROADLEAF_MONOPODIAL_GRAMMAR, "abop", None, units="metres",
         source=f"{_FOREST_SOURCE}. Honda's scheme and d = 137.5° from ABOP Fig. 2.6; "
-               f"leaves 8 × 5 cm (beech)",
+               f"leaves 8.5 × 5 cm (beech)",
         turtle_config=TurtleConfig(tropism=(0.0, 0.0, -1.0), elasticity=0.02,
                                    leaf_shape="ellipse", leaf_sides=6))
     reg["shrub"] = Preset(
         "shrub", "Multi-stemmed shrub (hazel-like), ~4 m, leaves",
         SHRUB_GRAMMAR, "abop", None, units="metres",
-        source=f"{_FOREST_SOURCE}. Sympodial scheme from ABOP Fig. 2.7; leaves 9 × 7 cm "
+        source=f"{_FOREST_SOURCE}. Sympodial scheme from ABOP Fig. 2.7; leaves 10 × 8 cm "
                f"(hazel)",
         turtle_config=TurtleConfig(tropism=(0.0, 0.0, -1.0), elasticity=0.04,
                                    leaf_shape="ellipse", leaf_sides=6))

@@ -67,11 +67,11 @@ level: all such modules with the same number of such ancestors at once.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._validate import real as _real
 from ..errors import ConfigError, GrammarError
 from ..geometry import Branches, Leaves
 from .modules import CLOSE, OPEN, ModuleString
@@ -87,20 +87,6 @@ MOVE = "f"
 #: World "up" used by ``$`` (ABOP's V, opposite to gravity).
 VERTICAL = np.array([0.0, 0.0, 1.0])
 LEAF_SHAPES = ("rhombus", "ellipse")
-
-
-def _finite(key: str, value, *, positive: bool = False, nonneg: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError("must be a number", key=key, value=value) from None
-    if isinstance(value, bool) or not math.isfinite(v):
-        raise ConfigError("must be a finite number", key=key, value=value)
-    if positive and v <= 0:
-        raise ConfigError("must be > 0", key=key, value=value)
-    if nonneg and v < 0:
-        raise ConfigError("must be >= 0", key=key, value=value)
-    return v
 
 
 @dataclass(frozen=True)
@@ -138,18 +124,18 @@ class TurtleConfig:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        set_(self, "angle_deg", _finite("angle_deg", self.angle_deg))
-        set_(self, "step", _finite("step", self.step))
-        set_(self, "initial_width", _finite("initial_width", self.initial_width, nonneg=True))
-        set_(self, "length_scale_m", _finite("length_scale_m", self.length_scale_m,
+        set_(self, "angle_deg", _real("angle_deg", self.angle_deg))
+        set_(self, "step", _real("step", self.step))
+        set_(self, "initial_width", _real("initial_width", self.initial_width, nonneg=True))
+        set_(self, "length_scale_m", _real("length_scale_m", self.length_scale_m,
                                              positive=True))
-        set_(self, "width_scale_m", _finite("width_scale_m", self.width_scale_m,
+        set_(self, "width_scale_m", _real("width_scale_m", self.width_scale_m,
                                             positive=True))
         t = np.asarray(self.tropism, np.float64)
         if t.shape != (3,) or not np.isfinite(t).all():
             raise ConfigError("must be three finite numbers", key="tropism", value=self.tropism)
         set_(self, "tropism", tuple(float(x) for x in t))
-        set_(self, "elasticity", _finite("elasticity", self.elasticity))
+        set_(self, "elasticity", _real("elasticity", self.elasticity))
         if not isinstance(self.leaf_symbol, str) or len(self.leaf_symbol) != 1:
             raise ConfigError("must be one character", key="leaf_symbol",
                               value=self.leaf_symbol)
@@ -160,8 +146,8 @@ class TurtleConfig:
                 or self.leaf_sides < 3:
             raise ConfigError("must be a whole number >= 3", key="leaf_sides",
                               value=self.leaf_sides)
-        set_(self, "leaf_length", _finite("leaf_length", self.leaf_length, positive=True))
-        set_(self, "leaf_aspect", _finite("leaf_aspect", self.leaf_aspect, positive=True))
+        set_(self, "leaf_length", _real("leaf_length", self.leaf_length, positive=True))
+        set_(self, "leaf_aspect", _real("leaf_aspect", self.leaf_aspect, positive=True))
 
     @property
     def has_tropism(self) -> bool:

@@ -25,7 +25,6 @@ multiple of 601 (angular steps), leaving 840–965 tractor steps of
 """
 from __future__ import annotations
 
-import math
 import operator
 from dataclasses import dataclass
 from functools import lru_cache
@@ -33,6 +32,8 @@ from typing import Sequence
 
 import numpy as np
 
+from .._validate import flag as _flag
+from .._validate import real as _real
 from ..errors import ConfigError
 from ..geometry import Branches
 from ..lsystem import (DEFAULT_MAX_MODULES, Grammar, ModuleString, derive, format_table1,
@@ -73,24 +74,6 @@ def _whole(key: str, value, minimum: int) -> int:
     if isinstance(value, bool) or v < minimum:
         raise ConfigError(f"must be a whole number >= {minimum}", key=key, value=value)
     return v
-
-
-def _real(key: str, value, *, positive: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError("must be a number", key=key, value=value) from None
-    if isinstance(value, bool) or not math.isfinite(v):
-        raise ConfigError("must be a finite number", key=key, value=value)
-    if positive and v <= 0:
-        raise ConfigError("must be > 0", key=key, value=value)
-    return v
-
-
-def _flag(key: str, value) -> bool:
-    if not isinstance(value, (bool, np.bool_)):
-        raise ConfigError("must be true or false", key=key, value=value)
-    return bool(value)
 
 
 @dataclass(frozen=True)

@@ -42,6 +42,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .._validate import real as _real
 from ..errors import ConfigError
 from ..geometry import Leaves
 
@@ -60,22 +61,12 @@ G_FUNCTIONS = {
 }
 
 
-def _finite(key: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError("must be a real number", key=key, value=value) from None
-    if isinstance(value, bool) or not math.isfinite(v):
-        raise ConfigError("must be a finite real number", key=key, value=value)
-    return v
-
-
 def _pair(key: str, value) -> tuple[float, float]:
     try:
         a, b = value
     except (TypeError, ValueError):
         raise ConfigError("must be a pair of numbers", key=key, value=value) from None
-    return _finite(key, a), _finite(key, b)
+    return _real(key, a), _real(key, b)
 
 
 @dataclass(frozen=True)
@@ -111,7 +102,7 @@ class RandomLeavesParams:
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
             raise ConfigError("must be an integer >= 0", key="n_leaves", value=n)
         object.__setattr__(self, "n_leaves", int(n))
-        a = _finite("leaf_area_m2", self.leaf_area_m2)
+        a = _real("leaf_area_m2", self.leaf_area_m2)
         if a <= 0:
             raise ConfigError("must be > 0", key="leaf_area_m2", value=self.leaf_area_m2)
         object.__setattr__(self, "leaf_area_m2", a)

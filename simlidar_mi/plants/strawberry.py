@@ -105,6 +105,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .._validate import real as _real
 from ..errors import ConfigError
 from ..geometry import Leaves
 
@@ -132,25 +133,8 @@ _KITE_TRIANGLES = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
 
 
 # ----------------------------------------------------------------------------- checks
-def _finite(key: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError("must be a real number", key=key, value=value) from None
-    if isinstance(value, bool) or not math.isfinite(v):
-        raise ConfigError("must be a finite real number", key=key, value=value)
-    return v
-
-
-def _positive(key: str, value) -> float:
-    v = _finite(key, value)
-    if v <= 0:
-        raise ConfigError("must be > 0", key=key, value=value)
-    return v
-
-
 def _non_negative(key: str, value) -> float:
-    v = _finite(key, value)
+    v = _real(key, value)
     if v < 0:
         raise ConfigError("must be >= 0", key=key, value=value)
     return v
@@ -279,9 +263,9 @@ class StrawberryLeafParams:
             if "_sd" in f.name:
                 v = _non_negative(f.name, v)
             elif f.name.startswith("lateral_"):
-                v = _positive(f.name, v)
+                v = _real(f.name, v, positive=True)
             else:
-                v = _finite(f.name, v)
+                v = _real(f.name, v)
             object.__setattr__(self, f.name, v)
         if self.petiole_zenith not in ("theta", "phi"):
             raise ConfigError("must be 'theta' or 'phi'", key="petiole_zenith",
@@ -366,10 +350,10 @@ class StrawberryPlotParams:
         _int_at_least("rows", self.rows, 1)
         _int_at_least("plants_per_row", self.plants_per_row, 1)
         for k in ("inter_row_m", "intra_row_m"):
-            object.__setattr__(self, k, _positive(k, getattr(self, k)))
+            object.__setattr__(self, k, _real(k, getattr(self, k), positive=True))
         for k in ("inter_row_sd_m", "intra_row_sd_m", "leaves_per_plant_sd", "base_height_m"):
             object.__setattr__(self, k, _non_negative(k, getattr(self, k)))
-        m = _finite("leaves_per_plant_mean", self.leaves_per_plant_mean)
+        m = _real("leaves_per_plant_mean", self.leaves_per_plant_mean)
         object.__setattr__(self, "leaves_per_plant_mean", m)
         # Rounded draws are kept when >= 1, i.e. raw draws >= 0.5.
         _check_truncated("leaves_per_plant_mean", m, self.leaves_per_plant_sd, 0.5, math.inf)

@@ -246,6 +246,33 @@ def _gapfraction_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _compare_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("manifest", metavar="MANIFEST.csv",
+                   help="CSV pairing photos or measured P0 with scene, camera, zenith_deg, step "
+                        "(see simlidar_mi.compare; example: scenes/strawberry_manifest.csv)")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder: comparison.csv, pairs.csv, comparison.png, masks")
+
+
+@command("compare", "Virtual vs measured gap fraction from a manifest: r, RMSE, bias per view "
+         "zenith (the strawberry paper's Table 5) and the measured-vs-virtual plot (Fig. 4)",
+         _compare_args)
+def _compare_run(args: argparse.Namespace) -> int:
+    import math
+
+    from .compare import compare
+
+    res = compare(args.manifest, args.out)
+    print(f"{'zenith':>6}  {'n':>3}  {'r':>6}  {'rmse':>7}  {'rmse_r':>7}  {'bias':>8}  {'bias_r':>7}")
+    for s in res.stats:
+        z = s["zenith_deg"] if isinstance(s["zenith_deg"], str) else f"{s['zenith_deg']:g}"
+        r = "-" if not math.isfinite(s["r"]) else f"{s['r']:.3f}"
+        print(f"{z:>6}  {s['n']:>3}  {r:>6}  {s['rmse']:7.4f}  {s['rmse_r']:7.2%}  "
+              f"{s['bias']:+8.4f}  {s['bias_r']:+7.2%}")
+    print(f"wrote {', '.join(str(f) for f in res.files.values())}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
     p = argparse.ArgumentParser(prog="simlidar-mi", description=__doc__.splitlines()[0])

@@ -1,0 +1,615 @@
+"""Virtual vs measured gap fraction: the strawberry paper's Table 5 and Figure 4.
+
+``simlidar-mi compare MANIFEST.csv --out DIR`` (or :func:`compare`) pairs measured gap
+fractions (P0) with the P0 of virtual canopies seen by the same kind of camera at the
+same view zenith and extraction step, and reports, per zenith and for all rows
+together, the statistics of the paper's Table 5 (:func:`comparison_stats`).
+
+The manifest
+------------
+A CSV file, one pair per row; lines starting with ``#`` are comments (use them for
+provenance), blank lines are skipped.  Rows are numbered like the file's lines
+(the header is row 1, comment lines count), as a spreadsheet or editor shows them.
+
+==============  ========  ==============================================================
+column          needed    meaning
+==============  ========  ==============================================================
+``scene``       yes       scene file (TOML, ``[strawberry]`` or ``[random_leaves]``),
+                          relative to the manifest's folder
+``camera``      yes       ``orthographic`` or ``perspective``
+``zenith_deg``  yes       view zenith in degrees, 0–80
+``step``        yes       extraction step (0 = full canopy, 1, 2 …) or ``mean``: the
+                          mean virtual P0 over all the scene's steps (for a measured
+                          value that is itself a mean over densities)
+``photo``       one of    a nadir/oblique photo, relative to the manifest's folder;
+``p0_measured``  these    or a measured P0 in [0, 1]. Exactly one per row.
+``method``      no        photo classifier: ``canopeo`` (default), ``exg-otsu``,
+                          ``blue-otsu`` (photo rows only)
+``crop``        no        central fraction (``0.5``) or pixel box
+                          (``"x0,y0,x1,y1"``) of the photo (photo rows only)
+``note``        no        free text, copied to ``pairs.csv``
+==============  ========  ==============================================================
+
+The header must hold the four required columns and at least one of ``photo`` /
+``p0_measured``; unknown columns are refused (a misspelt ``zenith`` would otherwise be
+silently ignored).  Example::
+
+    # photos of three 1 m² areas after each extraction, nadir, Canopeo
+    scene,camera,zenith_deg,step,photo,method,crop,p0_measured,note
+    strawberry_plot.toml,perspective,0,0,photos/a1_s0.jpg,canopeo,0.6,,area 1
+    strawberry_plot.toml,perspective,0,1,photos/a1_s1.jpg,canopeo,0.6,,area 1
+    strawberry_plot.toml,perspective,15,0,,,,0.172,from a field notebook
+
+Every distinct scene file is rendered once (:func:`simlidar_mi.gapfraction.run_gapfraction`
+with its ``[gapfraction]`` settings, restricted to the cameras and zeniths the manifest
+asks for); every photo once per (method, crop).
+
+Outputs (written together, or not at all)
+-----------------------------------------
+``comparison.csv``
+    ``zenith_deg, n, r, rmse, rmse_r, bias, bias_r``: one row per zenith, then ``all``.
+    Relative values are fractions (the paper prints percentages).  ``r`` is ``nan``
+    with fewer than two pairs or no spread.
+``pairs.csv``
+    Every manifest row with its virtual and measured P0 (:data:`PAIRS_COLUMNS`).
+``comparison.png``
+    Measured (x) vs virtual (y) P0, one panel per zenith, with the 1:1 line (Fig. 4).
+``photo_mask_row<row>_<photo>_<method>.png``, ``virtual_<scene>_gap_<camera>_z<zenith>_s<step>.png``
+    What each photo was classified as, and each virtual image used (window outlined).
+``comparison.json``
+    Manifest and scene checksums, settings, the statistics.
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from .errors import ConfigError, PhotoError, SimlidarError
+
+__all__ = [
+    "ManifestError", "ManifestRow", "Pair", "ComparisonResult", "MANIFEST_COLUMNS",
+    "REQUIRED_COLUMNS", "COMPARISON_COLUMNS", "PAIRS_COLUMNS", "read_manifest",
+    "comparison_stats", "compare", "plot_comparison",
+]
+
+REQUIRED_COLUMNS = ("scene", "camera", "zenith_deg", "step")
+MEASUREMENT_COLUMNS = ("photo", "p0_measured")
+MANIFEST_COLUMNS = REQUIRED_COLUMNS + MEASUREMENT_COLUMNS + ("method", "crop", "note")
+COMPARISON_COLUMNS = ("zenith_deg", "n", "r", "rmse", "rmse_r", "bias", "bias_r")
+PAIRS_COLUMNS = ("row", "scene", "camera", "zenith_deg", "step", "p0_measured", "p0_virtual",
+                 "difference", "measured_from", "photo", "method", "crop", "lai_virtual", "note")
+CAMERAS = ("orthographic", "perspective")
+MEAN_STEP = "mean"
+_ZENITH_TOL_DEG = 1e-9
+
+
+class ManifestError(ConfigError):
+    """A comparison manifest holds something we cannot use.
+
+    The message names the manifest, the row (numbered like the file's lines) and the
+    column.  ``file``, ``row``, ``key`` (= the column) and ``value`` are attributes.
+    """
+
+    def __init__(self, message: str, *, file: str | Path, row: int | None = None,
+                 column: str | None = None, value: Any = None) -> None:
+        self.file, self.row, self.key, self.column, self.value = str(file), row, column, column, value
+        where = [self.file]
+        if row is not None:
+            where.append(f"row {row}")
+        if column is not None:
+            where.append(f"column '{column}'")
+        if value is not None:
+            where.append(f"value {value!r}")
+        ValueError.__init__(self, ", ".join(where) + ": " + message)
+
+
+@dataclass(frozen=True)
+class ManifestRow:
+    """One validated manifest row (paths resolved against the manifest's folder)."""
+
+    row: int
+    scene: Path
+    camera: str
+    zenith_deg: float
+    step: int | None  # None: the mean over all steps
+    photo: Path | None
+    method: str
+    crop: Any
+    p0_measured: float | None
+    note: str = ""
+    scene_text: str = ""  # as written in the manifest
+    photo_text: str = ""
+    crop_text: str = ""
+
+    @property
+    def step_label(self) -> str:
+        return MEAN_STEP if self.step is None else str(self.step)
+
+
+@dataclass
+class Pair:
+    """A manifest row with its measured and virtual P0."""
+
+    row: ManifestRow
+    p0_measured: float
+    p0_virtual: float
+    lai_virtual: float
+    photo_result: Any = None  # simlidar_mi.photo.PhotoGapResult for photo rows
+
+    @property
+    def difference(self) -> float:
+        """Simulated − observed."""
+        return self.p0_virtual - self.p0_measured
+
+    def to_row(self) -> dict[str, Any]:
+        r = self.row
+        src = "value" if r.photo is None else f"photo:{r.method}"
+        return {"row": r.row, "scene": r.scene_text, "camera": r.camera,
+                "zenith_deg": f"{r.zenith_deg:g}", "step": r.step_label,
+                "p0_measured": f"{self.p0_measured:.6f}", "p0_virtual": f"{self.p0_virtual:.6f}",
+                "difference": f"{self.difference:+.6f}", "measured_from": src,
+                "photo": r.photo_text, "method": r.method if r.photo is not None else "",
+                "crop": r.crop_text, "lai_virtual": f"{self.lai_virtual:.4f}", "note": r.note}
+
+
+@dataclass
+class ComparisonResult:
+    """What :func:`compare` produced.
+
+    Attributes
+    ----------
+    manifest : pathlib.Path
+    pairs : list of Pair
+        In manifest order.
+    stats : list of dict
+        One per zenith (ascending), then ``zenith_deg = "all"``; keys
+        :data:`COMPARISON_COLUMNS`.
+    files : dict of str to pathlib.Path
+        Files written.
+    """
+
+    manifest: Path
+    pairs: list[Pair]
+    stats: list[dict[str, Any]]
+    files: dict[str, Path] = field(default_factory=dict)
+
+    def stats_for(self, zenith_deg: float | str) -> dict[str, Any]:
+        """The statistics row of one zenith (or ``"all"``)."""
+        for s in self.stats:
+            if s["zenith_deg"] == zenith_deg or (
+                    not isinstance(zenith_deg, str) and not isinstance(s["zenith_deg"], str)
+                    and abs(s["zenith_deg"] - zenith_deg) <= _ZENITH_TOL_DEG):
+                return s
+        raise KeyError(zenith_deg)
+
+
+# --------------------------------------------------------------------- statistics
+def comparison_stats(simulated: Sequence[float], observed: Sequence[float]) -> dict[str, float]:
+    """Agreement of simulated (s) with observed (o) values, as the paper's Table 5.
+
+    Parameters
+    ----------
+    simulated, observed : sequences of float, same length n ≥ 1
+
+    Returns
+    -------
+    dict
+        ``n``; ``r`` Pearson's correlation (nan when n < 2 or either has no spread);
+        ``rmse`` = √mean((s − o)²); ``rmse_r`` = rmse / mean(o); ``bias`` = mean(s − o);
+        ``bias_r`` = bias / mean(o) (relative values are fractions; nan when mean(o) = 0).
+
+    Raises
+    ------
+    ConfigError
+        Different lengths, no values, or non-finite values.
+
+    Examples
+    --------
+    >>> s = comparison_stats([0.2, 0.3, 0.4], [0.1, 0.3, 0.5])
+    >>> s["n"], round(s["r"], 6), round(s["rmse"], 6), round(s["bias"], 6)
+    (3, 1.0, 0.08165, 0.0)
+    """
+    s = np.asarray(simulated, np.float64).ravel()
+    o = np.asarray(observed, np.float64).ravel()
+    if s.shape != o.shape:
+        raise ConfigError(f"simulated and observed differ in length ({s.size} vs {o.size})",
+                          key="simulated")
+    if s.size == 0:
+        raise ConfigError("no values to compare", key="simulated")
+    if not (np.isfinite(s).all() and np.isfinite(o).all()):
+        raise ConfigError("simulated and observed values must be finite", key="simulated")
+    d = s - o
+    rmse = float(math.sqrt(np.mean(d * d)))
+    bias = float(np.mean(d))
+    mean_o = float(np.mean(o))
+    r = math.nan
+    if s.size >= 2:
+        ds, do = s - s.mean(), o - o.mean()
+        den = math.sqrt(float(np.sum(ds * ds)) * float(np.sum(do * do)))
+        if den > 0:
+            # clip: rounding can put a perfect correlation a hair above 1
+            r = float(min(1.0, max(-1.0, float(np.sum(ds * do)) / den)))
+    rel = (lambda x: x / mean_o) if mean_o != 0 else (lambda x: math.nan)
+    return {"n": int(s.size), "r": r, "rmse": rmse, "rmse_r": rel(rmse), "bias": bias,
+            "bias_r": rel(bias)}
+
+
+# ----------------------------------------------------------------------- manifest
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def read_manifest(path: str | os.PathLike[str]) -> list[ManifestRow]:
+    """Read and check a comparison manifest (see the module docstring).
+
+    Checks everything that can be checked without rendering or decoding photos:
+    columns, value types and ranges, that scene and photo files exist, and that each
+    row has exactly one of ``photo`` / ``p0_measured``.
+
+    Raises
+    ------
+    ManifestError
+        Naming the manifest, the row and the column.
+    """
+    from .photo import METHODS, parse_crop  # noqa: PLC0415
+    mpath = Path(path)
+    src = str(mpath)
+    try:
+        text = mpath.read_text(encoding="utf-8-sig")  # spreadsheets may add a BOM
+    except FileNotFoundError:
+        raise ManifestError("no such manifest file", file=src) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ManifestError(f"cannot read the manifest as UTF-8 text: {exc}", file=src) from exc
+    # comment lines become empty lines, so the reader's line numbers stay the file's
+    lines = ["" if ln.lstrip().startswith("#") else ln for ln in text.splitlines()]
+    reader = csv.reader(lines)
+    header: list[str] | None = None
+    header_row = 0
+    rows: list[ManifestRow] = []
+    base = mpath.parent
+    for cells in reader:
+        n = reader.line_num
+        if not cells or all(not c.strip() for c in cells):
+            continue
+        cells = [c.strip() for c in cells]
+        if header is None:
+            header, header_row = cells, n
+            _check_header(header, src, n)
+            continue
+        if len(cells) > len(header):
+            raise ManifestError(f"{len(cells)} fields but the header (row {header_row}) has "
+                                f"{len(header)}", file=src, row=n)
+        rec = dict(zip(header, cells + [""] * (len(header) - len(cells))))
+        rows.append(_parse_row(rec, n, src, base, METHODS, parse_crop))
+    if header is None:
+        raise ManifestError("empty manifest: no header row "
+                            f"(need {', '.join(REQUIRED_COLUMNS)} and photo or p0_measured)",
+                            file=src)
+    if not rows:
+        raise ManifestError("the manifest has a header but no data rows", file=src,
+                            row=header_row)
+    return rows
+
+
+def _check_header(header: list[str], src: str, n: int) -> None:
+    seen = set()
+    for col in header:
+        if col == "":
+            raise ManifestError("empty column name in the header", file=src, row=n)
+        if col in seen:
+            raise ManifestError("column given twice in the header", file=src, row=n, column=col)
+        seen.add(col)
+        if col not in MANIFEST_COLUMNS:
+            raise ManifestError(f"unknown column; valid: {', '.join(MANIFEST_COLUMNS)}",
+                                file=src, row=n, column=col)
+    for col in REQUIRED_COLUMNS:
+        if col not in seen:
+            raise ManifestError("required column missing from the header "
+                                f"(need {', '.join(REQUIRED_COLUMNS)})", file=src, row=n, column=col)
+    if not seen & set(MEASUREMENT_COLUMNS):
+        raise ManifestError("the header needs a 'photo' or a 'p0_measured' column (or both)",
+                            file=src, row=n, column="photo/p0_measured")
+
+
+def _parse_row(rec: dict[str, str], n: int, src: str, base: Path, methods, parse_crop) -> ManifestRow:
+    def err(col: str, msg: str, value: Any = None) -> ManifestError:
+        return ManifestError(msg, file=src, row=n, column=col, value=value)
+
+    for col in REQUIRED_COLUMNS:
+        if not rec.get(col, ""):
+            raise err(col, "empty; every row needs scene, camera, zenith_deg and step")
+    scene_text = rec["scene"]
+    scene = (base / scene_text)
+    if not scene.is_file():
+        raise err("scene", f"no such scene file ({scene})", scene_text)
+    camera = rec["camera"]
+    if camera not in CAMERAS:
+        raise err("camera", f"unknown camera; valid: {', '.join(CAMERAS)}", camera)
+    try:
+        zenith = float(rec["zenith_deg"])
+    except ValueError:
+        raise err("zenith_deg", "not a number (degrees)", rec["zenith_deg"]) from None
+    if not (math.isfinite(zenith) and 0.0 <= zenith <= 80.0):
+        raise err("zenith_deg", "view zenith must lie in [0, 80] degrees", rec["zenith_deg"])
+    step_text = rec["step"]
+    step: int | None
+    if step_text.lower() == MEAN_STEP:
+        step = None
+    else:
+        try:
+            step = int(step_text)
+        except ValueError:
+            raise err("step", f"expected an extraction step (integer ≥ 0) or '{MEAN_STEP}'",
+                      step_text) from None
+        if step < 0:
+            raise err("step", "extraction steps are ≥ 0 (0 = full canopy)", step_text)
+    photo_text, p0_text = rec.get("photo", ""), rec.get("p0_measured", "")
+    if photo_text and p0_text:
+        raise err("photo/p0_measured", "give exactly one of 'photo' and 'p0_measured', not both",
+                  (photo_text, p0_text))
+    if not photo_text and not p0_text:
+        raise err("photo/p0_measured", "give exactly one of 'photo' and 'p0_measured' (both empty)")
+    method, crop_text = rec.get("method", ""), rec.get("crop", "")
+    photo: Path | None = None
+    p0: float | None = None
+    crop = None
+    if photo_text:
+        photo = base / photo_text
+        if not photo.is_file():
+            raise err("photo", f"no such photo ({photo})", photo_text)
+        method = method or "canopeo"
+        if method not in methods:
+            raise err("method", f"unknown photo method; valid: {', '.join(methods)}", method)
+        if crop_text:
+            try:
+                crop = parse_crop(crop_text)
+            except PhotoError as exc:
+                raise err("crop", str(exc), crop_text) from None
+    else:
+        for col, val in (("method", method), ("crop", crop_text)):
+            if val:
+                raise err(col, "only photo rows take a method or a crop", val)
+        try:
+            p0 = float(p0_text)
+        except ValueError:
+            raise err("p0_measured", "not a number", p0_text) from None
+        if not (math.isfinite(p0) and 0.0 <= p0 <= 1.0):
+            raise err("p0_measured", "a gap fraction must lie in [0, 1]", p0_text)
+    return ManifestRow(n, scene, camera, zenith, step, photo, method, crop, p0,
+                       rec.get("note", ""), scene_text, photo_text, crop_text)
+
+
+# ------------------------------------------------------------------------ helpers
+def _photo_p0s(rows: list[ManifestRow], src: str, mask_dir: Path) -> dict[int, Any]:
+    """PhotoGapResult per photo row (each photo decoded once per method and crop)."""
+    from .photo import crop_box, photo_gap, read_rgb  # noqa: PLC0415
+    done: dict[tuple, Any] = {}
+    out: dict[int, Any] = {}
+    for r in rows:
+        if r.photo is None:
+            continue
+        key = (str(r.photo.resolve()), r.method, r.crop_text)
+        if key not in done:
+            try:
+                rgb = read_rgb(r.photo)
+            except PhotoError as exc:
+                raise ManifestError(f"unreadable photo: {exc}", file=src, row=r.row,
+                                    column="photo", value=r.photo_text) from exc
+            h, w = rgb.shape[:2]
+            try:
+                crop_box(r.crop, w, h, file=r.photo)
+            except PhotoError as exc:
+                raise ManifestError(str(exc), file=src, row=r.row, column="crop",
+                                    value=r.crop_text) from exc
+            # flat names: staged_dir cannot replace a non-empty sub-folder on a re-run
+            mask = mask_dir / f"photo_mask_row{r.row}_{r.photo.stem}_{r.method}.png"
+            try:
+                done[key] = photo_gap(r.photo, r.method, r.crop, mask_path=mask)
+            except PhotoError as exc:  # e.g. Otsu on a uniform crop
+                raise ManifestError(str(exc), file=src, row=r.row, column="photo",
+                                    value=r.photo_text) from exc
+        out[r.row] = done[key]
+    return out
+
+
+def _render_scenes(rows: list[ManifestRow], src: str):
+    """Render every distinct scene once; returns {scene path: (run, first row)}."""
+    from .config import load_scene  # noqa: PLC0415
+    from .gapfraction import run_gapfraction  # noqa: PLC0415
+    by_scene: dict[Path, list[ManifestRow]] = {}
+    for r in rows:
+        by_scene.setdefault(r.scene.resolve(), []).append(r)
+    runs = {}
+    for scene, rs in by_scene.items():
+        cams = sorted({r.camera for r in rs})
+        zens = sorted({r.zenith_deg for r in rs})
+        overrides = ["gapfraction.cameras=[" + ", ".join(f'"{c}"' for c in cams) + "]",
+                     "gapfraction.zeniths_deg=[" + ", ".join(repr(float(z)) for z in zens) + "]"]
+        try:
+            cfg = load_scene(scene, overrides)
+            run = run_gapfraction(cfg, None)
+        except SimlidarError as exc:
+            raise ManifestError(f"cannot render this scene: {exc}", file=src, row=rs[0].row,
+                                column="scene", value=rs[0].scene_text) from exc
+        runs[scene] = (run, cfg)
+    return runs
+
+
+def _virtual(row: ManifestRow, run, src: str) -> tuple[float, float, list]:
+    """(P0, LAI, images used) of the virtual view a row asks for."""
+    steps = sorted({c.step for c in run.canopies})
+    imgs = [im for im in run.images if im.camera.kind == row.camera
+            and abs(im.camera.zenith_deg - row.zenith_deg) <= _ZENITH_TOL_DEG]
+    if row.step is not None:
+        if row.step not in steps:
+            raise ManifestError(f"the scene has extraction steps {steps[0]}–{steps[-1]} only",
+                                file=src, row=row.row, column="step", value=row.step_label)
+        imgs = [im for im in imgs if im.step == row.step]
+    if not imgs:  # cannot happen: the scene was rendered for exactly these views
+        raise ManifestError("no virtual image of this view was rendered", file=src, row=row.row,
+                            column="camera", value=row.camera)
+    return (float(np.mean([im.p0 for im in imgs])), float(np.mean([im.lai for im in imgs])), imgs)
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, str):
+        return v
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    return "nan" if not math.isfinite(v) else f"{v:.6g}"
+
+
+def _group_stats(pairs: list[Pair]) -> list[dict[str, Any]]:
+    out = []
+    for z in sorted({p.row.zenith_deg for p in pairs}):
+        ps = [p for p in pairs if abs(p.row.zenith_deg - z) <= _ZENITH_TOL_DEG]
+        out.append({"zenith_deg": z, **comparison_stats([p.p0_virtual for p in ps],
+                                                         [p.p0_measured for p in ps])})
+    out.append({"zenith_deg": "all", **comparison_stats([p.p0_virtual for p in pairs],
+                                                        [p.p0_measured for p in pairs])})
+    return out
+
+
+def plot_comparison(pairs: Sequence[Pair], stats: Sequence[dict[str, Any]], path: str | Path,
+                    title: str = "") -> Path:
+    """Measured vs virtual P0, one panel per zenith, with the 1:1 line (the paper's Fig. 4).
+
+    Points are labelled with their extraction step; photo-derived and typed-in
+    measurements use different markers.
+    """
+    import matplotlib  # noqa: PLC0415
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    from .io.atomic import atomic_file  # noqa: PLC0415
+    zen = [s for s in stats if s["zenith_deg"] != "all"]
+    vals = [v for p in pairs for v in (p.p0_measured, p.p0_virtual)]
+    lo, hi = min(vals), max(vals)
+    pad = max(0.02, 0.08 * (hi - lo))
+    lim = (max(0.0, lo - pad), min(1.0, hi + pad))
+    fig, axes = plt.subplots(1, len(zen), figsize=(3.6 * len(zen) + 0.4, 4.0), dpi=120,
+                             squeeze=False)
+    for ax, s in zip(axes[0], zen):
+        z = s["zenith_deg"]
+        ps = [p for p in pairs if abs(p.row.zenith_deg - z) <= _ZENITH_TOL_DEG]
+        ax.plot(lim, lim, color="0.5", lw=1, ls="--", label="1:1")
+        for src, marker, colour in (("photo", "o", "tab:green"), ("value", "s", "tab:blue")):
+            sel = [p for p in ps if (p.row.photo is not None) == (src == "photo")]
+            if sel:
+                ax.scatter([p.p0_measured for p in sel], [p.p0_virtual for p in sel], s=36,
+                           marker=marker, color=colour, zorder=3,
+                           label="from photo" if src == "photo" else "measured value")
+        for p in ps:
+            label = p.row.step_label if p.row.step is None else f"step {p.row.step}"
+            ax.annotate(label, (p.p0_measured, p.p0_virtual), textcoords="offset points",
+                        xytext=(4, 4), fontsize=7, color="0.3")
+        ax.set_xlim(lim)
+        ax.set_ylim(lim)
+        ax.set_aspect("equal")
+        ax.set_xlabel("measured P0")
+        ax.set_ylabel("virtual P0")
+        r = "–" if not math.isfinite(s["r"]) else f"{s['r']:.3f}"
+        ax.set_title(f"θ = {z:g}°   n = {s['n']}\nr = {r}, RMSE = {s['rmse']:.3f}, "
+                     f"bias = {s['bias']:+.3f}", fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    with atomic_file(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    return Path(path)
+
+
+# ----------------------------------------------------------------------- the API
+def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[str]) -> ComparisonResult:
+    """Pair measured and virtual P0 as a manifest says; write the Table 5 statistics.
+
+    Parameters
+    ----------
+    manifest_path : path-like
+        The manifest CSV (format in the module docstring).
+    out_dir : path-like
+        Output folder: ``comparison.csv``, ``pairs.csv``, ``comparison.png``,
+        ``comparison.json``, ``photo_mask_*.png``, ``virtual_*.png``.  Files appear together
+        when everything succeeded; a failure leaves the folder as it was.
+
+    Returns
+    -------
+    ComparisonResult
+
+    Raises
+    ------
+    ManifestError
+        Bad columns or values, unknown scenes, unreadable photos, a step the scene does
+        not have; the message names the manifest, row and column.
+    """
+    from .io.atomic import atomic_file, staged_dir  # noqa: PLC0415
+    from .io.png import write_mask_png  # noqa: PLC0415
+    mpath = Path(manifest_path)
+    src = str(mpath)
+    rows = read_manifest(mpath)
+    out = Path(out_dir)
+    with staged_dir(out) as stage:
+        photos = _photo_p0s(rows, src, stage)  # cheap, fails before any rendering
+        runs = _render_scenes(rows, src)
+        pairs, used = [], {}
+        for r in rows:
+            run, _cfg = runs[r.scene.resolve()]
+            p0_v, lai, imgs = _virtual(r, run, src)
+            for im in imgs:
+                used[(r.scene.resolve(), im.stem())] = (r.scene.stem, im)
+            p0_m = photos[r.row].p0 if r.photo is not None else float(r.p0_measured)
+            pairs.append(Pair(r, float(p0_m), p0_v, lai, photos.get(r.row)))
+        stats = _group_stats(pairs)
+        files: dict[str, Path] = {}
+        with atomic_file(stage / "comparison.csv") as tmp:
+            with open(tmp, "w", newline="", encoding="utf-8") as fh:
+                w = csv.DictWriter(fh, fieldnames=COMPARISON_COLUMNS)
+                w.writeheader()
+                for s in stats:
+                    w.writerow({k: _fmt(s[k]) for k in COMPARISON_COLUMNS})
+        files["comparison.csv"] = out / "comparison.csv"
+        with atomic_file(stage / "pairs.csv") as tmp:
+            with open(tmp, "w", newline="", encoding="utf-8") as fh:
+                w = csv.DictWriter(fh, fieldnames=PAIRS_COLUMNS)
+                w.writeheader()
+                for p in pairs:
+                    w.writerow(p.to_row())
+        files["pairs.csv"] = out / "pairs.csv"
+        plot_comparison(pairs, stats, stage / "comparison.png", title=f"{mpath.name}: "
+                        "virtual vs measured gap fraction")
+        files["comparison.png"] = out / "comparison.png"
+        for (_scene, stem), (scene_stem, im) in sorted(used.items(), key=lambda kv: str(kv[0])):
+            write_mask_png(stage / f"virtual_{scene_stem}_{stem}.png", im.mask(), im.window.box_px)
+        meta = {"manifest": src, "manifest_sha256": _sha256(mpath),
+                "scenes": {str(k): {"sha256": cfg.sha256, "seed": cfg.seed,
+                                    "gapfraction": cfg["gapfraction"]}
+                           for k, (_run, cfg) in runs.items()},
+                "stats": [{k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                           for k, v in s.items()} for s in stats]}
+        with atomic_file(stage / "comparison.json") as tmp:
+            tmp.write_text(json.dumps(meta, indent=2, default=str) + "\n", encoding="utf-8")
+        files["comparison.json"] = out / "comparison.json"
+    for p in pairs:  # the mask paths moved with the staging folder
+        if p.photo_result is not None and p.photo_result.mask_file is not None:
+            p.photo_result = _moved(p.photo_result, stage, out)
+    return ComparisonResult(mpath, pairs, stats, files)
+
+
+def _moved(result, stage: Path, out: Path):
+    from dataclasses import replace  # noqa: PLC0415
+    try:
+        rel = Path(result.mask_file).relative_to(stage)
+    except ValueError:
+        return result
+    return replace(result, mask_file=out / rel)

@@ -227,6 +227,25 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "mask_threshold": Key(FLOAT, 0.5, lambda v: None if 0 < v <= 1 else "must lie in (0, 1]",
                               "coverage drawn as vegetation in mask PNGs (display only)"),
     },
+    # --- synthetic photos (simlidar_mi.synthetic_photo): a photo-like RGB render of
+    # every [gapfraction] view, checked with Canopeo against the coverage render
+    "photo_render": {
+        **{k: Key(LIST, d, lambda v: None if len(v) == 3 and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and 0 <= x <= 1 for x in v)
+            else "must be [r, g, b], three linear reflectances in [0, 1]", doc)
+           for k, d, doc in (("leaf_rgb", [0.08, 0.25, 0.06], "leaf reflectance (two-sided Lambertian)"),
+                             ("soil_rgb", [0.35, 0.22, 0.15], "soil reflectance (Lambertian plane)"))},
+        "sun_irradiance": Key(FLOAT, 1.0, nonneg, "sun irradiance per RGB channel (relative units)"),
+        "sky_radiance": Key(FLOAT, 0.35, nonneg, "uniform sky radiance per RGB channel"),
+        "sun_zenith_deg": Key(FLOAT, None, lambda v: None if 0 <= v < 90 else "must lie in [0, 90) degrees",
+                              "sun beam zenith; default: the sun at the observer (see synthetic_photo)"),
+        "sun_azimuth_deg": Key(FLOAT, None, _finite, "sun beam azimuth relative to the rows; default the view's"),
+        "exposure": Key(FLOAT, 1.0, positive, "linear radiance × exposure before the sRGB curve"),
+        "spp": Key(INT, 16, at_least(1), "samples per pixel of the photo (box filter)"),
+        "max_depth": Key(INT, 3, at_least(1), "path length (2 = direct light only)"),
+        "variant": Key(STR, "llvm_ad_rgb", lambda v: None if "rgb" in v.split("_")
+                       else "must be an RGB Mitsuba variant such as 'llvm_ad_rgb'"),
+    },
 }
 # Sections that hold a list of tables ([[primitive]]).
 ARRAY_SECTIONS: dict[str, dict[str, Key]] = {

@@ -11,24 +11,26 @@ A CSV file, one pair per row; lines starting with ``#`` are comments (use them f
 provenance), blank lines are skipped.  Rows are numbered like the file's lines
 (the header is row 1, comment lines count), as a spreadsheet or editor shows them.
 
-==============  ========  ==============================================================
-column          needed    meaning
-==============  ========  ==============================================================
-``scene``       yes       scene file (TOML, ``[strawberry]`` or ``[random_leaves]``),
-                          relative to the manifest's folder
-``camera``      yes       ``orthographic`` or ``perspective``
-``zenith_deg``  yes       view zenith in degrees, 0–80
-``step``        yes       extraction step (0 = full canopy, 1, 2 …) or ``mean``: the
-                          mean virtual P0 over all the scene's steps (for a measured
-                          value that is itself a mean over densities)
-``photo``       one of    a nadir/oblique photo, relative to the manifest's folder;
-``p0_measured``  these    or a measured P0 in [0, 1]. Exactly one per row.
-``method``      no        photo classifier: ``canopeo`` (default), ``exg-otsu``,
-                          ``blue-otsu`` (photo rows only)
-``crop``        no        central fraction (``0.5``) or pixel box
-                          (``"x0,y0,x1,y1"``) of the photo (photo rows only)
-``note``        no        free text, copied to ``pairs.csv``
-==============  ========  ==============================================================
+================  ========  ============================================================
+column            needed    meaning
+================  ========  ============================================================
+``scene``         yes       scene file (TOML, ``[strawberry]`` or ``[random_leaves]``),
+                            relative to the manifest's folder
+``camera``        yes       ``orthographic`` or ``perspective``
+``zenith_deg``    yes       view zenith in degrees, 0–80
+``step``          yes       extraction step (0 = full canopy, 1, 2 …) or ``mean``: the
+                            mean virtual P0 over all the scene's steps (for a measured
+                            value that is itself a mean over densities)
+``photo``         one of    a photo, relative to the manifest's folder, classified with
+                  the two   ``method`` inside ``crop``
+``p0_measured``   (exactly  or a measured P0 in [0, 1]
+                  one)
+``method``        no        photo classifier: ``canopeo`` (default), ``exg-otsu``,
+                            ``blue-otsu`` (photo rows only)
+``crop``          no        central fraction (``0.5``) or pixel box
+                            (``"x0,y0,x1,y1"``) of the photo (photo rows only)
+``note``          no        free text, copied to ``pairs.csv``
+================  ========  ============================================================
 
 The header must hold the four required columns and at least one of ``photo`` /
 ``p0_measured``; unknown columns are refused (a misspelt ``zenith`` would otherwise be
@@ -68,7 +70,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -319,7 +321,8 @@ def _check_header(header: list[str], src: str, n: int) -> None:
                             file=src, row=n, column="photo/p0_measured")
 
 
-def _parse_row(rec: dict[str, str], n: int, src: str, base: Path, methods, parse_crop) -> ManifestRow:
+def _parse_row(rec: dict[str, str], n: int, src: str, base: Path, methods: Sequence[str],
+               parse_crop: Callable[..., Any]) -> ManifestRow:
     def err(col: str, msg: str, value: Any = None) -> ManifestError:
         return ManifestError(msg, file=src, row=n, column=col, value=value)
 

@@ -477,8 +477,8 @@ class SyntheticPhotoCheck:
         Gap fraction of the window from coverage and from Canopeo on the photo.
     settings : PhotoSettings
     seconds_photo : float
-        Wall time of the photo render (child process start-up included when the
-        photo was rendered alone).
+        Wall time of the child process that rendered the photos (start-up included),
+        divided by the number of photos it rendered.
     """
 
     image: Any

@@ -30,6 +30,7 @@ demo: llvm $(STAMP)
 	$(VENV)/bin/simlidar-mi scan $(SCENE) --out $(OUT)/apple_orchard
 	$(VENV)/bin/simlidar-mi preview $(SCENE) --out $(OUT)/apple_orchard/preview.png
 	$(VENV)/bin/simlidar-mi gapfraction scenes/strawberry_plot.toml --out $(OUT)/strawberry
+	$(VENV)/bin/simlidar-mi compare scenes/strawberry_manifest.csv --out $(OUT)/compare
 	@echo "outputs in $(OUT)/"
 
 test: llvm $(STAMP)

@@ -223,6 +223,35 @@ def _derive_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _forest_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", metavar="SCENE.toml", help="scene with [forest] and [[species]] (see scenes/)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scene key, e.g. --set forest.instancing=false (repeatable)")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder: trees.csv, leaves.csv, layout.png, preview.png, stand.ply, "
+                        "forest.json")
+
+
+@command("forest", "Random forest (seed 004): Poisson-placed random trees; tree and leaf tables, "
+         "layout and preview pictures, PLY/OBJ export", _forest_args)
+def _forest_run(args: argparse.Namespace) -> int:
+    from .forest import run_forest
+
+    run = run_forest(args.scene, args.out, args.overrides, progress=sys.stderr.isatty())
+    s = run.summary
+    print(f"{s['n_trees']} trees ({s['removed_by_min_distance']} removed by the "
+          f"{s['min_distance_m']:g} m distance rule), {s['n_branches']} branches, {s['n_leaves']} leaves; "
+          f"instancing {'on: ' + str(s['n_prototypes']) + ' prototypes' if s['instancing'] else 'off'}")
+    for sp in s["species"]:
+        print(f"  {sp['name']:<16} {sp['count']:>7} trees  (expected {sp['expected_before_thinning']:.1f} "
+              f"before thinning, {sp['count_before_thinning']} drawn, {sp['removed_by_min_distance']} removed)")
+    print(f"leaf table: {s['leaf_table']}, export: {s['export']}; seconds: "
+          + ", ".join(f"{k} {v:.2f}" for k, v in s["seconds"].items()))
+    for path in run.files.values():
+        print(f"wrote {path}")
+    return 0
+
+
 def _gapfraction_args(p: argparse.ArgumentParser) -> None:
     _scene_args(p)
     p.add_argument("--out", required=True, metavar="DIR",

@@ -129,6 +129,31 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "pruning": Key(BOOL, False),
         "stochastic": Key(BOOL, False),
     },
+    # --- random forests (simlidar_mi.forest, seed 004 §III); species are [[species]] tables
+    "forest": {
+        "domain_m": Key(LIST, [0.0, 300.0, 0.0, 300.0], lambda v: None if _numbers(v, 4)
+                        and v[1] > v[0] and v[3] > v[2]
+                        else "must be [x_min, x_max, y_min, y_max] in metres with max > min",
+                        "the rectangle trees are placed on"),
+        "min_distance_m": Key(FLOAT, 3.0, nonneg, "no two trees closer than this (0: no thinning)"),
+        "instancing": Key(BOOL, True, None, "true: K prototypes per species, placed with yaw/scale; "
+                          "false: every tree its own random draw"),
+        "prototypes_per_species": Key(INT, 12, lambda v: None if 1 <= v <= 1000
+                                      else "must lie in [1, 1000]", "K distinct trees per species"),
+        "scale_range": Key(LIST, [0.85, 1.15], lambda v: None if _numbers(v, 2) and 0 < v[0] <= v[1]
+                           else "must be [min, max] with 0 < min ≤ max",
+                           "uniform scale of instanced trees, drawn per tree"),
+        "max_trees": Key(INT, 100_000, at_least(1), "refuse forests with more trees"),
+        "leaf_table": Key(STR, "auto", one_of("auto", "all", "prototypes", "none"),
+                          "auto: 'all' up to leaf_table_max_rows leaves, else 'prototypes' (instancing) or 'all'"),
+        "leaf_table_max_rows": Key(INT, 1_000_000, at_least(0), "limit of leaf_table = 'auto'"),
+        "export": Key(STR, "auto", one_of("auto", "stand", "prototypes", "none"),
+                      "auto: the whole stand up to export_max_triangles, else one file per prototype"),
+        "export_format": Key(STR, "ply", one_of("ply", "obj"), "binary PLY or text OBJ"),
+        "export_facets": Key(INT, 6, at_least(3), "prism facets of exported branches"),
+        "export_max_triangles": Key(INT, 20_000_000, at_least(0), "limit of export = 'auto'"),
+        "preview_max_trees": Key(INT, 300, at_least(1), "trees drawn in preview.png (a central strip)"),
+    },
     "ground": {
         "enabled": Key(BOOL, True),
         "z_m": Key(FLOAT, 0.0, _finite),
@@ -258,6 +283,16 @@ ARRAY_SECTIONS: dict[str, dict[str, Key]] = {
         "max_m": Key(LIST, None, vec3),
         "path": Key(STR, None),
         "label": Key(STR, "wood", one_of("wood", "leaf")),
+    },
+    # [[species]] of a [forest]: a random-tree preset, optional overrides, an intensity
+    "species": {
+        "name": Key(STR, None, lambda v: None if v.strip() else "must be a non-empty name"),
+        "preset": Key(STR, None, None, "random-tree preset (simlidar_mi.plants.random_tree)"),
+        "bumps": Key(LIST, None, lambda v: None if all(isinstance(b, dict) for b in v) else
+                     "must be a list of tables {C_per_m2, x0_m, y0_m, h_m2, l_m2}",
+                     "squared-exponential intensity terms C·exp(−[(x−x0)²/h + (y−y0)²/l])"),
+        "background_per_m2": Key(FLOAT, 0.0, nonneg, "constant intensity added everywhere"),
+        "tree": Key((dict,), None, None, "overrides of the preset's laws and constants"),
     },
 }
 PRIMITIVE_NEEDS = {"cylinder": ("p0_m", "p1_m", "diameter_m"), "box": ("min_m", "max_m"), "obj": ("path",)}

@@ -1,0 +1,351 @@
+"""Random forests (seed 004, §III): placement through make_forest, instancing, the files of
+``simlidar-mi forest`` (trees.csv, leaves.csv, PLY/OBJ, pictures), staging and bad configs."""
+from __future__ import annotations
+
+import csv
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.distance import pdist
+
+from simlidar_mi.cli import main
+from simlidar_mi.config import load_scene
+from simlidar_mi.errors import ConfigError
+from simlidar_mi.forest import (ForestParams, ForestSpecies, forest_params_from_scene, make_forest,
+                                run_forest, tree_seed)
+from simlidar_mi.io.mesh_export import PART_LEAVES, PART_WOOD, read_obj, read_ply
+from simlidar_mi.plants.poisson import Bump, Domain, SpeciesIntensity, place_trees
+from simlidar_mi.plants.random_tree import random_tree, species_preset
+
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
+
+TREES_COLUMNS = ["tree_id", "species", "x", "y", "height_m", "n_branches", "n_leaves", "seed",
+                 "prototype", "yaw_deg", "scale", "crown_radius_m"]
+LEAF_COLUMNS = ["tree_id", "leaf_id", "x", "y", "z", "length_m", "width_m", "area_m2",
+                "nx", "ny", "nz", "hx", "hy", "hz"]
+FACETS = 6
+
+
+@pytest.fixture(scope="module")
+def full_run(tmp_path_factory):
+    """The small scene as shipped: every tree its own draw, leaves.csv, stand.ply."""
+    out = tmp_path_factory.mktemp("forest_full")
+    return run_forest(SCENES / "forest_small.toml", out), out
+
+
+@pytest.fixture(scope="module")
+def inst_run(tmp_path_factory):
+    """The same scene with instancing (3 prototypes a species)."""
+    out = tmp_path_factory.mktemp("forest_inst")
+    over = ["forest.instancing=true", "forest.prototypes_per_species=3", 'forest.export="none"',
+            'forest.leaf_table="all"', "forest.scale_range=[0.8, 1.25]"]
+    return run_forest(SCENES / "forest_small.toml", out, over), out
+
+
+def read_trees(path: Path) -> tuple[list[str], list[dict]]:
+    with open(path, newline="") as fh:
+        r = csv.DictReader(fh)
+        return list(r.fieldnames), list(r)
+
+
+def world_max_z(forest, i: int) -> float:
+    b, lv = forest.tree_geometry(i)
+    return float(max(b.p0[:, 2].max(), b.p1[:, 2].max(), lv.vertices[..., 2].max()))
+
+
+@pytest.mark.parametrize("run", ["full_run", "inst_run"])
+def test_placement_is_place_trees_and_keeps_its_guarantees(run, request):
+    r, _ = request.getfixturevalue(run)
+    f = r.forest
+    p = forest_params_from_scene(load_scene(SCENES / "forest_small.toml"))
+    direct = place_trees([s.intensity for s in p.species], p.domain, p.min_distance_m,
+                         np.random.default_rng(np.random.SeedSequence(f.seed, spawn_key=(0,))))
+    np.testing.assert_array_equal(f.x_m, direct.x_m)
+    np.testing.assert_array_equal(f.y_m, direct.y_m)
+    np.testing.assert_array_equal(f.species, direct.species)
+    counts = np.bincount(f.species, minlength=len(p.species))
+    np.testing.assert_array_equal(counts, f.placement.count_after)
+    np.testing.assert_array_equal(f.placement.count_before - f.placement.removed, counts)
+    assert f.placement.removed.sum() > 0               # the distance rule did something here
+    assert pdist(np.column_stack([f.x_m, f.y_m])).min() > p.min_distance_m
+    d = p.domain
+    assert (f.x_m >= d.x_min_m).all() and (f.x_m <= d.x_max_m).all()
+    s = r.summary
+    assert [sp["count"] for sp in s["species"]] == counts.tolist()
+    assert [sp["removed_by_min_distance"] for sp in s["species"]] == f.placement.removed.tolist()
+    assert s["removed_by_min_distance"] == int(f.placement.removed.sum())
+
+
+def test_placement_does_not_depend_on_instancing(full_run, inst_run):
+    a, b = full_run[0].forest, inst_run[0].forest
+    np.testing.assert_array_equal(a.x_m, b.x_m)
+    np.testing.assert_array_equal(a.tree_seed, b.tree_seed)
+
+
+@pytest.mark.parametrize("run", ["full_run", "inst_run"])
+def test_trees_csv_matches_the_geometry(run, request):
+    r, out = request.getfixturevalue(run)
+    f = r.forest
+    cols, rows = read_trees(out / "trees.csv")
+    assert cols == TREES_COLUMNS
+    assert len(rows) == len(f) > 10
+    for i, row in enumerate(rows):
+        b, lv = f.tree_geometry(i)
+        assert int(row["tree_id"]) == i
+        assert row["species"] == f.species_names[f.species[i]]
+        assert float(row["x"]) == pytest.approx(f.x_m[i], abs=1e-6)
+        assert float(row["y"]) == pytest.approx(f.y_m[i], abs=1e-6)
+        assert float(row["height_m"]) == pytest.approx(world_max_z(f, i), abs=2e-6)
+        assert int(row["n_branches"]) == len(b)
+        assert int(row["n_leaves"]) == len(f.tree_leaf_table(i)) == len(np.unique(lv.leaf_id))
+        assert int(row["seed"]) == tree_seed(f.seed, i)
+        assert int(row["prototype"]) == f.prototype[i]
+        assert float(row["scale"]) == pytest.approx(f.scale[i], abs=1e-8)
+        # the trunk foot stands at (x, y, 0)
+        np.testing.assert_allclose(b.p0[0], [f.x_m[i], f.y_m[i], 0.0], atol=1e-9)
+        assert 1.0 < float(row["height_m"]) < 35.0
+
+
+def test_each_tree_is_rebuilt_from_its_own_seed(full_run):
+    """Without instancing, tree i is random_tree(species params, seed_i): nothing else enters."""
+    f = full_run[0].forest
+    assert f.instancing is False and (f.prototype == -1).all()
+    assert len(set(f.tree_seed.tolist())) == len(f)
+    for i in range(0, len(f), 4):
+        params = f.params.species[f.species[i]].tree
+        again = random_tree(params, int(f.tree_seed[i]), tree_id=i)
+        mine = f.trees[i]
+        assert again.branches.p1.tobytes() == mine.branches.p1.tobytes()
+        assert again.leaves.vertices.tobytes() == mine.leaves.vertices.tobytes()
+
+
+def test_instances_are_their_prototypes_placed(inst_run):
+    f = inst_run[0].forest
+    K = f.params.prototypes_per_species
+    assert len(f.prototypes) == K * len(f.species_names)
+    np.testing.assert_array_equal(f.prototype_species[f.prototype], f.species)
+    assert (f.yaw_deg >= 0).all() and (f.yaw_deg < 360).all()
+    assert (f.scale >= 0.8).all() and (f.scale <= 1.25).all()
+    for i in range(len(f)):
+        # the tree's choice comes from its own seed alone
+        r = np.random.default_rng(int(f.tree_seed[i]))
+        assert f.prototype[i] == f.species[i] * K + r.integers(K)
+        assert f.yaw_deg[i] == r.uniform(0, 360) and f.scale[i] == r.uniform(0.8, 1.25)
+        proto = f.prototypes[f.prototype[i]]
+        b, _ = f.tree_geometry(i)
+        c, s = np.cos(np.radians(f.yaw_deg[i])), np.sin(np.radians(f.yaw_deg[i]))
+        R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+        np.testing.assert_allclose(b.p1, f.scale[i] * proto.branches.p1 @ R.T + [f.x_m[i], f.y_m[i], 0],
+                                   atol=1e-9)
+        np.testing.assert_allclose(b.diameter, f.scale[i] * proto.branches.diameter)
+        assert f.height_m[i] == pytest.approx(f.scale[i] * proto.height_m, rel=1e-12)
+    arrays = f.instance_arrays()
+    assert len(arrays["prototypes"]) == len(f.prototypes)
+    np.testing.assert_array_equal(arrays["proto_index"], f.prototype)
+    np.testing.assert_array_equal(arrays["translation_m"][:, :2], np.column_stack([f.x_m, f.y_m]))
+    with pytest.raises(ConfigError, match="forest.instancing"):
+        make_forest_small_full().instance_arrays()
+
+
+def make_forest_small_full():
+    sp = ForestSpecies("spruce", species_preset("conifer-whorl"),
+                       SpeciesIntensity("spruce", [Bump(0.02, 5.0, 5.0, 50.0, 50.0)]))
+    return make_forest(ForestParams(Domain(0, 10, 0, 10), (sp,), 2.0, False), seed=3)
+
+
+@pytest.mark.parametrize("run", ["full_run", "inst_run"])
+def test_leaf_table_matches_the_leaf_triangles(run, request):
+    r, out = request.getfixturevalue(run)
+    f = r.forest
+    path = out / "leaves.csv"
+    with open(path) as fh:
+        assert fh.readline().strip().split(",") == LEAF_COLUMNS
+    t = np.loadtxt(path, delimiter=",", skiprows=1)
+    assert len(t) == int(f.n_leaves.sum()) == r.summary["leaf_rows_written"]
+    tree_id = t[:, 0].astype(int)
+    b, lv = f.geometry()
+    tri_area = np.bincount(lv.plant_id, weights=lv.triangle_area, minlength=len(f))
+    table_area = np.bincount(tree_id, weights=t[:, 7], minlength=len(f))
+    np.testing.assert_allclose(table_area, tri_area, rtol=1e-6)
+    assert table_area.sum() == pytest.approx(lv.triangle_area.sum(), rel=1e-7)
+    # per leaf: area = polygon area of its triangles; centres in the world frame
+    key = lv.plant_id.astype(np.int64) * 2**32 + lv.leaf_id
+    per_leaf = np.bincount(np.unique(key, return_inverse=True)[1], weights=lv.triangle_area)
+    np.testing.assert_allclose(t[:, 7], per_leaf, rtol=2e-6)
+    world = f.leaf_table()
+    np.testing.assert_allclose(t[:, 2:5], world.centre_m, atol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(t[:, 8:11], axis=1), 1.0, atol=2e-6)
+    np.testing.assert_allclose(np.linalg.norm(t[:, 11:14], axis=1), 1.0, atol=2e-6)
+    assert (t[:, 5] > 0.01).all() and (t[:, 5] < 0.3).all()   # lengths of centimetres
+
+
+def test_ply_stand_rereads_with_the_right_counts(full_run):
+    r, out = full_run
+    f = r.forest
+    m = read_ply(out / "stand.ply")
+    nb, nt = f.n_branches, f.n_leaf_triangles
+    assert len(m.vertices) == int((2 * FACETS * nb + 3 * nt).sum())
+    assert len(m.faces) == int((2 * FACETS * nb + nt).sum()) == r.summary["export_triangles"]
+    part = m.face_props["part"]
+    assert (part == PART_WOOD).sum() == 2 * FACETS * nb.sum()
+    assert (part == PART_LEAVES).sum() == nt.sum()
+    np.testing.assert_array_equal(np.bincount(m.face_props["tree_id"]), 2 * FACETS * nb + nt)
+    assert m.faces.min() == 0 and m.faces.max() == len(m.vertices) - 1
+    b, lv = f.geometry()
+    leaf_v = m.vertices[m.faces[part == PART_LEAVES]]       # (n_tri, 3, 3) in file order
+    np.testing.assert_allclose(leaf_v, lv.vertices, atol=1e-5)   # float32 at ≤ 60 m
+    # wood: every prism vertex lies at the branch radius from its axis
+    wood_v = m.vertices[m.faces[part == PART_WOOD]].reshape(-1, 2 * FACETS, 3, 3)[:, 0, 0]
+    d = np.cross(wood_v - b.p0, b.p1 - b.p0)
+    dist = np.linalg.norm(d, axis=1) / b.length
+    np.testing.assert_allclose(dist, b.diameter / 2, atol=2e-5)
+    assert any("part 0 = wood" in c for c in m.comments)
+
+
+def test_obj_stand_rereads_with_wood_and_leaf_objects(tmp_path):
+    over = ["forest.instancing=true", "forest.prototypes_per_species=2", 'forest.export_format="obj"',
+            'forest.leaf_table="none"', "forest.domain_m=[0.0, 16.0, 0.0, 16.0]"]
+    r = run_forest(SCENES / "forest_small.toml", tmp_path, over)
+    f = r.forest
+    assert len(f) >= 3 and not (tmp_path / "leaves.csv").exists()
+    objs = read_obj(tmp_path / "stand.obj")
+    assert set(objs) == {"wood", "leaves"}
+    wv, wf = objs["wood"]
+    lvv, lf = objs["leaves"]
+    assert len(wv) == len(wf) == 2 * FACETS * int(f.n_branches.sum())
+    assert len(lf) == int(f.n_leaf_triangles.sum()) and len(lvv) == 3 * len(lf)
+    assert wf.min() == 0 and wf.max() == len(wv) - 1 and lf.max() == len(lvv) - 1
+    b, lv = f.geometry()
+    np.testing.assert_allclose(lvv[lf], lv.vertices, atol=2e-6)
+    np.testing.assert_allclose(wv[wf].reshape(-1, 2 * FACETS, 3, 3)[:, 0, 0],
+                               wv[::2 * FACETS], atol=0)   # each prism starts at its first ring vertex
+    assert len(wv) // (2 * FACETS) == len(b)
+
+
+def test_pictures_and_summary(full_run):
+    r, out = full_run
+    for name in ("layout.png", "preview.png"):
+        data = (out / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
+    s = json.loads((out / "forest.json").read_text())
+    assert s["n_trees"] == len(r.forest) and s["leaf_table"] == "all" and s["export"] == "stand"
+    assert not any(p.name.startswith(".") for p in out.parent.iterdir() if p.name.startswith(f".{out.name}"))
+
+
+def test_prototype_tables_and_meshes(scenes_dir, tmp_path):
+    over = ["forest.instancing=true", "forest.prototypes_per_species=2", 'forest.leaf_table="prototypes"',
+            'forest.export="prototypes"', "forest.domain_m=[0.0, 20.0, 0.0, 20.0]"]
+    r = run_forest(scenes_dir / "forest_small.toml", tmp_path / "o", over)
+    f = r.forest
+    with open(tmp_path / "o" / "prototype_leaves.csv") as fh:
+        assert fh.readline().startswith("prototype,leaf_id,x,y,z")
+    t = np.loadtxt(tmp_path / "o" / "prototype_leaves.csv", delimiter=",", skiprows=1)
+    assert len(t) == sum(p.n_leaves for p in f.prototypes)
+    np.testing.assert_array_equal(np.unique(t[:, 0]), np.arange(len(f.prototypes)))
+    plys = sorted((tmp_path / "o" / "prototypes").glob("*.ply"))
+    assert len(plys) == len(f.prototypes) == 8
+    for path in plys:
+        species, k = path.stem.rsplit("_", 1)
+        p = f.prototypes[int(k)]
+        assert species == f.species_names[f.prototype_species[int(k)]]
+        m = read_ply(path)
+        assert len(m.faces) == 2 * FACETS * len(p.branches) + len(p.leaves)
+        assert len(m.vertices) == 2 * FACETS * len(p.branches) + 3 * len(p.leaves)
+        np.testing.assert_allclose(m.vertices[m.faces[m.face_props["part"] == PART_LEAVES]],
+                                   p.leaves.vertices, atol=2e-6)   # own frame, untransformed
+    assert not (tmp_path / "o" / "leaves.csv").exists()
+
+
+def test_auto_modes_switch_to_prototypes_for_big_instanced_forests(scenes_dir, tmp_path):
+    over = ["forest.instancing=true", "forest.prototypes_per_species=1", "forest.leaf_table_max_rows=10",
+            'forest.leaf_table="auto"', 'forest.export="auto"',
+            "forest.export_max_triangles=10", "forest.domain_m=[0.0, 15.0, 0.0, 15.0]"]
+    r = run_forest(scenes_dir / "forest_small.toml", tmp_path / "o", over)
+    assert r.summary["leaf_table"] == "prototypes" and r.summary["export"] == "prototypes"
+    with pytest.raises(ConfigError, match=r"key 'forest.leaf_table', value 'prototypes'"):
+        run_forest(scenes_dir / "forest_small.toml", tmp_path / "p",
+                   ['forest.leaf_table="prototypes"', "forest.domain_m=[0.0, 15.0, 0.0, 15.0]"])
+
+
+def test_a_failed_run_leaves_nothing_behind(scenes_dir, tmp_path, monkeypatch):
+    import simlidar_mi.forest as forest_mod
+
+    def boom(*a, **k):
+        raise RuntimeError("disk full")
+    monkeypatch.setattr(forest_mod, "write_stand", boom)
+    out = tmp_path / "out"
+    with pytest.raises(RuntimeError):
+        run_forest(scenes_dir / "forest_small.toml", out, ["forest.domain_m=[0.0, 12.0, 0.0, 12.0]"])
+    assert list(tmp_path.iterdir()) == []       # no output folder, no staging folder
+
+
+def test_cli_forest(scenes_dir, tmp_path, capsys):
+    rc = main(["forest", str(scenes_dir / "forest_small.toml"), "--out", str(tmp_path / "c"),
+               "--set", "forest.domain_m=[0.0, 15.0, 0.0, 15.0]", "--set", "forest.instancing=true"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "trees" in text and "removed" in text and "wrote" in text
+    assert {p.name for p in (tmp_path / "c").iterdir()} == {
+        "trees.csv", "leaves.csv", "layout.png", "preview.png", "stand.ply", "forest.json"}
+    rc = main(["forest", str(scenes_dir / "forest_small.toml"), "--out", str(tmp_path / "d"),
+               "--set", "forest.min_distance_m=-1"])
+    assert rc == 2 and "forest.min_distance_m" in capsys.readouterr().err
+
+
+def test_the_300m_scene_is_valid(scenes_dir):
+    cfg = load_scene(scenes_dir / "forest_4species.toml")
+    p = forest_params_from_scene(cfg)
+    assert p.domain.area_m2 == 300.0 * 300.0 and p.instancing and len(p.species) == 4
+    assert {s.preset for s in p.species} == {"deciduous-apex", "conifer-whorl",
+                                              "broadleaf-monopodial", "small-tree"}
+
+
+BASE = """
+[scene]
+seed = 1
+[forest]
+domain_m = [0.0, 20.0, 0.0, 20.0]
+{forest}
+[[species]]
+name = "elm"
+preset = "{preset}"
+bumps = [{bump}]
+{tree}
+"""
+GOOD_BUMP = "{ C_per_m2 = 0.01, x0_m = 10.0, y0_m = 10.0, h_m2 = 100.0, l_m2 = 100.0 }"
+
+
+def scene(forest="", preset="deciduous-apex", bump=GOOD_BUMP, tree=""):
+    return BASE.format(forest=forest, preset=preset, bump=bump, tree=tree)
+
+
+@pytest.mark.parametrize("text, key, value", [
+    (scene(tree="[species.tree]\nleaf_length_m = { sd = -0.02 }"),
+     "species[0].tree.leaf_length_m.sd", "-0.02"),
+    (scene(tree="[species.tree]\ngrowth_level = { values = [5, 6], probs = [0.5, 0.6] }"),
+     "species[0].tree.growth_level.probs", r"\[0.5, 0.6\]"),
+    (scene(tree="[species.tree]\ntrunk_length_m = { lo = -1.0 }"),
+     "species[0].tree.trunk_length_m.lo", "-1.0"),
+    (scene(tree="[species.tree]\nbranch_angel_deg = 30"), "species[0].tree.branch_angel_deg", "30"),
+    (scene(bump="{ C_per_m2 = 0.01, x0_m = 10.0, y0_m = 10.0, h_m2 = 0.0, l_m2 = 100.0 }"),
+     "species[0].bumps[0].h_m2", "0.0"),
+    (scene(bump="{ C_per_m2 = -0.01, x0_m = 10.0, y0_m = 10.0, h_m2 = 1.0, l_m2 = 100.0 }"),
+     "species[0].bumps[0].C_per_m2", "-0.01"),
+    (scene(bump="{ C = 0.01 }"), "species[0].bumps[0].C", "0.01"),
+    (scene(preset="oak"), "species[0].preset", "'oak'"),
+    (scene(forest="scale_range = [1.2, 0.8]"), "forest.scale_range", r"\[1.2, 0.8\]"),
+    (scene(forest='leaf_table = "some"'), "forest.leaf_table", "'some'"),
+    (scene(forest="min_distance_m = -2.0"), "forest.min_distance_m", "-2.0"),
+])
+def test_bad_scene_values_name_key_and_value(text, key, value):
+    with pytest.raises(ConfigError, match=re.escape(f"key '{key}', value ") + value) as exc:
+        make_forest(load_scene(text=text))
+    assert exc.value.key == key and exc.value.file == "<scene>"
+
+
+def test_a_forest_needs_species():
+    with pytest.raises(ConfigError, match="at least one"):
+        make_forest(load_scene(text="[forest]\nmin_distance_m = 1.0\n"))

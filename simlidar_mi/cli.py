@@ -57,8 +57,9 @@ def _scan_run(args: argparse.Namespace) -> int:
                    write_png=not args.no_png, progress=sys.stderr.isatty())
     m = run.measures
     grids = [(m["N"], m["M"])] if "N" in m else [(leg["N"], leg["M"]) for leg in m["legs"]]
+    trees = f", {m['n_instances']} instanced trees" if m.get("n_instances") else ""
     print(f"{' + '.join(f'{n}×{k}' for n, k in grids)} beams ({m['platform']}), {m['n_branches']} branches "
-          f"({m['representation']}), {m['n_leaf_triangles']} leaf triangles, hits {m['hits']}")
+          f"({m['representation']}), {m['n_leaf_triangles']} leaf triangles{trees}, hits {m['hits']}")
     areas = [f"{name} = {m[key]:.6g} m²" for name, key in
              (("A_IM", "A_IM_m2"), ("A_PR", "A_PR_m2"), ("A_L", "A_L_m2")) if key in m]
     if areas:

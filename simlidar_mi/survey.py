@@ -36,6 +36,7 @@ class SceneGeometry:
     leaves: Leaves
     primitives: list[Primitive]
     seconds: float = 0.0
+    instances: object = None  # mitsuba_scene.Instances for instanced forests
 
     def bounds_m(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounds of branches (with radius), leaves and primitives."""
@@ -64,8 +65,23 @@ class SceneGeometry:
                 v, _ = read_obj(p["path"])
                 lo.append(v.min(0))
                 hi.append(v.max(0))
+        if self.instances is not None and len(self.instances):
+            inst = self.instances
+            # Each prototype's bounding radius about its own z axis covers any yaw.
+            ext = []
+            for b, lv in inst.prototypes:
+                pts = np.concatenate([b.p0, b.p1, lv.vertices.reshape(-1, 3)]) if len(lv) else np.concatenate([b.p0, b.p1])
+                r = float(np.max(np.hypot(pts[:, 0], pts[:, 1]))) + float(b.diameter.max(initial=0.0))
+                ext.append((r, float(pts[:, 2].min()), float(pts[:, 2].max())))
+            ext = np.array(ext)[inst.proto_index]
+            s = np.asarray(inst.scale, float)
+            t = np.asarray(inst.translation_m, float)
+            lo.append(np.min(np.column_stack([t[:, 0] - s * ext[:, 0], t[:, 1] - s * ext[:, 0],
+                                              t[:, 2] + s * ext[:, 1]]), axis=0))
+            hi.append(np.max(np.column_stack([t[:, 0] + s * ext[:, 0], t[:, 1] + s * ext[:, 0],
+                                              t[:, 2] + s * ext[:, 2]]), axis=0))
         if not lo:
-            raise ConfigError("the scene holds no geometry: add [orchard] or [[primitive]]")
+            raise ConfigError("the scene holds no geometry: add [orchard], [forest] or [[primitive]]")
         return np.min(lo, axis=0), np.max(hi, axis=0)
 
 
@@ -82,11 +98,21 @@ def generate(cfg: SceneConfig) -> SceneGeometry:
         o = cfg["orchard"]
         parts.append(orchard(params, n_trees=o["n_trees"], spacing_m=o["spacing_m"],
                              row_x_m=o["row_x_m"], y_start_m=o["y_start_m"], seed=cfg.seed))
+    leaves, instances = Leaves.empty(), None
+    if cfg.has("forest") or cfg.arrays.get("species"):
+        from .forest import make_forest  # noqa: PLC0415
+        forest = make_forest(cfg)
+        if forest.instancing:
+            from .mitsuba_scene import Instances  # noqa: PLC0415  (a plain dataclass; no Mitsuba import)
+            instances = Instances(**forest.instance_arrays())
+        else:
+            fb, leaves = forest.geometry()
+            parts.append(fb)
     prims = []
     for p in cfg.arrays["primitive"]:
         params = {k: v for k, v in p.items() if k not in ("type", "label") and v is not None}
         prims.append(Primitive(p["type"], params, p["label"]))
-    return SceneGeometry(Branches.concat(parts), Leaves.empty(), prims, time.perf_counter() - t0)
+    return SceneGeometry(Branches.concat(parts), leaves, prims, time.perf_counter() - t0, instances)
 
 
 def build(cfg: SceneConfig, geometry: SceneGeometry):
@@ -95,7 +121,8 @@ def build(cfg: SceneConfig, geometry: SceneGeometry):
     sc = cfg["scene"]
     return build_scene(geometry.branches, geometry.leaves, geometry.primitives,
                        representation=sc["representation"], facets=sc["facets"],
-                       origin_m=sc["origin_m"], variant=sc["variant"], source=cfg.source)
+                       origin_m=sc["origin_m"], variant=sc["variant"], source=cfg.source,
+                       instances=geometry.instances)
 
 
 def measure(cfg: SceneConfig, geometry: SceneGeometry | None = None) -> dict:
@@ -225,6 +252,7 @@ def _scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results) ->
         "origin_m": [float(x) for x in built.origin_m],
         "n_branches": int(len(geometry.branches)), "n_dropped_zero_length": built.n_dropped,
         "n_leaf_triangles": int(len(geometry.leaves)),
+        "n_instances": int(built.n_instances), "n_triangles_built": int(built.n_triangles),
         "platform": cfg["platform"]["kind"], "footprint": first.pattern.footprint,
     }
     if first.settings is not None:  # the tractor: the paper's N × M and impacted areas

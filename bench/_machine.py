@@ -16,6 +16,7 @@ def machine() -> str:
                     break
     except OSError:
         pass
+    import simlidar_mi  # noqa: F401  (chooses libLLVM, sets DRJIT_LIBLLVM_PATH)
     import drjit
     import mitsuba
     return (f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, "

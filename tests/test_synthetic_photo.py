@@ -174,3 +174,22 @@ def test_child_failure_is_reported() -> None:
     cam = make_camera("orthographic", rl, 0.0, resolution=8)
     with pytest.raises(SimlidarError, match="child process"):
         render_photo(rl, cam, PhotoSettings(variant="no_such_rgb"))
+
+
+def test_synthetic_photo_cli(tmp_path, capsys):
+    """The CLI command renders, classifies and reports agreement within 0.01."""
+    import csv as _csv
+
+    from simlidar_mi.cli import main
+    from tests.conftest import SCENES
+    out = tmp_path / "synth"
+    rc = main(["synthetic-photo", str(SCENES / "strawberry_plot.toml"), "--out", str(out),
+               "--set", "gapfraction.resolution=384", "--set", "gapfraction.zeniths_deg=[0.0]",
+               "--set", 'gapfraction.cameras=["orthographic"]', "--set", "strawberry.extraction=[44]"])
+    assert rc == 0
+    rows = list(_csv.DictReader(open(out / "synthetic_photo.csv")))
+    assert len(rows) == 2
+    printed = capsys.readouterr().out
+    assert "p0 canopeo" in printed
+    for line in printed.splitlines()[1:3]:
+        assert abs(float(line.split()[-1])) <= 0.01

@@ -28,3 +28,14 @@ def flag(key: str, value) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise ConfigError("must be true or false", key=key, value=value)
     return bool(value)
+
+
+def seed_sequence(seed, key: str = "seed") -> np.random.SeedSequence:
+    """A fresh SeedSequence from an int ≥ 0, a SeedSequence (copied) or None (OS entropy)."""
+    if isinstance(seed, np.random.SeedSequence):
+        return np.random.SeedSequence(seed.entropy, spawn_key=seed.spawn_key)
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
+                             or seed < 0):
+        raise ConfigError("seed must be a non-negative integer, a SeedSequence or None",
+                          key=key, value=seed)
+    return np.random.SeedSequence(None if seed is None else int(seed))

@@ -25,22 +25,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import erf, erfc
 
+from .._validate import real
 from ..errors import ConfigError
 
 __all__ = [
     "Bump", "Domain", "Placement", "SpeciesIntensity", "expected_count", "intensity_grid",
     "place_trees", "sample_ipp", "thin_min_distance",
 ]
-
-
-def _finite(value: object, key: str) -> float:
-    try:
-        v = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise ConfigError("must be a number", key=key, value=value) from None
-    if not math.isfinite(v):
-        raise ConfigError("must be a finite number", key=key, value=value)
-    return v
 
 
 @dataclass(frozen=True)
@@ -54,7 +45,7 @@ class Domain:
 
     def __post_init__(self) -> None:
         for name in ("x_min_m", "x_max_m", "y_min_m", "y_max_m"):
-            object.__setattr__(self, name, _finite(getattr(self, name), f"domain.{name}"))
+            object.__setattr__(self, name, real(f"domain.{name}", getattr(self, name)))
         if not self.x_max_m > self.x_min_m:
             raise ConfigError(f"must exceed x_min_m = {self.x_min_m} (empty domain)",
                               key="domain.x_max_m", value=self.x_max_m)
@@ -102,7 +93,7 @@ class Bump:
 
     def __post_init__(self) -> None:
         for name in ("C_per_m2", "x0_m", "y0_m", "h_m2", "l_m2"):
-            object.__setattr__(self, name, _finite(getattr(self, name), f"Bump.{name}"))
+            object.__setattr__(self, name, real(f"Bump.{name}", getattr(self, name)))
         if self.C_per_m2 < 0:
             raise ConfigError("peak intensity must be >= 0 trees/m²", key="Bump.C_per_m2",
                               value=self.C_per_m2)
@@ -165,7 +156,7 @@ class SpeciesIntensity:
             if not isinstance(b, Bump):
                 raise ConfigError("must be a Bump", key=f"{self.name}.bumps[{i}]", value=b)
         object.__setattr__(self, "bumps", bumps)
-        bg = _finite(self.background_per_m2, f"{self.name}.background_per_m2")
+        bg = real(f"{self.name}.background_per_m2", self.background_per_m2)
         if bg < 0:
             raise ConfigError("must be >= 0 trees/m²", key=f"{self.name}.background_per_m2",
                               value=bg)
@@ -282,7 +273,7 @@ def thin_min_distance(x_m: np.ndarray, y_m: np.ndarray, min_distance_m: float,
     dropped point has a kept point within ``min_distance_m``, and no species is
     favoured. ``min_distance_m = 0`` keeps everything.
     """
-    d_min = _finite(min_distance_m, "min_distance_m")
+    d_min = real("min_distance_m", min_distance_m)
     if d_min < 0:
         raise ConfigError("must be >= 0 m", key="min_distance_m", value=min_distance_m)
     x_m, y_m = np.asarray(x_m, np.float64), np.asarray(y_m, np.float64)
@@ -372,7 +363,7 @@ def place_trees(species: Sequence[SpeciesIntensity], domain: Domain | Sequence[f
     for i, s in enumerate(species):
         if not isinstance(s, SpeciesIntensity):
             raise ConfigError("must be a SpeciesIntensity", key=f"species[{i}]", value=s)
-    d_min = _finite(min_distance_m, "min_distance_m")
+    d_min = real("min_distance_m", min_distance_m)
     if d_min < 0:
         raise ConfigError("must be >= 0 m", key="min_distance_m", value=min_distance_m)
     if not isinstance(rng, np.random.Generator):

@@ -43,6 +43,7 @@ from typing import Sequence
 import numpy as np
 
 from .._validate import real as _real
+from .._validate import seed_sequence as _root_seed
 from ..errors import ConfigError
 from ..geometry import Leaves
 
@@ -299,16 +300,6 @@ def periodic_copies(leaf_vertices: np.ndarray, plot_size_m: Sequence[float],
         src.append(idx)
         flag.append(np.ones(len(idx), bool))
     return np.concatenate(verts), np.concatenate(src), np.concatenate(flag)
-
-
-def _root_seed(seed) -> np.random.SeedSequence:
-    if isinstance(seed, np.random.SeedSequence):
-        return np.random.SeedSequence(seed.entropy, spawn_key=seed.spawn_key)
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
-                             or seed < 0):
-        raise ConfigError("seed must be a non-negative integer, a SeedSequence or None",
-                          key="seed", value=seed)
-    return np.random.SeedSequence(None if seed is None else int(seed))
 
 
 def random_leaves_from_params(params: RandomLeavesParams,

@@ -106,6 +106,7 @@ from typing import Sequence
 import numpy as np
 
 from .._validate import real as _real
+from .._validate import seed_sequence as _root_seed
 from ..errors import ConfigError
 from ..geometry import Leaves
 
@@ -630,16 +631,6 @@ class StrawberryPlot:
     def lai(self) -> float:
         """Leaf area index: one-sided leaf area / planted ground area."""
         return self.leaf_area_m2 / self.ground_area_m2
-
-
-def _root_seed(seed) -> np.random.SeedSequence:
-    if isinstance(seed, np.random.SeedSequence):
-        return np.random.SeedSequence(seed.entropy, spawn_key=seed.spawn_key)
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
-                             or seed < 0):
-        raise ConfigError("seed must be a non-negative integer, a SeedSequence or None",
-                          key="seed", value=seed)
-    return np.random.SeedSequence(None if seed is None else int(seed))
 
 
 def strawberry_plot(params: StrawberryPlotParams | None = None,

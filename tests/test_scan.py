@@ -323,3 +323,22 @@ def test_bad_branch_values_are_refused(diameter, coord):
     b = one_branch([2.0, 0.0, coord], [2.0, 0.0, 1.0], diameter)
     with pytest.raises(ConfigError, match=r"branches\.(diameter|p0)\[0\]"):
         build_scene(b)
+
+
+def test_obj_primitive_is_scanned(tmp_path):
+    """A unit cube from an OBJ file 2 m in front of the scanner: the centre beam returns 1 m."""
+    obj = tmp_path / "cube.obj"
+    v = [(x, y, z) for x in (2, 3) for y in (-0.5, 0.5) for z in (0.5, 1.5)]
+    faces = [(1, 2, 4, 3), (5, 7, 8, 6), (1, 5, 6, 2), (3, 4, 8, 7), (1, 3, 7, 5), (2, 6, 8, 4)]
+    obj.write_text("# cube\n" + "".join(f"v {x} {y} {z}\n" for x, y, z in v)
+                   + "".join("f " + " ".join(map(str, f)) + "\n" for f in faces))
+    scene = tmp_path / "cube.toml"
+    scene.write_text(f'[[primitive]]\ntype = "obj"\npath = "{obj.name}"\n'
+                     '[scan]\nx0_m = 1.0\nz0_m = 1.0\ny_start_m = -1.0\ny_end_m = 1.0\ndy_m = 0.01\n'
+                     'theta_min_deg = -10.0\ntheta_max_deg = 10.0\ndtheta_deg = 1.0\n')
+    run = run_scan(load_scene(scene), None)
+    r = run.result
+    i, k = int(np.argmin(np.abs(r.settings.y_m))), int(np.argmin(np.abs(r.settings.theta_deg)))
+    assert r.cls[i, k] == 2 and r.range_m[i, k] == pytest.approx(1.0, abs=1e-6)
+    # Beams whose y lies outside the cube's ±0.5 m miss it.
+    assert (r.cls[np.abs(r.settings.y_m) > 0.51] != 2).all()

@@ -556,7 +556,7 @@ def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[st
         Bad columns or values, unknown scenes, unreadable photos, a step the scene does
         not have; the message names the manifest, row and column.
     """
-    from .io.atomic import atomic_file, staged_dir  # noqa: PLC0415
+    from .io.atomic import atomic_file, staged_dir, write_csv  # noqa: PLC0415
     from .io.png import write_mask_png  # noqa: PLC0415
     mpath = Path(manifest_path)
     src = str(mpath)
@@ -575,19 +575,10 @@ def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[st
             pairs.append(Pair(r, float(p0_m), p0_v, lai, photos.get(r.row)))
         stats = _group_stats(pairs)
         files: dict[str, Path] = {}
-        with atomic_file(stage / "comparison.csv") as tmp:
-            with open(tmp, "w", newline="", encoding="utf-8") as fh:
-                w = csv.DictWriter(fh, fieldnames=COMPARISON_COLUMNS)
-                w.writeheader()
-                for s in stats:
-                    w.writerow({k: _fmt(s[k]) for k in COMPARISON_COLUMNS})
+        write_csv(stage / "comparison.csv", COMPARISON_COLUMNS,
+                  ({k: _fmt(s[k]) for k in COMPARISON_COLUMNS} for s in stats))
         files["comparison.csv"] = out / "comparison.csv"
-        with atomic_file(stage / "pairs.csv") as tmp:
-            with open(tmp, "w", newline="", encoding="utf-8") as fh:
-                w = csv.DictWriter(fh, fieldnames=PAIRS_COLUMNS)
-                w.writeheader()
-                for p in pairs:
-                    w.writerow(p.to_row())
+        write_csv(stage / "pairs.csv", PAIRS_COLUMNS, (p.to_row() for p in pairs))
         files["pairs.csv"] = out / "pairs.csv"
         plot_comparison(pairs, stats, stage / "comparison.png", title=f"{mpath.name}: "
                         "virtual vs measured gap fraction")

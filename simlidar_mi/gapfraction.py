@@ -60,7 +60,6 @@ fraction; the display threshold of 0.5 used for the mask PNGs is never used for 
 """
 from __future__ import annotations
 
-import csv
 import json
 import logging
 import math
@@ -75,7 +74,7 @@ import numpy as np
 from .config import SceneConfig, load_scene
 from .errors import ConfigError, SimlidarError
 from .geometry import Branches, Leaves
-from .io.atomic import atomic_file, staged_dir
+from .io.atomic import atomic_file, staged_dir, write_csv
 from .io.exr import header_value
 
 log = logging.getLogger(__name__)
@@ -857,18 +856,10 @@ def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None 
     out = Path(out_dir)
     t0 = time.perf_counter()
     with staged_dir(out) as stage:
-        with atomic_file(stage / "gap_fraction.csv") as tmp:
-            with open(tmp, "w", newline="", encoding="utf-8") as fh:
-                w = csv.DictWriter(fh, fieldnames=CSV_COLUMNS)
-                w.writeheader()
-                for img in images:
-                    row = img.row()
-                    row["p0"] = f"{img.p0:.6f}"
-                    row["leaf_area_m2"] = f"{img.leaf_area_m2:.6g}"
-                    row["lai"] = f"{img.lai:.6g}"
-                    row["seconds"] = f"{img.seconds:.4f}"
-                    row["zenith_deg"] = f"{img.camera.zenith_deg:g}"
-                    w.writerow(row)
+        write_csv(stage / "gap_fraction.csv", CSV_COLUMNS, (
+            {**img.row(), "p0": f"{img.p0:.6f}", "leaf_area_m2": f"{img.leaf_area_m2:.6g}",
+             "lai": f"{img.lai:.6g}", "seconds": f"{img.seconds:.4f}",
+             "zenith_deg": f"{img.camera.zenith_deg:g}"} for img in images))
         run.files["csv"] = out / "gap_fraction.csv"
         extra = {"scene_file": cfg.source, "scene_sha256": cfg.sha256, "seed": cfg.seed}
         meta = {"scene": cfg.source, "scene_sha256": cfg.sha256, "seed": cfg.seed,

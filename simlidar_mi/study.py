@@ -10,7 +10,6 @@ tasks in separate processes).  Every finished orchard is written at once to
 """
 from __future__ import annotations
 
-import csv
 import hashlib
 import itertools
 import json
@@ -21,7 +20,7 @@ import numpy as np
 
 from .config import load_scene
 from .errors import ConfigError
-from .io.atomic import atomic_file
+from .io.atomic import atomic_file, write_csv
 
 PAPER = {"A_PR": (3.6166, 0.7002), "A_L": (10.812, 0.7756)}  # slope, R² (paper eq. 15)
 COLUMNS = ["key", "iterations", "d_min_m", "n_trees", "pruning", "stochastic", "n_branches",
@@ -111,11 +110,7 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
                   "A_L_vs_A_IM": {"slope": PAPER["A_L"][0], "r2": PAPER["A_L"][1]}},
     }
     files = {"csv": out / "study.csv", "regression": out / "regression.json", "png": out / "correlations.png"}
-    with atomic_file(files["csv"]) as tmp:
-        with open(tmp, "w", newline="") as fh:
-            w = csv.DictWriter(fh, COLUMNS, extrasaction="ignore")
-            w.writeheader()
-            w.writerows(rows)
+    write_csv(files["csv"], COLUMNS, rows, extrasaction="ignore")
     with atomic_file(files["regression"]) as tmp:
         tmp.write_text(json.dumps(regression, indent=2) + "\n")
     _plot(rows, regression, files["png"])

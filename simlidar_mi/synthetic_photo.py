@@ -80,7 +80,6 @@ start-up).  The parent never switches variant.
 """
 from __future__ import annotations
 
-import csv
 import json
 import math
 import os
@@ -584,15 +583,10 @@ def run_synthetic_photos(scene, out_dir: str | Path | None = None, overrides: Se
     checks = check_images(run.images, canopies, settings, seed=cfg.seed, isolate=isolate)
     if out_dir is None:
         return checks
-    from .io.atomic import atomic_file, staged_dir  # noqa: PLC0415
+    from .io.atomic import atomic_file, staged_dir, write_csv  # noqa: PLC0415
     from .io.png import write_mask_png  # noqa: PLC0415
     with staged_dir(out_dir) as stage:
-        with atomic_file(stage / "synthetic_photo.csv") as tmp:
-            with open(tmp, "w", newline="", encoding="utf-8") as fh:
-                w = csv.DictWriter(fh, fieldnames=CSV_COLUMNS)
-                w.writeheader()
-                for chk in checks:
-                    w.writerow(chk.row())
+        write_csv(stage / "synthetic_photo.csv", CSV_COLUMNS, (chk.row() for chk in checks))
         for chk in checks:
             stem = chk.image.stem().replace("gap_", "photo_", 1)
             save_photo_png(chk.rgb, stage / f"{stem}.png")

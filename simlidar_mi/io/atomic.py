@@ -45,3 +45,15 @@ def atomic_file(path: str | Path) -> Iterator[Path]:
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+def write_csv(path: str | Path, fieldnames, rows, *, extrasaction: str = "raise") -> Path:
+    """Write dict ``rows`` as UTF-8 CSV with a header, atomically; returns the path."""
+    import csv  # noqa: PLC0415
+
+    with atomic_file(path) as tmp:
+        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(fieldnames), extrasaction=extrasaction)
+            w.writeheader()
+            w.writerows(rows)
+    return Path(path)

@@ -325,6 +325,11 @@ def random_leaves_from_params(params: RandomLeavesParams,
         theta = np.arccos(1.0 - rng.uniform(0.0, 1.0, n))
     phi = rng.uniform(0.0, 2.0 * np.pi, n)
     spin = rng.uniform(0.0, 2.0 * np.pi, n)
+    if p.angle_law == "vertical" and p.shape == "square":
+        # Edges vertical and horizontal: corners above one another share x, y exactly, so
+        # after float32 rounding a leaf is still edge-on at nadir (P0 = 1 exactly).  The
+        # in-plane spin does not change projected areas, so the law's G is unchanged.
+        spin = np.floor(spin / (0.5 * np.pi)) * (0.5 * np.pi)
     rot = _rotations(theta, phi, spin)                     # (n, 3, 3)
     tmpl = _template(p)                                    # (k, 3, 3)
     leaf_v = np.einsum("nij,tcj->ntci", rot, tmpl) + centres[:, None, None, :]

@@ -9,7 +9,7 @@ For every beam of a ``tractor_lidar`` (or any sensor exposing ``n_positions``,
 - ``class``: 0 escape, 1 ground, 2 wood, 3 leaf;
 - ``element_id``: branch index for wood, leaf index for leaves, 0xFFFFFFFF otherwise
   (for instanced trees, the index within the tree's prototype);
-- ``tree_id`` (scenes with instances only): the instance's tree;
+- ``tree_id`` (scenes of several plants): the tree or plant that was hit;
 - ``hit_fraction``: share of sub-beams whose first return is vegetation (wood or leaf).
 
 .. pluginparameters::
@@ -54,20 +54,23 @@ class RangeIntegrator(mi.SamplingIntegrator):
         self._base = mi.UInt32(np.zeros(1, np.uint32))
         self._prim = mi.UInt32(np.full(1, NO_ID, np.uint32))
         self._instanced = False
+        self._prim_tree = None
 
     def set_tables(self, shape_class: np.ndarray, shape_base: np.ndarray,
                    prim_element: np.ndarray, instance_tree: np.ndarray | None = None,
                    instance_proto: np.ndarray | None = None, group_class: np.ndarray | None = None,
-                   group_base: np.ndarray | None = None) -> None:
+                   group_base: np.ndarray | None = None, prim_tree: np.ndarray | None = None) -> None:
         """Per-shape class and offset (indexed by Dr.Jit registry id), and the element
         id of every primitive (triangle, cylinder, curve segment) at shape_base + prim_index.
 
         Scenes with instances also give, per instance registry id, its tree id and its
         prototype's first row in ``group_class``/``group_base`` (rows: prototype ×
-        shape index within the shape group)."""
+        shape index within the shape group).  Scenes of several plants without instances
+        give ``prim_tree``, the tree id of every primitive, laid out like ``prim_element``."""
         u32 = lambda a: mi.UInt32(np.ascontiguousarray(a, np.uint32))  # noqa: E731
         self._class, self._base, self._prim = u32(shape_class), u32(shape_base), u32(prim_element)
         self._instanced = instance_tree is not None
+        self._prim_tree = u32(prim_tree) if prim_tree is not None and not self._instanced else None
         if self._instanced:
             self._inst_tree, self._inst_proto = u32(instance_tree), u32(instance_proto)
             self._group_class, self._group_base = u32(group_class), u32(group_base)
@@ -101,6 +104,8 @@ class RangeIntegrator(mi.SamplingIntegrator):
             tree = dr.select(in_inst, dr.gather(mi.UInt32, self._inst_tree, iid, in_inst), NO_ID)
         cls = dr.select(hit, cls, ESCAPE)
         elem = dr.select(hit, dr.gather(mi.UInt32, self._prim, base + pi.prim_index, hit), NO_ID)
+        if self._prim_tree is not None:
+            tree = dr.select(hit, dr.gather(mi.UInt32, self._prim_tree, base + pi.prim_index, hit), NO_ID)
         t = dr.select(hit, pi.t, dr.inf)
         if self.ground:
             # Ground after vegetation: a beam that passes every shape meets the plane.

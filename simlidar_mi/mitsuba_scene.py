@@ -88,6 +88,7 @@ class BuiltScene:
     group_class: np.ndarray | None = None
     group_base: np.ndarray | None = None
     n_instances: int = 0
+    prim_tree: np.ndarray | None = None  # tree id per primitive (several plants, no instancing)
 
     def integrator_tables(self) -> dict:
         """Keyword arguments for the range integrator's ``set_tables``."""
@@ -96,6 +97,8 @@ class BuiltScene:
         if self.n_instances:
             tables.update(instance_tree=self.instance_tree, instance_proto=self.instance_proto,
                           group_class=self.group_class, group_base=self.group_base)
+        elif self.prim_tree is not None:
+            tables["prim_tree"] = self.prim_tree
         return tables
 
 
@@ -370,6 +373,19 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
             inst["instance_proto"][by_key[key]] = proto * n_groups  # premultiplied row
         inst["n_instances"] = len(instance_keys)
     prim_element = np.concatenate(prim_parts) if prim_parts else np.zeros(1, np.uint32)
+    # Several plants without instancing (an orchard, a flattened forest): a tree id per
+    # primitive, so hits report their tree; one plant needs no extra lookup.
+    n_plants = len(np.unique(np.concatenate([branches.tree_id, leaves.plant_id])))
+    if not instance_keys and n_plants > 1:
+        trees = []
+        for key, _, elems in groups:
+            if key.startswith("wood"):
+                trees.append(branches.tree_id[elems].astype(np.uint32))
+            elif key == "leaf_mesh":
+                trees.append(leaves.plant_id.astype(np.uint32))
+            else:
+                trees.append(np.full(len(elems), 0xFFFFFFFF, np.uint32))
+        inst["prim_tree"] = np.concatenate(trees)
     if len(shapes):
         bb = scene.bbox()
         lo, hi = np.array(bb.min, float) + origin, np.array(bb.max, float) + origin

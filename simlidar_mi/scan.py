@@ -143,7 +143,7 @@ class ScanResult:
     seconds: float = 0.0
     metadata: dict = field(default_factory=dict)
     pattern: BeamPattern | None = None
-    tree_id: np.ndarray | None = None  # uint32 (N, M), scenes with instanced trees only
+    tree_id: np.ndarray | None = None  # uint32 (N, M), scenes of several plants only
 
     def __post_init__(self) -> None:
         if self.pattern is None:

@@ -342,3 +342,18 @@ def test_obj_primitive_is_scanned(tmp_path):
     assert r.cls[i, k] == 2 and r.range_m[i, k] == pytest.approx(1.0, abs=1e-6)
     # Beams whose y lies outside the cube's ±0.5 m miss it.
     assert (r.cls[np.abs(r.settings.y_m) > 0.51] != 2).all()
+
+
+def test_orchard_hits_report_their_tree():
+    """Several plants without instancing: tree_id is the hit branch's tree; one plant: no channel."""
+    from simlidar_mi.plants.apple import AppleTreeParams, orchard
+    trees = orchard(AppleTreeParams(iterations=4, stochastic=True), n_trees=3, spacing_m=2.0,
+                    row_x_m=2.5, seed=3)
+    s = ScanSettings(1.0, 1.0, -1.0, 0.01, 0, 600, -20.0, 0.5, 100)
+    res = scan(build_scene(trees), s)
+    wood = res.cls == 2
+    assert wood.sum() > 100 and set(np.unique(res.tree_id[wood])) == {0, 1, 2}
+    np.testing.assert_array_equal(res.tree_id[wood], trees.tree_id[res.element_id[wood]])
+    assert (res.tree_id[~wood] == 0xFFFFFFFF).all()
+    one = scan(build_scene(trees.subset(trees.tree_id == 1)), s)
+    assert one.tree_id is None

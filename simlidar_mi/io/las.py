@@ -4,7 +4,7 @@ Point format 6.  Classification follows ASPRS where it can: ground 2, leaves 5
 (high vegetation); wood has no ASPRS class and uses 64 (user-definable range).
 Extra dimensions: ``range_m`` (float32), ``scan_position`` (uint32, index i of the
 sweep), ``scan_angle_index`` (uint32, k), ``branch_id`` (uint32), and ``tree_id``
-(uint32) for scenes with instanced trees.  ``scan_angle``
+(uint32) for scenes of several plants.  ``scan_angle``
 holds the column angle (θ for the tractor) in the format's 0.006° units;
 ``point_source_id`` is the leg index for multi-leg scans, else the row index mod 65536.
 Escapes are not written.
@@ -46,7 +46,7 @@ def write_scan_las(result: ScanResult | list[ScanResult], path: str | Path) -> P
         laspy.ExtraBytesParams("scan_position", np.uint32, description="sweep index i"),
         laspy.ExtraBytesParams("scan_angle_index", np.uint32, description="angle index k"),
         laspy.ExtraBytesParams("branch_id", np.uint32, description="element id"),
-        *([laspy.ExtraBytesParams("tree_id", np.uint32, description="instanced tree id")] if with_tree else []),
+        *([laspy.ExtraBytesParams("tree_id", np.uint32, description="tree or plant id")] if with_tree else []),
     ])
     header.scales = np.array([0.0001, 0.0001, 0.0001])  # 0.1 mm
     header.offsets = np.floor(pts.min(axis=0)) if len(pts) else np.zeros(3)

@@ -9,20 +9,12 @@ import numpy as np
 import pytest
 
 from simlidar_mi._mitsuba import mitsuba
+from simlidar_mi.mitsuba_scene import _mi_mesh as _mesh  # the builder's own mesh constructor
 
 
 @pytest.fixture(scope="module")
 def mi():
     return mitsuba("llvm_ad_mono")
-
-
-def _mesh(mi, name, verts, faces):
-    mesh = mi.Mesh(name, len(verts), len(faces))
-    p = mi.traverse(mesh)
-    p["vertex_positions"] = mi.Float(np.asarray(verts, np.float32).ravel())
-    p["faces"] = mi.UInt32(np.asarray(faces, np.uint32).ravel())
-    p.update()
-    return mesh
 
 
 def _square(mi, name, x0, x1, y0, y1, z):

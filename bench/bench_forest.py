@@ -21,8 +21,8 @@ SCENE = REPO / "scenes" / "forest_airborne.toml"
 ROW = r"""
 import json, resource, sys, time
 from simlidar_mi.config import load_scene
-from simlidar_mi.survey import generate, build, scan_patterns
-from simlidar_mi.scan import scan
+from simlidar_mi.lidar.survey import generate, build, scan_patterns
+from simlidar_mi.lidar.scan import scan
 cfg = load_scene(sys.argv[1], sys.argv[2:])
 t = time.perf_counter(); geo = generate(cfg); t_gen = time.perf_counter() - t
 lo, hi = geo.bounds_m()

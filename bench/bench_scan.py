@@ -5,7 +5,7 @@
 Tables (markdown on stdout, also bench/out/scan_bench.md):
 1. representation (mesh k = 6, 8, 12, 24; cylinder; linearcurve) × footprint P = 0..3 on
    the 7-iteration, 4-tree orchard: build s, scan s, beams/s, A_IM, and the error against
-   the float64 reference (simlidar_mi.reference) on a sample of ≥ 100k beams;
+   the float64 reference (simlidar_mi.lidar.reference) on a sample of ≥ 100k beams;
 2. SIMLIDAR Table 3 (iterations 4–7 × 1–4 trees): branches, N×M, seconds per stage and end
    to end, peak RSS (each row in a fresh process), next to the paper's minutes;
 3. scan time against beam count (linearity) at P = 0.
@@ -27,9 +27,9 @@ sys.path.insert(0, str(REPO / "bench"))
 from _machine import machine  # noqa: E402
 
 from simlidar_mi.config import load_scene  # noqa: E402
-from simlidar_mi.reference import compare, reference_scan  # noqa: E402
-from simlidar_mi.scan import resolve_settings, scan  # noqa: E402
-from simlidar_mi.survey import build, generate  # noqa: E402
+from simlidar_mi.lidar.reference import compare, reference_scan  # noqa: E402
+from simlidar_mi.lidar.scan import resolve_settings, scan  # noqa: E402
+from simlidar_mi.lidar.survey import build, generate  # noqa: E402
 
 SCENE = REPO / "scenes" / "simlidar_table3_7x4.toml"
 PAPER_TABLE3 = {  # (iterations, trees): (branches, N×M, minutes) — SIMLIDAR Table 3
@@ -90,7 +90,7 @@ def representations(quick: bool) -> str:
 ROW_SCRIPT = r"""
 import json, sys, time, resource
 t0 = time.perf_counter()
-from simlidar_mi.survey import run_scan
+from simlidar_mi.lidar.survey import run_scan
 from simlidar_mi.config import load_scene
 cfg = load_scene(sys.argv[1], sys.argv[3:])
 run = run_scan(cfg, sys.argv[2], write_las=False, write_png=False)

@@ -34,7 +34,7 @@ from _machine import machine  # noqa: E402
 
 from simlidar_mi._mitsuba import mitsuba  # noqa: E402
 from simlidar_mi.config import load_scene  # noqa: E402
-from simlidar_mi.gapfraction import (DEFAULTS, analysis_window, build_canopy_scene,  # noqa: E402
+from simlidar_mi.canopy.gapfraction import (DEFAULTS, analysis_window, build_canopy_scene,  # noqa: E402
                                      canopies_from_config, make_camera, render_gap,
                                      run_gapfraction)
 

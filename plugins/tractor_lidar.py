@@ -9,7 +9,7 @@ origin already subtracted) and rounded once, so θ = 0 and ±90° give exactly
 horizontal and vertical beams and yaw = 0 leaves directions untouched.
 
 ``lidar_pattern`` receives its tables from Python (:meth:`PatternLidar.set_tables`,
-used by :mod:`simlidar_mi.platforms`); ``tractor_lidar`` builds SIMLIDAR's tables
+used by :mod:`simlidar_mi.lidar.platforms`); ``tractor_lidar`` builds SIMLIDAR's tables
 from scalar properties:
 
 .. pluginparameters::
@@ -42,7 +42,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from simlidar_mi.platforms import elevation_dirs, sub_offsets
+from simlidar_mi.lidar.platforms import elevation_dirs, sub_offsets
 
 PLUGIN_NAME = "tractor_lidar"
 PATTERN_PLUGIN_NAME = "lidar_pattern"

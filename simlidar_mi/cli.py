@@ -51,7 +51,7 @@ def _scan_args(p: argparse.ArgumentParser) -> None:
 
 @command("scan", "Tractor LiDAR scan of a scene: range EXR, range PNG, LAS points, measures", _scan_args)
 def _scan_run(args: argparse.Namespace) -> int:
-    from .survey import run_scan
+    from .lidar.survey import run_scan
 
     run = run_scan(args.scene, args.out, _overrides(args), write_las=not args.no_las,
                    write_png=not args.no_png, progress=sys.stderr.isatty())
@@ -82,7 +82,7 @@ def _study_args(p: argparse.ArgumentParser) -> None:
 @command("study", "SIMLIDAR §5 study: scan the 96-orchard grid, fit A_PR and A_L against A_IM "
          "(resumes an interrupted run)", _study_args)
 def _study_run(args: argparse.Namespace) -> int:
-    from .study import paper_grid, run_study
+    from .lidar.study import paper_grid, run_study
 
     grid = [list(args.overrides) + g for g in paper_grid()]
     res = run_study(args.scene, args.out, grid, workers=args.workers, progress=sys.stderr.isatty())
@@ -120,7 +120,7 @@ def _measure_run(args: argparse.Namespace) -> int:
     from .errors import ConfigError
 
     if args.preset is not None:
-        from .lsystem.presets import format_measures, measures_json, preset_measures
+        from .plants.presets import format_measures, measures_json, preset_measures
 
         if args.scene is not None:
             raise ConfigError("give a scene file or --preset, not both", key="preset",
@@ -135,7 +135,7 @@ def _measure_run(args: argparse.Namespace) -> int:
         raise ConfigError("--generations only applies with --preset", key="generations",
                           value=args.generations)
 
-    from .survey import load_scene, measure
+    from .lidar.survey import load_scene, measure
 
     m = measure(load_scene(args.scene, _overrides(args)))
     if args.json:
@@ -160,7 +160,7 @@ def _preview_args(p: argparse.ArgumentParser) -> None:
 @command("preview", "Shaded side view of a scene, looking along +x like the scanner, to PNG",
          _preview_args)
 def _preview_run(args: argparse.Namespace) -> int:
-    from .survey import preview
+    from .lidar.survey import preview
 
     print(f"wrote {preview(args.scene, args.out, width=args.width, spp=args.spp, overrides=_overrides(args))}")
     return 0
@@ -184,7 +184,7 @@ def _photo_gap_run(args: argparse.Namespace) -> int:
     import json
 
     from .errors import PhotoError
-    from .photo import photo_gap
+    from .canopy.photo import photo_gap
 
     results, failed = [], 0
     for photo in args.photos:
@@ -236,7 +236,7 @@ def _forest_args(p: argparse.ArgumentParser) -> None:
 @command("forest", "Random forest (seed 004): Poisson-placed random trees; tree and leaf tables, "
          "layout and preview pictures, PLY/OBJ export", _forest_args)
 def _forest_run(args: argparse.Namespace) -> int:
-    from .forest import run_forest
+    from .forest.stand import run_forest
 
     run = run_forest(args.scene, args.out, args.overrides, progress=sys.stderr.isatty())
     s = run.summary
@@ -264,7 +264,7 @@ def _gapfraction_args(p: argparse.ArgumentParser) -> None:
 @command("gapfraction", "Gap-fraction images (orthographic/perspective, 0/15/30°) of a "
          "random_leaves or strawberry scene: P0 table, masks, coverage EXRs", _gapfraction_args)
 def _gapfraction_run(args: argparse.Namespace) -> int:
-    from .gapfraction import run_gapfraction
+    from .canopy.gapfraction import run_gapfraction
 
     run = run_gapfraction(args.scene, args.out, _overrides(args), write_images=not args.no_images)
     print(f"{'camera':<12}  {'zenith':>6}  {'step':>4}  {'p0':>7}  {'lai':>6}  {'spp':>4}  "
@@ -279,7 +279,7 @@ def _gapfraction_run(args: argparse.Namespace) -> int:
 def _compare_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("manifest", metavar="MANIFEST.csv",
                    help="CSV pairing photos or measured P0 with scene, camera, zenith_deg, step "
-                        "(see simlidar_mi.compare; example: scenes/strawberry_manifest.csv)")
+                        "(see simlidar_mi.canopy.compare; example: scenes/strawberry_manifest.csv)")
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output folder: comparison.csv, pairs.csv, comparison.png, masks")
 
@@ -290,7 +290,7 @@ def _compare_args(p: argparse.ArgumentParser) -> None:
 def _compare_run(args: argparse.Namespace) -> int:
     import math
 
-    from .compare import compare
+    from .canopy.compare import compare
 
     res = compare(args.manifest, args.out)
     print(f"{'zenith':>6}  {'n':>3}  {'r':>6}  {'rmse':>7}  {'rmse_r':>7}  {'bias':>8}  {'bias_r':>7}")
@@ -312,7 +312,7 @@ def _synthetic_photo_args(p: argparse.ArgumentParser) -> None:
 @command("synthetic-photo", "Photo-like RGB renders of a gap-fraction scene's views, classified "
          "by Canopeo and checked against the coverage P0", _synthetic_photo_args)
 def _synthetic_photo_run(args: argparse.Namespace) -> int:
-    from .synthetic_photo import run_synthetic_photos
+    from .canopy.synthetic_photo import run_synthetic_photos
 
     checks = run_synthetic_photos(args.scene, args.out, _overrides(args))
     print(f"{'camera':<12}  {'zenith':>6}  {'step':>4}  {'p0 coverage':>11}  {'p0 canopeo':>10}  {'diff':>7}")

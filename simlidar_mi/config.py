@@ -129,7 +129,7 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "pruning": Key(BOOL, False),
         "stochastic": Key(BOOL, False),
     },
-    # --- random forests (simlidar_mi.forest, seed 004 §III); species are [[species]] tables
+    # --- random forests (simlidar_mi.forest.stand, seed 004 §III); species are [[species]] tables
     "forest": {
         "domain_m": Key(LIST, [0.0, 300.0, 0.0, 300.0], lambda v: None if _numbers(v, 4)
                         and v[1] > v[0] and v[3] > v[2]
@@ -172,7 +172,7 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "escape_m": Key(FLOAT, 1000.0, positive, "range reported for beams that hit nothing"),
         "max_beams": Key(INT, 200_000_000, at_least(1), "refuse scans larger than this"),
     },
-    # --- gap fraction (simlidar_mi.gapfraction); generators validate their own laws too
+    # --- gap fraction (simlidar_mi.canopy.gapfraction); generators validate their own laws too
     "platform": {  # where the scanner is; "tractor" uses [scan]'s x0_m/z0_m/dy_m/dtheta_deg
         "kind": Key(STR, "tractor", one_of("tractor", "static", "path", "airborne")),
         "position_m": Key(LIST, None, vec3, "static: scanner position"),
@@ -252,7 +252,7 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "mask_threshold": Key(FLOAT, 0.5, lambda v: None if 0 < v <= 1 else "must lie in (0, 1]",
                               "coverage drawn as vegetation in mask PNGs (display only)"),
     },
-    # --- synthetic photos (simlidar_mi.synthetic_photo): a photo-like RGB render of
+    # --- synthetic photos (simlidar_mi.canopy.synthetic_photo): a photo-like RGB render of
     # every [gapfraction] view, checked with Canopeo against the coverage render
     "photo_render": {
         **{k: Key(LIST, d, lambda v: None if len(v) == 3 and all(

@@ -43,7 +43,7 @@ def test_scan_command_missing_scene_file(tmp_path, capsys):
 
 def test_measure_command_json_matches_api(capsys):
     from simlidar_mi.config import load_scene
-    from simlidar_mi.survey import measure
+    from simlidar_mi.lidar.survey import measure
     rc = main(["measure", str(SCENES / "apple_orchard.toml"), "--json"])
     assert rc == 0
     printed = json.loads(capsys.readouterr().out)

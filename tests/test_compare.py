@@ -20,9 +20,9 @@ from scipy.stats import pearsonr
 
 from simlidar_mi import ConfigError, SimlidarError
 from simlidar_mi.cli import main
-from simlidar_mi.compare import (COMPARISON_COLUMNS, PAIRS_COLUMNS, ManifestError, compare,
+from simlidar_mi.canopy.compare import (COMPARISON_COLUMNS, PAIRS_COLUMNS, ManifestError, compare,
                                  comparison_stats, read_manifest)
-from simlidar_mi.gapfraction import run_gapfraction
+from simlidar_mi.canopy.gapfraction import run_gapfraction
 
 REPO = Path(__file__).resolve().parents[1]
 PHOTOS = REPO.parent / "shared" / "data" / "photos"

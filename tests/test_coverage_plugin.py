@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from simlidar_mi._mitsuba import mitsuba
-from simlidar_mi.mitsuba_scene import _mi_mesh as _mesh  # the builder's own mesh constructor
+from simlidar_mi.scene.build import _mi_mesh as _mesh  # the builder's own mesh constructor
 
 
 @pytest.fixture(scope="module")

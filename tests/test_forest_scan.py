@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from simlidar_mi.config import load_scene
-from simlidar_mi.survey import generate, run_scan
+from simlidar_mi.lidar.survey import generate, run_scan
 from tests.conftest import SCENES
 
 

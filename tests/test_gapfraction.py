@@ -20,7 +20,7 @@ import pytest
 from simlidar_mi import ConfigError, Leaves
 from simlidar_mi.cli import main
 from simlidar_mi.config import SECTIONS, load_scene
-from simlidar_mi.gapfraction import (CSV_COLUMNS, DEFAULTS, Canopy, analysis_window,
+from simlidar_mi.canopy.gapfraction import (CSV_COLUMNS, DEFAULTS, Canopy, analysis_window,
                                      build_canopy_scene, canopy_from_random_leaves, expected_p0,
                                      gap_images, make_camera, read_gap_exr, render_gap,
                                      run_gapfraction)

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from simlidar_mi.geometry import Branches, Leaves
-from simlidar_mi.mitsuba_scene import Instances, build_scene
-from simlidar_mi.platforms import airborne_pattern, static_pattern
-from simlidar_mi.scan import scan
+from simlidar_mi.scene.build import Instances, build_scene
+from simlidar_mi.lidar.platforms import airborne_pattern, static_pattern
+from simlidar_mi.lidar.scan import scan
 
 
 def prototype():

@@ -9,7 +9,7 @@ import pytest
 
 from simlidar_mi.errors import ConfigError
 from simlidar_mi.geometry import Branches
-from simlidar_mi.measures import wood_measures
+from simlidar_mi.plants.measures import wood_measures
 from simlidar_mi.plants.apple import AppleTreeParams, apple_tree
 
 

@@ -21,7 +21,7 @@ from simlidar_mi import PhotoError, SimlidarError
 from simlidar_mi.cli import main
 from simlidar_mi.io.png import (BACKGROUND_RGB, FOREGROUND_RGB, WINDOW_RGB, render_mask_rgb,
                                 write_mask_png)
-from simlidar_mi.photo import (PhotoGapResult, classify_rgb, crop_box, parse_crop, photo_gap,
+from simlidar_mi.canopy.photo import (PhotoGapResult, classify_rgb, crop_box, parse_crop, photo_gap,
                                read_rgb)
 
 PHOTOS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "photos"

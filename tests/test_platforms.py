@@ -10,10 +10,10 @@ import pytest
 from simlidar_mi.config import load_scene
 from simlidar_mi.errors import ConfigError
 from simlidar_mi.geometry import Branches, Primitive
-from simlidar_mi.mitsuba_scene import build_scene
-from simlidar_mi.platforms import airborne_pattern, path_patterns, static_pattern
-from simlidar_mi.scan import ScanSettings, scan
-from simlidar_mi.survey import run_scan
+from simlidar_mi.scene.build import build_scene
+from simlidar_mi.lidar.platforms import airborne_pattern, path_patterns, static_pattern
+from simlidar_mi.lidar.scan import ScanSettings, scan
+from simlidar_mi.lidar.survey import run_scan
 
 
 def post(x, y, d=0.1, h=2.0) -> Primitive:

@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import pdist
 
 from simlidar_mi.errors import ConfigError
-from simlidar_mi.plants.poisson import (Bump, Domain, SpeciesIntensity, expected_count,
+from simlidar_mi.forest.placement import (Bump, Domain, SpeciesIntensity, expected_count,
                                         intensity_grid, place_trees, sample_ipp,
                                         thin_min_distance)
 

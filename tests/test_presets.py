@@ -10,7 +10,7 @@ import pytest
 from simlidar_mi.cli import main
 from simlidar_mi.errors import ConfigError, DerivationTooLarge
 from simlidar_mi.lsystem import TurtleConfig, derive, interpret_abop, parse_grammar
-from simlidar_mi.lsystem.presets import (FOREST_SPECIES, HONDA_TABLE_2_1, get_preset,
+from simlidar_mi.plants.presets import (FOREST_SPECIES, HONDA_TABLE_2_1, get_preset,
                                          preset_geometry, preset_grammar, preset_measures,
                                          preset_names, preset_word)
 from simlidar_mi.plants.apple import AppleTreeParams, apple_tree

@@ -11,10 +11,10 @@ from simlidar_mi.config import load_scene
 from simlidar_mi.errors import ConfigError
 from simlidar_mi.geometry import Branches
 from simlidar_mi.io.exr import read_scan_exr, write_scan_exr
-from simlidar_mi.mitsuba_scene import build_scene
-from simlidar_mi.reference import compare, reference_scan
-from simlidar_mi.scan import ScanSettings, resolve_settings, scan
-from simlidar_mi.survey import run_scan
+from simlidar_mi.scene.build import build_scene
+from simlidar_mi.lidar.reference import compare, reference_scan
+from simlidar_mi.lidar.scan import ScanSettings, resolve_settings, scan
+from simlidar_mi.lidar.survey import run_scan
 
 REPRESENTATIONS = [("mesh", 12), ("mesh", 8), ("cylinder", 8), ("linearcurve", 8)]  # mesh 12: the default
 
@@ -303,7 +303,7 @@ def test_failed_write_keeps_previous_outputs(tmp_path, monkeypatch):
 
 def test_caps_only_on_exposed_ends():
     """A chain trunk → trunk → thinner twig: caps at the base, where the twig steps down, and at the tip."""
-    from simlidar_mi.mitsuba_scene import exposed_ends
+    from simlidar_mi.scene.build import exposed_ends
     p0 = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 2.0]])
     p1 = np.array([[0, 0, 1], [0, 0, 2], [0, 0.5, 2.5]])
     d = np.array([0.1, 0.1, 0.05])

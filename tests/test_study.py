@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from simlidar_mi.errors import ConfigError
-from simlidar_mi.study import fit_through_origin, paper_grid, run_study
+from simlidar_mi.lidar.study import fit_through_origin, paper_grid, run_study
 from tests.conftest import SCENES
 
 

@@ -14,10 +14,10 @@ import pytest
 from PIL import Image
 
 from simlidar_mi import Branches, ConfigError, SimlidarError
-from simlidar_mi.compare import compare
+from simlidar_mi.canopy.compare import compare
 from simlidar_mi.config import load_scene
-from simlidar_mi.gapfraction import canopies_from_config, gap_images, make_camera
-from simlidar_mi.synthetic_photo import (CSV_COLUMNS, DEFAULTS, PhotoSettings, canopeo_p0,
+from simlidar_mi.canopy.gapfraction import canopies_from_config, gap_images, make_camera
+from simlidar_mi.canopy.synthetic_photo import (CSV_COLUMNS, DEFAULTS, PhotoSettings, canopeo_p0,
                                          check_images, render_photo, run_synthetic_photos,
                                          save_photo_png, srgb_encode)
 
@@ -113,7 +113,7 @@ def test_run_synthetic_photos_writes_files(tmp_path: Path) -> None:
 def test_same_seed_same_bytes_and_sizes() -> None:
     rl = canopies_from_config(load_scene(RANDOM_LEAVES, ["random_leaves.n_leaves=50"]))[0]
     cam = make_camera("perspective", rl, 15.0, resolution=48)
-    from simlidar_mi.synthetic_photo import _make_job, render_photos  # noqa: PLC0415
+    from simlidar_mi.canopy.synthetic_photo import _make_job, render_photos  # noqa: PLC0415
     a, b = render_photos([_make_job(rl, cam), _make_job(rl, cam)], PhotoSettings(spp=4), seed=3)
     assert a.shape == (48, 48, 3) and np.array_equal(a, b)
 

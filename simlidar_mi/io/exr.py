@@ -16,7 +16,7 @@ import numpy as np
 import OpenEXR
 
 from ..errors import SimlidarError
-from ..scan import ScanResult, ScanSettings
+from ..lidar.scan import ScanResult, ScanSettings
 from .atomic import atomic_file
 
 

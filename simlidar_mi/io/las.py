@@ -16,8 +16,8 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from ..mitsuba_scene import CLASS_CODES
-from ..scan import ScanResult
+from ..scene.build import CLASS_CODES
+from ..lidar.scan import ScanResult
 from .atomic import atomic_file
 
 LAS_CLASS = {CLASS_CODES["ground"]: 2, CLASS_CODES["leaf"]: 5, CLASS_CODES["wood"]: 64}

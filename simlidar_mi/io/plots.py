@@ -9,8 +9,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..mitsuba_scene import CLASS_CODES  # noqa: E402
-from ..scan import ScanResult  # noqa: E402
+from ..scene.build import CLASS_CODES  # noqa: E402
+from ..lidar.scan import ScanResult  # noqa: E402
 from .atomic import atomic_file  # noqa: E402
 
 

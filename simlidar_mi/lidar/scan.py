@@ -13,9 +13,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ._mitsuba import mitsuba
-from .errors import ConfigError
-from .mitsuba_scene import CLASS_CODES, BuiltScene
+from .._mitsuba import mitsuba
+from ..errors import ConfigError
+from ..scene.build import CLASS_CODES, BuiltScene
 from .platforms import BeamPattern, elevation_dirs
 
 CLASS_NAMES = {v: k for k, v in CLASS_CODES.items()}
@@ -58,7 +58,7 @@ class ScanSettings:
         return asdict(self)
 
     def pattern(self) -> BeamPattern:
-        """The tractor's beams as a general :class:`~simlidar_mi.platforms.BeamPattern`."""
+        """The tractor's beams as a general :class:`~simlidar_mi.lidar.platforms.BeamPattern`."""
         y = self.y_m
         origins = np.stack([np.full_like(y, self.x0_m), y, np.full_like(y, self.z0_m)], axis=1)
         return BeamPattern("tractor", origins, np.zeros(len(y)), self.theta_deg,

@@ -21,7 +21,7 @@ is the gap fraction.
 
 Examples
 --------
->>> from simlidar_mi.photo import photo_gap            # doctest: +SKIP
+>>> from simlidar_mi.canopy.photo import photo_gap            # doctest: +SKIP
 >>> r = photo_gap("IMG1.JPG", "blue-otsu", mask_dir="masks")  # doctest: +SKIP
 >>> r.threshold, round(r.p0, 3)                         # doctest: +SKIP
 (104.0, 0.435)
@@ -36,8 +36,8 @@ from typing import Any, Literal, Sequence, Union
 import numpy as np
 from PIL import Image, ImageFile, ImageOps, UnidentifiedImageError
 
-from .errors import PhotoError, SimlidarError
-from .io.png import write_mask_png
+from ..errors import PhotoError, SimlidarError
+from ..io.png import write_mask_png
 
 __all__ = ["METHODS", "PhotoGapResult", "photo_gap", "classify_rgb", "read_rgb",
            "parse_crop", "crop_box", "default_mask_path", "write_mask_png"]

@@ -33,7 +33,7 @@ has 7–80 thousand leaves (one-sided leaf area 40–180 m²).
 
 Example
 -------
->>> from simlidar_mi.lsystem.presets import preset_measures
+>>> from simlidar_mi.plants.presets import preset_measures
 >>> m = preset_measures("honda-a")
 >>> m["n_segments"], round(m["height"], 3)
 (1023, 6.513)
@@ -51,10 +51,10 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..geometry import Leaves
-from .abop import LeafTable, TurtleConfig, TurtleGeometry, interpret_abop
-from .derive import DEFAULT_MAX_MODULES, apply_interpretation, derive
-from .grammar import Grammar, parse_grammar
-from .modules import ModuleString
+from ..lsystem.abop import LeafTable, TurtleConfig, TurtleGeometry, interpret_abop
+from ..lsystem.derive import DEFAULT_MAX_MODULES, apply_interpretation, derive
+from ..lsystem.grammar import Grammar, parse_grammar
+from ..lsystem.modules import ModuleString
 
 TURTLES = ("abop", "simlidar")
 
@@ -242,7 +242,7 @@ S(l,w) -> !(0.004)F(0.1)[&(45)L(ll,lw)]/(137.5)[&(45)L(ll,lw)]/(137.5)F(0.1)[&(5
 
 
 def _simlidar_text(stochastic: bool) -> str:
-    from ..plants.apple import (SIMLIDAR_APPLE_GRAMMAR,  # lazy: plants imports lsystem
+    from .apple import (SIMLIDAR_APPLE_GRAMMAR,  # lazy: plants imports lsystem
                                 SIMLIDAR_APPLE_STOCHASTIC_GRAMMAR)
     return SIMLIDAR_APPLE_STOCHASTIC_GRAMMAR if stochastic else SIMLIDAR_APPLE_GRAMMAR
 
@@ -443,7 +443,7 @@ def preset_geometry(name: str, generations: int | None = None, seed: int = 0, *,
     p = get_preset(name)
     g = _generations(p, generations)
     if p.turtle == "simlidar":
-        from ..plants.apple import AppleTreeParams, apple_tree
+        from .apple import AppleTreeParams, apple_tree
         if constants:
             raise ConfigError("the SIMLIDAR presets have no grammar constants",
                               key="constants", value=dict(constants))
@@ -464,10 +464,10 @@ def geometry_measures(geometry: TurtleGeometry, base_z_m: float = 0.0) -> dict:
         ``n_segments``, ``total_length`` (m, sum of segment lengths), ``height``
         (m, highest point of wood or leaves above ``base_z_m``), ``min_width``
         (m, smallest branch diameter), ``n_leaves``, ``leaf_area`` (m², one-sided)
-        and the wood measures of :func:`simlidar_mi.measures.wood_measures`
+        and the wood measures of :func:`simlidar_mi.plants.measures.wood_measures`
         (``V_L_m3``, ``A_L_m2``, ``A_PR_m2``, ``A_PR_exact_m2``).
     """
-    from ..measures import wood_measures
+    from .measures import wood_measures
     b, table = geometry.branches, geometry.leaf_table
     top = [b.p0[:, 2].max(), b.p1[:, 2].max()] if len(b) else []
     if len(geometry.leaves):

@@ -1,8 +1,8 @@
 """Synthetic photographs: close the loop between the photo classifier and the renderer.
 
-A gap-fraction camera (:mod:`simlidar_mi.gapfraction`) reports, per pixel, the share
+A gap-fraction camera (:mod:`simlidar_mi.canopy.gapfraction`) reports, per pixel, the share
 of the pixel whose primary ray meets vegetation.  A real camera instead records
-colour, and :mod:`simlidar_mi.photo` turns the colour back into vegetation vs soil
+colour, and :mod:`simlidar_mi.canopy.photo` turns the colour back into vegetation vs soil
 with the Canopeo rule.  This module renders the *same view* as a photo-like RGB image
 (green leaves over brown soil, lit by a sun and a uniform sky) and checks that
 Canopeo on the render gives the coverage render's P0: the photo path and the renderer
@@ -10,7 +10,7 @@ test each other.
 
 ::
 
-    from simlidar_mi.synthetic_photo import check_photo
+    from simlidar_mi.canopy.synthetic_photo import check_photo
     chk = check_photo(canopy, "orthographic", 0.0, resolution=512)
     chk.p0_canopeo, chk.p0_coverage          # agree within 0.01
 
@@ -93,7 +93,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .errors import ConfigError, SimlidarError
+from ..errors import ConfigError, SimlidarError
 
 __all__ = [
     "PhotoSettings", "PhotoJob", "SyntheticPhotoCheck", "DEFAULTS", "CSV_COLUMNS",
@@ -248,7 +248,7 @@ class PhotoJob:
 
     vertices_m: np.ndarray  # (n, 3, 3), relative to origin_m
     origin_m: np.ndarray
-    camera: Any  # simlidar_mi.gapfraction.Camera
+    camera: Any  # simlidar_mi.canopy.gapfraction.Camera
     soil_z_m: float  # relative to origin_m
 
 
@@ -308,7 +308,7 @@ def _sun_dict(settings: PhotoSettings, camera, origin_m: np.ndarray) -> dict[str
 
 def _render_jobs_here(jobs: Sequence[PhotoJob], settings: PhotoSettings, seed: int) -> list[np.ndarray]:
     """Render in this process (which must already run, or not yet have, an RGB variant)."""
-    from ._mitsuba import mitsuba  # noqa: PLC0415
+    from .._mitsuba import mitsuba  # noqa: PLC0415
     mi = mitsuba(settings.variant)
     out = []
     for job in jobs:
@@ -358,7 +358,7 @@ def _worker_main(in_path: str, out_path: str) -> int:
 
 
 def _process_variant() -> str | None:
-    from . import _mitsuba  # noqa: PLC0415  (does not import Mitsuba itself)
+    from .. import _mitsuba  # noqa: PLC0415  (does not import Mitsuba itself)
     return _mitsuba._state.get("variant")
 
 
@@ -396,7 +396,7 @@ def render_photos(jobs: Sequence[PhotoJob], settings: PhotoSettings | None = Non
         # the child must import this very package, installed or not
         root = str(Path(__file__).resolve().parents[1])
         env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-        proc = subprocess.run([sys.executable, "-m", "simlidar_mi.synthetic_photo", _WORKER_FLAG,
+        proc = subprocess.run([sys.executable, "-m", "simlidar_mi.canopy.synthetic_photo", _WORKER_FLAG,
                                str(src), str(dst)], env=env, capture_output=True, text=True)
         if proc.returncode != 0 or not dst.exists():
             tail = "\n".join((proc.stderr or proc.stdout).strip().splitlines()[-15:])
@@ -412,13 +412,13 @@ def render_photo(canopy, camera, settings: PhotoSettings | None = None, *, windo
 
     Parameters
     ----------
-    canopy : simlidar_mi.gapfraction.Canopy
+    canopy : simlidar_mi.canopy.gapfraction.Canopy
         Leaves only (wood is refused).  Periodic canopies are tiled as the coverage
         render tiles them.
-    camera : simlidar_mi.gapfraction.Camera
-        From :func:`simlidar_mi.gapfraction.make_camera` or a ``GapImage.camera``.
+    camera : simlidar_mi.canopy.gapfraction.Camera
+        From :func:`simlidar_mi.canopy.gapfraction.make_camera` or a ``GapImage.camera``.
     settings : PhotoSettings, optional
-    window : simlidar_mi.gapfraction.Window, optional
+    window : simlidar_mi.canopy.gapfraction.Window, optional
         The coverage image's window; for periodic canopies its ray extent decides the
         tiling (computed from the camera when omitted).
     seed : sampler seed.
@@ -436,7 +436,7 @@ def save_photo_png(rgb: np.ndarray, path: str | Path) -> Path:
     """Write an (H, W, 3) uint8 array as a PNG (atomically); returns the path."""
     from PIL import Image  # noqa: PLC0415
 
-    from .io.atomic import atomic_file  # noqa: PLC0415
+    from ..io.atomic import atomic_file  # noqa: PLC0415
     arr = np.asarray(rgb)
     if arr.ndim != 3 or arr.shape[2] != 3 or arr.dtype != np.uint8:
         raise ValueError(f"expected an (height, width, 3) uint8 array, got {arr.dtype} {arr.shape}")
@@ -449,7 +449,7 @@ def canopeo_p0(rgb: np.ndarray, box: tuple[int, int, int, int] | None = None,
                **thresholds: float) -> tuple[float, np.ndarray]:
     """Canopeo's gap fraction of an 8-bit RGB array inside ``box`` (x0, y0, x1, y1).
 
-    Uses :func:`simlidar_mi.photo.classify_rgb`; ``thresholds`` are its
+    Uses :func:`simlidar_mi.canopy.photo.classify_rgb`; ``thresholds`` are its
     ``canopeo_rg``, ``canopeo_bg``, ``canopeo_exg``.  Returns (P0, vegetation mask).
     """
     from .photo import classify_rgb  # noqa: PLC0415
@@ -466,7 +466,7 @@ class SyntheticPhotoCheck:
 
     Attributes
     ----------
-    image : simlidar_mi.gapfraction.GapImage
+    image : simlidar_mi.canopy.gapfraction.GapImage
         The coverage render (its camera and window were used for the photo).
     rgb : (height, width, 3) uint8
         The synthetic photo.
@@ -508,7 +508,7 @@ def check_images(images: Sequence, canopies: Sequence, settings: PhotoSettings |
 
     Parameters
     ----------
-    images : sequence of simlidar_mi.gapfraction.GapImage
+    images : sequence of simlidar_mi.canopy.gapfraction.GapImage
         Coverage renders; each photo uses the image's camera and window.
     canopies : sequence of Canopy
         The canopy each image shows (same length as ``images``).
@@ -540,14 +540,14 @@ def check_photo(canopy, kind: str = "orthographic", zenith_deg: float = 0.0, *,
 
     Parameters
     ----------
-    canopy : simlidar_mi.gapfraction.Canopy
+    canopy : simlidar_mi.canopy.gapfraction.Canopy
     kind : 'orthographic' or 'perspective'
     zenith_deg : view zenith, degrees.
     settings : PhotoSettings, optional
     seed : sampler seed of the photo.
     isolate : see :func:`render_photos`.
     **gap_kwargs
-        Passed to :func:`simlidar_mi.gapfraction.gap_images` (``resolution``, ``spp``,
+        Passed to :func:`simlidar_mi.canopy.gapfraction.gap_images` (``resolution``, ``spp``,
         ``azimuth_deg``, ``window``, ``window_fraction``, ``fov_deg`` …).
 
     Returns
@@ -573,7 +573,7 @@ def run_synthetic_photos(scene, out_dir: str | Path | None = None, overrides: Se
     - ``photo_<camera>_z<zenith>_s<step>.png``: the synthetic photo;
     - ``photo_<camera>_z<zenith>_s<step>_canopeo.png``: Canopeo's mask, window outlined.
     """
-    from .config import SceneConfig, load_scene  # noqa: PLC0415
+    from ..config import SceneConfig, load_scene  # noqa: PLC0415
     from .gapfraction import run_gapfraction  # noqa: PLC0415
     cfg = scene if isinstance(scene, SceneConfig) else load_scene(scene, list(overrides))
     settings = PhotoSettings.from_config(cfg)
@@ -583,8 +583,8 @@ def run_synthetic_photos(scene, out_dir: str | Path | None = None, overrides: Se
     checks = check_images(run.images, canopies, settings, seed=cfg.seed, isolate=isolate)
     if out_dir is None:
         return checks
-    from .io.atomic import atomic_file, staged_dir, write_csv  # noqa: PLC0415
-    from .io.png import write_mask_png  # noqa: PLC0415
+    from ..io.atomic import atomic_file, staged_dir, write_csv  # noqa: PLC0415
+    from ..io.png import write_mask_png  # noqa: PLC0415
     with staged_dir(out_dir) as stage:
         write_csv(stage / "synthetic_photo.csv", CSV_COLUMNS, (chk.row() for chk in checks))
         for chk in checks:

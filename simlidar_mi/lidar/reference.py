@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import Branches
+from ..geometry import Branches
 from .scan import ScanSettings
 
 ESCAPE, GROUND, WOOD = 0, 1, 2

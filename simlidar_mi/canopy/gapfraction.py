@@ -2,7 +2,7 @@
 
 The pipeline behind ``simlidar-mi gapfraction``::
 
-    from simlidar_mi.gapfraction import run_gapfraction
+    from simlidar_mi.canopy.gapfraction import run_gapfraction
     run = run_gapfraction("scenes/random_leaves_spherical.toml", "out/gap")
     for img in run.images:
         print(img.camera.kind, img.camera.zenith_deg, img.p0)
@@ -71,11 +71,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .config import SceneConfig, load_scene
-from .errors import ConfigError, SimlidarError
-from .geometry import Branches, Leaves
-from .io.atomic import atomic_file, staged_dir, write_csv
-from .io.exr import header_value
+from ..config import SceneConfig, load_scene
+from ..errors import ConfigError, SimlidarError
+from ..geometry import Branches, Leaves
+from ..io.atomic import atomic_file, staged_dir, write_csv
+from ..io.exr import header_value
 
 log = logging.getLogger(__name__)
 
@@ -557,7 +557,7 @@ def build_canopy_scene(canopy: Canopy, offsets: np.ndarray | None = None, *,
     The float64 origin is the plot centre at z = 0 rounded to whole metres, so the
     cameras' real coordinates only need that origin subtracted.
     """
-    from .mitsuba_scene import build_scene  # noqa: PLC0415  (imports Mitsuba)
+    from ..scene.build import build_scene  # noqa: PLC0415  (imports Mitsuba)
     leaves = canopy.leaves if offsets is None else _tiled_leaves(canopy.leaves, offsets)
     branches = canopy.branches if canopy.branches is not None else Branches.empty()
     if offsets is not None and len(branches) and not (len(offsets) == 1 and not offsets.any()):
@@ -648,7 +648,7 @@ def render_gap(built, canopy: Canopy, camera: Camera, window: Window, *, spp: in
                jitter: bool = False, seed: int = 0, variant: str | None = None,
                integrator=None) -> GapImage:
     """Render ``camera``'s coverage image of ``built`` (from :func:`build_canopy_scene`)."""
-    from ._mitsuba import mitsuba  # noqa: PLC0415
+    from .._mitsuba import mitsuba  # noqa: PLC0415
     if not (isinstance(spp, numbers.Integral) and not isinstance(spp, bool) and spp >= 1):
         raise ConfigError("samples per pixel must be an integer ≥ 1", key="gapfraction.spp", value=spp)
     mi = mitsuba(variant)
@@ -695,7 +695,7 @@ def gap_images(canopy: Canopy, *, cameras: Sequence[str] = DEFAULTS["cameras"],
         offsets, tiles = tile_offsets(ref, [w.safe_region_m for _, w in views])
         views = [(c, replace(w, tiles=tiles)) for c, w in views]
     built = build_canopy_scene(canopy, offsets, variant=variant)
-    from ._mitsuba import mitsuba  # noqa: PLC0415
+    from .._mitsuba import mitsuba  # noqa: PLC0415
     mi = mitsuba(variant)
     integrator = mi.load_dict({"type": "coverage", "jitter": bool(jitter)})
     return [render_gap(built, canopy, cam, win, spp=spp, jitter=jitter, seed=seed,
@@ -714,7 +714,7 @@ def canopies_from_config(cfg: SceneConfig) -> list[Canopy]:
         raise ConfigError("a gap-fraction scene needs exactly one of [random_leaves] or "
                           "[strawberry]", file=cfg.source)
     if has_rl:
-        from .plants.random_leaves import random_leaves  # noqa: PLC0415
+        from ..plants.random_leaves import random_leaves  # noqa: PLC0415
         r = cfg["random_leaves"]
         try:
             rl = random_leaves(r["n_leaves"], r["leaf_area_m2"], plot_size_m=tuple(r["plot_size_m"]),
@@ -723,7 +723,7 @@ def canopies_from_config(cfg: SceneConfig) -> list[Canopy]:
         except ConfigError as exc:
             raise ConfigError(str(exc), file=cfg.source) from exc
         return [canopy_from_random_leaves(rl)]
-    from .plants import strawberry as sb  # noqa: PLC0415
+    from ..plants import strawberry as sb  # noqa: PLC0415
     s = dict(cfg["strawberry"])
     extraction = [int(n) for n in s.pop("extraction")]
     leaf = {k: v for k, v in cfg["strawberry.leaf"].items() if v is not None}
@@ -852,7 +852,7 @@ def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None 
     run = GapFractionRun(images, canopies, {}, seconds)
     if out_dir is None:
         return run
-    from .io.png import write_mask_png  # noqa: PLC0415
+    from ..io.png import write_mask_png  # noqa: PLC0415
     out = Path(out_dir)
     t0 = time.perf_counter()
     with staged_dir(out) as stage:

@@ -4,7 +4,7 @@ A platform turns its settings into a :class:`BeamPattern`: N rows (platform pose
 M columns (beam angles), in real float64 coordinates.  Row i starts at
 ``row_origin_m[i]`` and turns the platform-frame column directions about the vertical
 by ``row_yaw_deg[i]`` (0 = platform x along world +x).  The tractor LiDAR is one such
-pattern (:meth:`simlidar_mi.scan.ScanSettings.pattern`); the others here are
+pattern (:meth:`simlidar_mi.lidar.scan.ScanSettings.pattern`); the others here are
 
 ``static_pattern``
     a tripod: rows are azimuth steps (3D) or one azimuth (2D), columns elevations;
@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import ConfigError
+from ..errors import ConfigError
 
 
 def sub_offsets(footprint: int) -> np.ndarray:

@@ -42,7 +42,7 @@ silently ignored).  Example::
     strawberry_plot.toml,perspective,0,1,photos/a1_s1.jpg,canopeo,0.6,,area 1
     strawberry_plot.toml,perspective,15,0,,,,0.172,from a field notebook
 
-Every distinct scene file is rendered once (:func:`simlidar_mi.gapfraction.run_gapfraction`
+Every distinct scene file is rendered once (:func:`simlidar_mi.canopy.gapfraction.run_gapfraction`
 with its ``[gapfraction]`` settings, restricted to the cameras and zeniths the manifest
 asks for); every photo once per (method, crop).
 
@@ -74,7 +74,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .errors import ConfigError, PhotoError, SimlidarError
+from ..errors import ConfigError, PhotoError, SimlidarError
 
 __all__ = [
     "ManifestError", "ManifestRow", "Pair", "ComparisonResult", "MANIFEST_COLUMNS",
@@ -144,7 +144,7 @@ class Pair:
     p0_measured: float
     p0_virtual: float
     lai_virtual: float
-    photo_result: Any = None  # simlidar_mi.photo.PhotoGapResult for photo rows
+    photo_result: Any = None  # simlidar_mi.canopy.photo.PhotoGapResult for photo rows
 
     @property
     def difference(self) -> float:
@@ -425,7 +425,7 @@ def _photo_p0s(rows: list[ManifestRow], src: str, mask_dir: Path) -> dict[int, A
 
 def _render_scenes(rows: list[ManifestRow], src: str):
     """Render every distinct scene once; returns {scene path: (run, first row)}."""
-    from .config import load_scene  # noqa: PLC0415
+    from ..config import load_scene  # noqa: PLC0415
     from .gapfraction import run_gapfraction  # noqa: PLC0415
     by_scene: dict[Path, list[ManifestRow]] = {}
     for r in rows:
@@ -492,7 +492,7 @@ def plot_comparison(pairs: Sequence[Pair], stats: Sequence[dict[str, Any]], path
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
-    from .io.atomic import atomic_file  # noqa: PLC0415
+    from ..io.atomic import atomic_file  # noqa: PLC0415
     zen = [s for s in stats if s["zenith_deg"] != "all"]
     vals = [v for p in pairs for v in (p.p0_measured, p.p0_virtual)]
     lo, hi = min(vals), max(vals)
@@ -556,8 +556,8 @@ def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[st
         Bad columns or values, unknown scenes, unreadable photos, a step the scene does
         not have; the message names the manifest, row and column.
     """
-    from .io.atomic import atomic_file, staged_dir, write_csv  # noqa: PLC0415
-    from .io.png import write_mask_png  # noqa: PLC0415
+    from ..io.atomic import atomic_file, staged_dir, write_csv  # noqa: PLC0415
+    from ..io.png import write_mask_png  # noqa: PLC0415
     mpath = Path(manifest_path)
     src = str(mpath)
     rows = read_manifest(mpath)

@@ -2,7 +2,7 @@
 
 Every function here is one step a user can also call from a notebook::
 
-    from simlidar_mi.survey import load_scene, generate, build, run_scan
+    from simlidar_mi.lidar.survey import load_scene, generate, build, run_scan
     cfg = load_scene("scenes/apple_orchard.toml", ["scan.dtheta_deg=0.5"])
     run = run_scan(cfg, "out/orchard")          # writes scan.exr, scan.png, points.las, measures.json
     print(run.measures["A_IM_m2"], run.result.shape)
@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import SceneConfig, load_scene
-from .errors import ConfigError
-from .geometry import Branches, Leaves, Primitive
-from .io.atomic import atomic_file, staged_dir
+from ..config import SceneConfig, load_scene
+from ..errors import ConfigError
+from ..geometry import Branches, Leaves, Primitive
+from ..io.atomic import atomic_file, staged_dir
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +61,7 @@ class SceneGeometry:
                 lo.append(np.asarray(p["min_m"], float))
                 hi.append(np.asarray(p["max_m"], float))
             elif prim.kind == "obj":
-                from .mitsuba_scene import read_obj  # noqa: PLC0415
+                from ..scene.build import read_obj  # noqa: PLC0415
                 v, _ = read_obj(p["path"])
                 lo.append(v.min(0))
                 hi.append(v.max(0))
@@ -90,7 +90,7 @@ def generate(cfg: SceneConfig) -> SceneGeometry:
     t0 = time.perf_counter()
     parts: list[Branches] = []
     if cfg.has("orchard") or cfg.has("orchard.tree"):
-        from .plants.apple import AppleTreeParams, orchard  # noqa: PLC0415
+        from ..plants.apple import AppleTreeParams, orchard  # noqa: PLC0415
         try:
             params = AppleTreeParams(**cfg["orchard.tree"])
         except ConfigError as exc:
@@ -100,10 +100,10 @@ def generate(cfg: SceneConfig) -> SceneGeometry:
                              row_x_m=o["row_x_m"], y_start_m=o["y_start_m"], seed=cfg.seed))
     leaves, instances = Leaves.empty(), None
     if cfg.has("forest") or cfg.arrays.get("species"):
-        from .forest import make_forest  # noqa: PLC0415
+        from ..forest.stand import make_forest  # noqa: PLC0415
         forest = make_forest(cfg)
         if forest.instancing:
-            from .mitsuba_scene import Instances  # noqa: PLC0415  (a plain dataclass; no Mitsuba import)
+            from ..scene.build import Instances  # noqa: PLC0415  (a plain dataclass; no Mitsuba import)
             instances = Instances(**forest.instance_arrays())
         else:
             fb, leaves = forest.geometry()
@@ -117,7 +117,7 @@ def generate(cfg: SceneConfig) -> SceneGeometry:
 
 def build(cfg: SceneConfig, geometry: SceneGeometry):
     """Geometry → Mitsuba scene in the representation the scene file chose."""
-    from .mitsuba_scene import build_scene  # noqa: PLC0415
+    from ..scene.build import build_scene  # noqa: PLC0415
     sc = cfg["scene"]
     return build_scene(geometry.branches, geometry.leaves, geometry.primitives,
                        representation=sc["representation"], facets=sc["facets"],
@@ -127,7 +127,7 @@ def build(cfg: SceneConfig, geometry: SceneGeometry):
 
 def measure(cfg: SceneConfig, geometry: SceneGeometry | None = None) -> dict:
     """Geometry measures (V_L, A_L, A_PR, A_PR_exact) in total and per tree, from geometry alone."""
-    from .measures import wood_measures  # noqa: PLC0415
+    from ..plants.measures import wood_measures  # noqa: PLC0415
     geometry = geometry or generate(cfg)
     return wood_measures(geometry.branches).to_dict()
 
@@ -212,7 +212,7 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     files: dict[str, Path] = {}
     t = time.perf_counter()
     if out_dir is not None:
-        from .io.exr import write_scan_exr  # noqa: PLC0415
+        from ..io.exr import write_scan_exr  # noqa: PLC0415
         with staged_dir(out_dir) as stage:
             for j, res in enumerate(results):
                 stem = "scan" if len(results) == 1 else f"scan_leg{j}"
@@ -221,12 +221,12 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
                                       "facets": built.facets})
                 files[f"exr{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.exr"
                 if write_png:
-                    from .io.plots import plot_scan_png  # noqa: PLC0415
+                    from ..io.plots import plot_scan_png  # noqa: PLC0415
                     leg = "" if len(results) == 1 else f", leg {j}"
                     plot_scan_png(res, stage / f"{stem}.png", title=f"{cfg['scene']['name']}: range image{leg}")
                     files[f"png{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.png"
             if write_las:
-                from .io.las import write_scan_las  # noqa: PLC0415
+                from ..io.las import write_scan_las  # noqa: PLC0415
                 write_scan_las(results if len(results) > 1 else results[0], stage / "points.las")
                 files["las"] = Path(out_dir) / "points.las"
             seconds["write"] = time.perf_counter() - t
@@ -243,7 +243,7 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
 def _scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results) -> dict:
     wm = {}
     if len(geometry.branches):
-        from .measures import wood_measures  # noqa: PLC0415
+        from ..plants.measures import wood_measures  # noqa: PLC0415
         wm = wood_measures(geometry.branches).to_dict()
     first = results[0]
     out = {
@@ -288,7 +288,7 @@ def _progress(total: int, enabled: bool):
 def preview(cfg: SceneConfig | str | Path, path: str | Path, *, width: int = 1024,
             spp: int = 16, overrides: list[str] | tuple = ()) -> Path:
     """A shaded side view of the scene (looking along +x, like the scanner) as PNG."""
-    from ._mitsuba import mitsuba  # noqa: PLC0415
+    from .._mitsuba import mitsuba  # noqa: PLC0415
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, overrides)
     geometry = generate(cfg)

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import load_scene
-from .errors import ConfigError
-from .io.atomic import atomic_file, write_csv
+from ..config import load_scene
+from ..errors import ConfigError
+from ..io.atomic import atomic_file, write_csv
 
 PAPER = {"A_PR": (3.6166, 0.7002), "A_L": (10.812, 0.7756)}  # slope, R² (paper eq. 15)
 COLUMNS = ["key", "iterations", "d_min_m", "n_trees", "pruning", "stochastic", "n_branches",

@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import ConfigError
-from .geometry import Branches
+from ..errors import ConfigError
+from ..geometry import Branches
 
 #: The scanner looks along +x (row parallel to the y axis).
 DEFAULT_VIEW_DIR = (1.0, 0.0, 0.0)

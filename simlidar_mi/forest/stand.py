@@ -1,7 +1,7 @@
 """Random forests: Poisson-placed random trees (Wahed et al., seed 004, §III).
 
 A forest is one inhomogeneous Poisson process per species on a rectangle
-(:func:`simlidar_mi.plants.poisson.place_trees`: squared-exponential bumps,
+(:func:`simlidar_mi.forest.placement.place_trees`: squared-exponential bumps,
 Lewis–Shedler thinning, then a minimum-distance thinning whose removals are
 reported), and one random tree (:mod:`simlidar_mi.plants.random_tree`) per
 position. Two modes:
@@ -66,15 +66,15 @@ from typing import Any, Iterable, Iterator, Sequence
 
 import numpy as np
 
-from .config import SceneConfig, load_scene
-from .errors import ConfigError
-from .geometry import Branches, Leaves
-from .io.atomic import staged_dir
-from .io.mesh_export import (PART_LEAVES, PART_WOOD, prism_tubes, tube_faces, write_obj_stream,
+from ..config import SceneConfig, load_scene
+from ..errors import ConfigError
+from ..geometry import Branches, Leaves
+from ..io.atomic import staged_dir
+from ..io.mesh_export import (PART_LEAVES, PART_WOOD, prism_tubes, tube_faces, write_obj_stream,
                              write_ply_stream)
-from .plants.poisson import (Bump, Domain, Placement, SpeciesIntensity, expected_count,
+from .placement import (Bump, Domain, Placement, SpeciesIntensity, expected_count,
                              intensity_grid, place_trees)
-from .plants.random_tree import (SPECIES_PRESETS, LeafTable, RandomTree, RandomTreeParams,
+from ..plants.random_tree import (SPECIES_PRESETS, LeafTable, RandomTree, RandomTreeParams,
                                  random_tree, species_preset, tree_params_from_dict)
 
 __all__ = ["ForestSpecies", "ForestParams", "Forest", "ForestRun", "make_forest",
@@ -504,7 +504,7 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
 
     Examples
     --------
-    >>> from simlidar_mi.plants.poisson import Bump, Domain, SpeciesIntensity
+    >>> from simlidar_mi.forest.placement import Bump, Domain, SpeciesIntensity
     >>> sp = ForestSpecies("spruce", species_preset("conifer-whorl"),
     ...                    SpeciesIntensity("spruce", [Bump(0.02, 10, 10, 100, 100)]))
     >>> f = make_forest(ForestParams(Domain(0, 20, 0, 20), (sp,), 3.0, True, 2), seed=1)

@@ -27,9 +27,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._mitsuba import mitsuba
-from .errors import ConfigError
-from .geometry import Branches, Leaves, Primitive
+from .._mitsuba import mitsuba
+from ..errors import ConfigError
+from ..geometry import Branches, Leaves, Primitive
 
 log = logging.getLogger(__name__)
 

@@ -325,7 +325,7 @@ def _synthetic_photo_run(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import __version__
+    from ._version import __version__
     p = argparse.ArgumentParser(prog="simlidar-mi", description=__doc__.splitlines()[0])
     p.add_argument("--version", action="version", version=f"simlidar-mi {__version__}")
     sub = p.add_subparsers(dest="command", required=True)

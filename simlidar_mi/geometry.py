@@ -11,6 +11,9 @@ import numpy as np
 
 from .errors import ConfigError
 
+# What a beam or pixel met, as stored in scan products (EXR ``class`` channel, LAS classes).
+CLASS_CODES = {"escape": 0, "ground": 1, "wood": 2, "leaf": 3}
+
 
 @dataclass(frozen=True)
 class Branches:

@@ -10,7 +10,8 @@ import pytest
 from simlidar_mi.config import load_scene
 from simlidar_mi.errors import ConfigError
 from simlidar_mi.geometry import Branches
-from simlidar_mi.io.exr import read_scan_exr, write_scan_exr
+from simlidar_mi.io.exr import write_scan_exr
+from simlidar_mi.lidar.scan import read_scan_exr
 from simlidar_mi.scene.build import build_scene
 from simlidar_mi.lidar.reference import compare, reference_scan
 from simlidar_mi.lidar.scan import ScanSettings, resolve_settings, scan

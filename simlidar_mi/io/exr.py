@@ -11,13 +11,16 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import OpenEXR
 
 from ..errors import SimlidarError
-from ..lidar.scan import ScanResult, ScanSettings
 from .atomic import atomic_file
+
+if TYPE_CHECKING:  # annotations only: io sits below the workflows
+    from ..lidar.scan import ScanResult
 
 
 def header_value(value):
@@ -80,16 +83,14 @@ def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = N
     return Path(path)
 
 
-def read_scan_exr(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
-    """Channels and header of a scan EXR; ``header['settings']`` is a ScanSettings."""
+def read_exr(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
+    """Channels and header of any EXR; JSON-encoded ``simlidar_pattern`` is decoded."""
     try:
         with OpenEXR.File(str(path)) as f:
             header = dict(f.header())  # emptied when the file closes
             channels = {k: np.array(v.pixels) for k, v in f.channels().items()}
     except Exception as exc:  # OpenEXR raises plain exceptions for unreadable files
         raise SimlidarError(f"{path}: cannot read EXR: {exc}") from exc
-    if "simlidar_settings" in header:
-        header["settings"] = ScanSettings(**json.loads(header["simlidar_settings"]))
     if "simlidar_pattern" in header:
         header["pattern"] = json.loads(header["simlidar_pattern"])
     return channels, header

@@ -12,13 +12,16 @@ Escapes are not written.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import laspy
 import numpy as np
 
-from ..scene.build import CLASS_CODES
-from ..lidar.scan import ScanResult
+from ..geometry import CLASS_CODES
 from .atomic import atomic_file
+
+if TYPE_CHECKING:  # annotations only: io sits below the workflows
+    from ..lidar.scan import ScanResult
 
 LAS_CLASS = {CLASS_CODES["ground"]: 2, CLASS_CODES["leaf"]: 5, CLASS_CODES["wood"]: 64}
 

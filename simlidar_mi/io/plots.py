@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -9,9 +10,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..scene.build import CLASS_CODES  # noqa: E402
-from ..lidar.scan import ScanResult  # noqa: E402
-from .atomic import atomic_file  # noqa: E402
+from ..geometry import CLASS_CODES  # noqa: E402
+from .atomic import atomic_file
+
+if TYPE_CHECKING:  # annotations only: io sits below the workflows
+    from ..lidar.scan import ScanResult  # noqa: E402
 
 
 def plot_scan_png(result: ScanResult, path: str | Path, title: str = "") -> Path:

@@ -7,6 +7,7 @@ x = x0, z = z0 and sweeps its beam in the XZ plane at elevation θ, direction
 """
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -15,7 +16,9 @@ import numpy as np
 
 from .._mitsuba import mitsuba
 from ..errors import ConfigError
-from ..scene.build import CLASS_CODES, BuiltScene
+from ..geometry import CLASS_CODES
+from ..io.exr import read_exr
+from ..scene.build import BuiltScene
 from .platforms import BeamPattern, elevation_dirs
 
 CLASS_NAMES = {v: k for k, v in CLASS_CODES.items()}
@@ -243,3 +246,11 @@ def scan(built: BuiltScene, settings: ScanSettings | BeamPattern,
 def _film(width: int, height: int) -> dict:
     return {"type": "hdrfilm", "width": width, "height": height, "pixel_format": "luminance",
             "rfilter": {"type": "box"}}
+
+
+def read_scan_exr(path) -> tuple[dict[str, np.ndarray], dict]:
+    """Channels and header of a scan EXR; ``header['settings']`` is a ScanSettings."""
+    channels, header = read_exr(path)
+    if "simlidar_settings" in header:
+        header["settings"] = ScanSettings(**json.loads(header["simlidar_settings"]))
+    return channels, header

@@ -29,12 +29,11 @@ import numpy as np
 
 from .._mitsuba import mitsuba
 from ..errors import ConfigError
-from ..geometry import Branches, Leaves, Primitive
+from ..geometry import CLASS_CODES, Branches, Leaves, Primitive
 
 log = logging.getLogger(__name__)
 
 REPRESENTATIONS = ("mesh", "cylinder", "linearcurve")
-CLASS_CODES = {"escape": 0, "ground": 1, "wood": 2, "leaf": 3}
 CAP_SIDES = 32
 MIN_LENGTH_M = 1e-9
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from simlidar_mi.errors import GrammarError, SimlidarError
-from simlidar_mi.lsystem.expressions import (ExpressionError, argument_spans,
-                                             parse_arguments, parse_expression,
+from simlidar_mi.lsystem.expr_compile import ExpressionError
+from simlidar_mi.lsystem.expressions import (argument_spans, parse_arguments, parse_expression,
                                              split_arguments)
 
 

@@ -6,8 +6,8 @@ import pytest
 
 from simlidar_mi.errors import ConfigError, DerivationTooLarge, GrammarError
 from simlidar_mi.lsystem import (DEFAULT_MAX_MODULES, Module, ModuleString, derive,
-                                 format_table1, interpret, parse_grammar, predict_size,
-                                 prune_descending, turtle_segments)
+                                 format_table1, interpret, parse_grammar, parse_modules,
+                                 predict_size, prune_descending, turtle_segments)
 from simlidar_mi.plants.apple import apple_grammar
 
 # Méndez et al., Table 1, copied character for character.
@@ -158,10 +158,10 @@ def test_other_grammar_errors():
 
 def test_module_string_text_round_trip():
     text = "I(1)I(1)[r+I(2)F]I(1)[R-I(2)F]F"
-    w = ModuleString.from_text(text)
+    w = parse_modules(text)
     assert w.to_text() == text and len(w) == 16 and w.count("I") == 5
     with pytest.raises(GrammarError) as ei:
-        ModuleString.from_text("I(1)]")
+        parse_modules("I(1)]")
     assert ei.value.position == 4
 
 
@@ -179,7 +179,7 @@ def test_stochastic_same_seed_same_word_and_seeds_differ():
 def test_stochastic_choice_is_per_module_with_the_given_probabilities():
     # one rewrite of 30 000 F's: each picks its successor on its own
     g = parse_grammar("alphabet: F A B C\naxiom: F\nF -> (0.33) A | (0.33) B | (0.34) C")
-    axiom = ModuleString.from_text("F" * 30000, g.alphabet)
+    axiom = parse_modules("F" * 30000, g.alphabet)
     w = derive(g, 1, np.random.default_rng(2024), axiom=axiom)
     for sym, p in (("A", 0.33), ("B", 0.33), ("C", 0.34)):
         sd = np.sqrt(p * (1 - p) / 30000)
@@ -262,7 +262,7 @@ def reference_turtle(word: ModuleString, angle_deg, rotation_deg, h0):
 
 
 def _segments(text, angle=90.0, rotation=90.0):
-    w = ModuleString.from_text(text)
+    w = parse_modules(text)
     step = np.ones(len(w))
     p0, p1, _ = turtle_segments(w, angle_deg=angle, rotation_deg=rotation, step_m=step)
     return p0, p1
@@ -305,7 +305,7 @@ def test_vectorised_turtle_matches_sequential_reference(seed):
 def test_pruning_removes_exactly_the_descending_segments():
     # angle 120 deg: '+' and '-' point a branch 30 deg below the horizon;
     # T with rotation 90 deg makes it exactly horizontal (kept: it does not descend).
-    w = ModuleString.from_text("I(1)[+I(2)]I(1)[-I(2)[+I(3)]][TI(2)]I(1)")
+    w = parse_modules("I(1)[+I(2)]I(1)[-I(2)[+I(3)]][TI(2)]I(1)")
     full = interpret(w, h0_m=1.0, d_min_m=0.01, n_substitutions=3, angle_deg=120,
                      rotation_deg=90)
     s, c = np.sin(np.deg2rad(120)), np.cos(np.deg2rad(120))
@@ -325,8 +325,8 @@ def test_pruning_removes_exactly_the_descending_segments():
 
 def test_interpret_needs_orders():
     with pytest.raises(GrammarError, match="axis order"):
-        interpret(ModuleString.from_text("I(1)I"), h0_m=1, d_min_m=0.01, n_substitutions=1)
+        interpret(parse_modules("I(1)I"), h0_m=1, d_min_m=0.01, n_substitutions=1)
     with pytest.raises(GrammarError, match=">= 1"):
-        interpret(ModuleString.from_text("I(0)"), h0_m=1, d_min_m=0.01, n_substitutions=1)
+        interpret(parse_modules("I(0)"), h0_m=1, d_min_m=0.01, n_substitutions=1)
     with pytest.raises(ConfigError, match="h0_m"):
-        interpret(ModuleString.from_text("I(1)"), h0_m=0, d_min_m=0.01, n_substitutions=1)
+        interpret(parse_modules("I(1)"), h0_m=0, d_min_m=0.01, n_substitutions=1)

@@ -10,7 +10,7 @@ from simlidar_mi.errors import (ConfigError, DerivationTooLarge, GrammarError,
                                 SimlidarError)
 from simlidar_mi.lsystem import (ExpressionError, ModuleString, TurtleConfig,
                                  apply_interpretation, derive, interpret_abop, parse_grammar,
-                                 predict_size)
+                                 parse_modules, predict_size)
 from simlidar_mi.lsystem.abop import INITIAL_FRAME
 
 HONDA = """\
@@ -112,7 +112,7 @@ def test_unreachable_and_merged_productions():
 def test_stochastic_parametric_choice_is_per_module():
     g = parse_grammar("alphabet: A B C\ndefine: p = 0.25\naxiom: A(2)\n"
                       "A(x) -> (p) B(x) | (1-p) C(x*3)\n")
-    axiom = ModuleString.from_text("A(2)" * 20000, g.alphabet)
+    axiom = parse_modules("A(2)" * 20000, g.alphabet)
     w = derive(g, 1, np.random.default_rng(5), axiom=axiom)
     frac_b = w.count("B") / len(w)
     assert abs(frac_b - 0.25) < 4 * math.sqrt(0.25 * 0.75 / 20000)
@@ -248,7 +248,7 @@ def test_size_guard_bounds_parametric_grammars():
 
 # --- ABOP turtle ----------------------------------------------------------------------
 def _geo(text: str, **cfg):
-    return interpret_abop(ModuleString.from_text(text, ABOP_SYMBOLS), TurtleConfig(**cfg))
+    return interpret_abop(parse_modules(text, ABOP_SYMBOLS), TurtleConfig(**cfg))
 
 
 def _dirs(text: str, **cfg) -> np.ndarray:

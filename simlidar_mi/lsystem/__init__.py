@@ -1,9 +1,9 @@
 """L-systems: module strings, grammars, parallel derivation and the 3D turtles.
 
 Parametric, conditional and stochastic productions (ABOP §1.10) are in
-:mod:`.grammar` and :mod:`.derive`; the SIMLIDAR apple turtle is :mod:`.turtle`,
-the ABOP turtle (branches, leaves, tropism) is :mod:`.abop`, and named plants
-are in :mod:`.presets`.
+:mod:`.grammar` (read by :mod:`.grammar_parse`) and :mod:`.derive`; the
+SIMLIDAR apple turtle is :mod:`.turtle`, the ABOP turtle (branches, leaves,
+tropism) is :mod:`.abop`, and named plants are in :mod:`.presets`.
 
 Pure numpy; nothing here imports Mitsuba.
 
@@ -16,9 +16,9 @@ from __future__ import annotations
 
 from .abop import LeafTable, TurtleConfig, TurtleGeometry, interpret_abop
 from .derive import DEFAULT_MAX_MODULES, apply_interpretation, derive, predict_size
-from .expressions import ExpressionError
-from .grammar import (Const, ExprArg, GenerationArg, Grammar, Production, Successor, Word,
-                      parse_grammar)
+from .expr_compile import ExpressionError
+from .grammar import Const, ExprArg, GenerationArg, Grammar, Production, Successor, Word
+from .grammar_parse import parse_grammar, parse_modules
 from .modules import DEFAULT_ALPHABET, Module, ModuleString
 from .notation import format_table1
 from .turtle import (INITIAL_FRAME, branch_diameter_m, branch_length_m, interpret,
@@ -27,7 +27,7 @@ from .turtle import (INITIAL_FRAME, branch_diameter_m, branch_length_m, interpre
 __all__ = [
     "Module", "ModuleString", "DEFAULT_ALPHABET",
     "Grammar", "Production", "Successor", "Word", "Const", "GenerationArg", "ExprArg",
-    "parse_grammar", "ExpressionError",
+    "parse_grammar", "parse_modules", "ExpressionError",
     "derive", "apply_interpretation", "predict_size", "DEFAULT_MAX_MODULES",
     "interpret_abop", "TurtleConfig", "TurtleGeometry", "LeafTable",
     "format_table1",

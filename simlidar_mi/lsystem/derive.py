@@ -14,7 +14,7 @@ Parametric productions (ABOP §1.10)
     per successor slot for every module that chose that successor, so the
     Python overhead per generation is per production, not per module.
     Evaluation errors (division by zero, a non-finite result) raise
-    :class:`~simlidar_mi.lsystem.expressions.ExpressionError` naming the
+    :class:`~simlidar_mi.lsystem.expr_compile.ExpressionError` naming the
     production (grammar line), the generation and the module.
 
 Stochastic productions draw one uniform number per rewritten module from the
@@ -38,7 +38,8 @@ import operator
 import numpy as np
 
 from ..errors import ConfigError, DerivationTooLarge
-from .expressions import Expression, ExpressionError
+from .expr_compile import ExpressionError
+from .expressions import Expression
 from .grammar import Grammar, Production
 from .modules import GENERATION_TOKEN, ModuleString, _pad
 
@@ -272,7 +273,7 @@ def derive(grammar: Grammar, generations: int | None = None,
 
     Parameters
     ----------
-    grammar : from :func:`~simlidar_mi.lsystem.grammar.parse_grammar`.
+    grammar : from :func:`~simlidar_mi.lsystem.grammar_parse.parse_grammar`.
     generations : number of rewrites; default the grammar's ``derivation length``.
     rng : required when the grammar is stochastic.
     max_modules : refuse (before allocating) when :func:`predict_size` exceeds it.

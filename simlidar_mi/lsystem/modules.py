@@ -128,22 +128,6 @@ class ModuleString:
             params[i, :len(m.params)] = m.params
         return cls(alphabet, codes, nargs, params)
 
-    @classmethod
-    def from_text(cls, text: str, alphabet: Sequence[str] = DEFAULT_ALPHABET) -> "ModuleString":
-        """Parse ``'I(1)I(1)[r+I(2)F]'`` (numbers or constant expressions; whitespace ignored).
-
-        Raises
-        ------
-        GrammarError
-            with the character position, for unknown symbols, malformed
-            parameters or unbalanced brackets.
-        """
-        from .grammar import parse_sequence  # the grammar owns the tokenizer
-        alphabet = check_alphabet(alphabet)
-        seq = parse_sequence(text, 0, len(text), {s: i for i, s in enumerate(alphabet)},
-                             source="module string", allow_generation=False)
-        return seq.instantiate(alphabet, generation=0)
-
     # --- access -----------------------------------------------------------------
     def __len__(self) -> int:
         return len(self.codes)

@@ -22,8 +22,8 @@ def _two_digits(symbol: str, params: tuple[float, ...]) -> str:
 def format_table1(modules: ModuleString) -> str:
     """Format a derived SIMLIDAR word as in the paper's Table 1.
 
-    >>> from simlidar_mi.lsystem import ModuleString
-    >>> format_table1(ModuleString.from_text("I(1)[r+I(2)F]"))
+    >>> from simlidar_mi.lsystem import parse_modules
+    >>> format_table1(parse_modules("I(1)[r+I(2)F]"))
     '[I01[t+I02F]]'
     """
     return "[" + modules.to_text(rename=TABLE1_RENAME, param_format=_two_digits) + "]"

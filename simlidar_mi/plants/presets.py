@@ -53,7 +53,8 @@ from ..errors import ConfigError
 from ..geometry import Leaves
 from ..lsystem.abop import LeafTable, TurtleConfig, TurtleGeometry, interpret_abop
 from ..lsystem.derive import DEFAULT_MAX_MODULES, apply_interpretation, derive
-from ..lsystem.grammar import Grammar, parse_grammar
+from ..lsystem.grammar import Grammar
+from ..lsystem.grammar_parse import parse_grammar
 from ..lsystem.modules import ModuleString
 
 TURTLES = ("abop", "simlidar")
@@ -67,7 +68,7 @@ class Preset:
     ----------
     name : registry key.
     description : one line.
-    grammar : grammar text (:mod:`~simlidar_mi.lsystem.grammar` format).
+    grammar : grammar text (:mod:`~simlidar_mi.lsystem.grammar_parse` format).
     turtle : ``'abop'`` or ``'simlidar'``.
     generations : default number of generations; ``None``: the grammar's
         ``derivation length``.

@@ -236,7 +236,7 @@ def _forest_args(p: argparse.ArgumentParser) -> None:
 @command("forest", "Random forest (seed 004): Poisson-placed random trees; tree and leaf tables, "
          "layout and preview pictures, PLY/OBJ export", _forest_args)
 def _forest_run(args: argparse.Namespace) -> int:
-    from .forest.stand import run_forest
+    from .forest.run import run_forest
 
     run = run_forest(args.scene, args.out, args.overrides, progress=sys.stderr.isatty())
     s = run.summary

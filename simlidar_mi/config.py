@@ -129,7 +129,7 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "pruning": Key(BOOL, False),
         "stochastic": Key(BOOL, False),
     },
-    # --- random forests (simlidar_mi.forest.stand, seed 004 §III); species are [[species]] tables
+    # --- random forests (simlidar_mi.forest.params, seed 004 §III); species are [[species]] tables
     "forest": {
         "domain_m": Key(LIST, [0.0, 300.0, 0.0, 300.0], lambda v: None if _numbers(v, 4)
                         and v[1] > v[0] and v[3] > v[2]
@@ -287,7 +287,7 @@ ARRAY_SECTIONS: dict[str, dict[str, Key]] = {
     # [[species]] of a [forest]: a random-tree preset, optional overrides, an intensity
     "species": {
         "name": Key(STR, None, lambda v: None if v.strip() else "must be a non-empty name"),
-        "preset": Key(STR, None, None, "random-tree preset (simlidar_mi.plants.random_tree)"),
+        "preset": Key(STR, None, None, "random-tree preset (simlidar_mi.plants.tree_params)"),
         "bumps": Key(LIST, None, lambda v: None if all(isinstance(b, dict) for b in v) else
                      "must be a list of tables {C_per_m2, x0_m, y0_m, h_m2, l_m2}",
                      "squared-exponential intensity terms C·exp(−[(x−x0)²/h + (y−y0)²/l])"),

@@ -14,11 +14,13 @@ from scipy.spatial.distance import pdist
 from simlidar_mi.cli import main
 from simlidar_mi.config import load_scene
 from simlidar_mi.errors import ConfigError
-from simlidar_mi.forest.stand import (ForestParams, ForestSpecies, forest_params_from_scene, make_forest,
-                                run_forest, tree_seed)
+from simlidar_mi.forest.params import ForestParams, ForestSpecies, forest_params_from_scene, tree_seed
+from simlidar_mi.forest.run import run_forest
+from simlidar_mi.forest.stand import make_forest
 from simlidar_mi.io.mesh_export import PART_LEAVES, PART_WOOD, read_obj, read_ply
 from simlidar_mi.forest.placement import Bump, Domain, SpeciesIntensity, place_trees
-from simlidar_mi.plants.random_tree import random_tree, species_preset
+from simlidar_mi.plants.random_tree import random_tree
+from simlidar_mi.plants.tree_params import species_preset
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
@@ -271,7 +273,7 @@ def test_auto_modes_switch_to_prototypes_for_big_instanced_forests(scenes_dir, t
 
 
 def test_a_failed_run_leaves_nothing_behind(scenes_dir, tmp_path, monkeypatch):
-    import simlidar_mi.forest.stand as forest_mod
+    import simlidar_mi.forest.run as forest_mod
 
     def boom(*a, **k):
         raise RuntimeError("disk full")

@@ -9,8 +9,9 @@ import pytest
 from scipy import stats
 
 from simlidar_mi.errors import ConfigError
-from simlidar_mi.plants.random_tree import (SPECIES_PRESETS, Bernoulli, Discrete, RandomTreeParams,
-                                            TruncNormal, leaf_polygon_area_factor, random_tree,
+from simlidar_mi.plants.laws import Bernoulli, Discrete, TruncNormal
+from simlidar_mi.plants.random_tree import random_tree
+from simlidar_mi.plants.tree_params import (SPECIES_PRESETS, RandomTreeParams, leaf_polygon_area_factor,
                                             species_preset, tree_params_from_dict)
 
 # Every law set, several truncated asymmetrically so the truncated moments differ from

@@ -1,0 +1,326 @@
+"""A forest's files and pictures: leaf tables, trees.csv, stand and prototype meshes, layout and preview.
+
+What each file holds: :mod:`simlidar_mi.forest.run`.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Iterator
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..io.mesh_export import (PART_LEAVES, PART_WOOD, prism_tubes, tube_faces, write_obj_stream,
+                             write_ply_stream)
+from ..plants.tree_leaves import LeafTable
+from .placement import intensity_grid
+from .stand import Forest, _bar, _place
+
+__all__ = ["plot_layout", "plot_preview", "write_stand"]
+
+
+# --- writers ---------------------------------------------------------------------------
+
+_LEAF_FMT = ["%d", "%d", "%.5f", "%.5f", "%.5f", "%.6g", "%.6g", "%.7g",
+             "%.6f", "%.6f", "%.6f", "%.6f", "%.6f", "%.6f"]
+
+
+def _leaf_tables_csv(path: Path, tables: Iterable[LeafTable], id_name: str) -> int:
+    """Write leaf tables as one CSV (streamed); returns the rows written."""
+    cols = list(LeafTable.COLUMNS)
+    cols[0] = id_name
+    rows = 0
+    with open(path, "w") as fh:
+        fh.write(",".join(cols) + "\n")
+        for t in tables:
+            if not len(t):
+                continue
+            c = t.columns()
+            arr = np.column_stack([c[k] for k in LeafTable.COLUMNS])
+            np.savetxt(fh, arr, fmt=_LEAF_FMT, delimiter=",")
+            rows += len(t)
+    return rows
+
+
+def _leaf_tables_parquet(path: Path, tables: Iterable[LeafTable], id_name: str) -> int:
+    import pyarrow as pa  # noqa: PLC0415
+    import pyarrow.parquet as pq  # noqa: PLC0415
+    rows = 0
+    writer = None
+    try:
+        for t in tables:
+            if not len(t):
+                continue
+            c = t.columns()
+            c = {(id_name if k == "tree_id" else k): v for k, v in c.items()}
+            tab = pa.table({k: pa.array(np.ascontiguousarray(v)) for k, v in c.items()})
+            if writer is None:
+                writer = pq.ParquetWriter(str(path), tab.schema)
+            writer.write_table(tab)
+            rows += len(t)
+        if writer is None:
+            schema = pa.schema([(id_name, pa.int32()), ("leaf_id", pa.int32())] +
+                               [(k, pa.float64()) for k in LeafTable.COLUMNS[2:]])
+            writer = pq.ParquetWriter(str(path), schema)
+    finally:
+        if writer is not None:
+            writer.close()
+    return rows
+
+
+def _have_pyarrow() -> bool:
+    try:
+        import pyarrow.parquet  # noqa: F401, PLC0415  (only asking whether it imports)
+    except ImportError:
+        return False
+    return True
+
+
+def _write_trees_csv(path: Path, forest: Forest) -> None:
+    c = forest.trees_columns()
+    fmt = {"x": "{:.6f}", "y": "{:.6f}", "height_m": "{:.6f}", "yaw_deg": "{:.6f}",
+           "scale": "{:.8f}", "crown_radius_m": "{:.6f}"}
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(list(c))
+        for i in range(len(forest)):
+            w.writerow([fmt[k].format(v[i]) if k in fmt else v[i] for k, v in c.items()])
+
+
+@dataclass
+class _Stand:
+    """Trees to mesh: tree ``i`` is ``local(i)`` placed by ``place(i) = (t, yaw, scale)``;
+    ``key(i)`` names identical geometry (a prototype) so its prisms are built once."""
+
+    n: int
+    local: Any
+    place: Any
+    key: Any
+
+    @classmethod
+    def of(cls, forest: Forest) -> "_Stand":
+        return cls(len(forest), forest.local_tree,
+                   lambda i: (forest.translation_m(i), float(forest.yaw_deg[i]), float(forest.scale[i])),
+                   (lambda i: int(forest.prototype[i])) if forest.instancing else (lambda i: None))
+
+
+def _write_mesh(stand: _Stand, path: Path, fmt: str, facets: int, progress: bool,
+                comments: list[str]) -> Path:
+    k = int(facets)
+    n = stand.n
+    nb = np.array([len(stand.local(i).branches) for i in range(n)], np.int64)
+    nt = np.array([len(stand.local(i).leaves) for i in range(n)], np.int64)
+    cache: dict = {}
+
+    def mesh(i: int) -> tuple[np.ndarray, np.ndarray]:
+        """World vertices of tree ``i``: wood prisms, leaf triangles (3 per triangle)."""
+        t, key = stand.local(i), stand.key(i)
+        wood = cache.get(key) if key is not None else None
+        if wood is None:
+            wood = prism_tubes(t.branches, k)
+            if key is not None:
+                cache[key] = wood
+        tr, yaw, s = stand.place(i)
+        return _place(wood, tr, yaw, s), _place(t.leaves.vertices.reshape(-1, 3), tr, yaw, s)
+
+    if fmt == "ply":
+        def verts() -> Iterator[np.ndarray]:
+            for i in _bar(range(n), progress, path.name, total=n):
+                yield from mesh(i)
+
+        def faces() -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+            off = 0
+            for i in range(n):
+                b, ntri = int(nb[i]), int(nt[i])
+                f = np.concatenate([tube_faces(b, k, off),
+                                    off + 2 * k * b + np.arange(3 * ntri, dtype=np.int64).reshape(-1, 3)])
+                part = np.concatenate([np.full(2 * k * b, PART_WOOD, np.uint8),
+                                       np.full(ntri, PART_LEAVES, np.uint8)])
+                yield f, part, np.full(len(f), i, np.int32)
+                off += 2 * k * b + 3 * ntri
+
+        return write_ply_stream(path, int((2 * k * nb + 3 * nt).sum()), int((2 * k * nb + nt).sum()),
+                                verts(), faces(), comments)
+    if fmt == "obj":
+        def wood() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+            for i in _bar(range(n), progress, path.name, total=n):
+                yield mesh(i)[0], tube_faces(int(nb[i]), k)
+
+        def leaves() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+            for i in range(n):
+                t = stand.local(i)
+                tr, yaw, s = stand.place(i)
+                v = _place(t.leaves.vertices.reshape(-1, 3), tr, yaw, s)
+                yield v, np.arange(len(v), dtype=np.int64).reshape(-1, 3)
+
+        return write_obj_stream(path, [("wood", wood), ("leaves", leaves)], comments)
+    raise ConfigError("must be 'ply' or 'obj'", key="forest.export_format", value=fmt)
+
+
+def write_stand(forest: Forest, path: str | Path, fmt: str = "ply", facets: int = 6,
+                progress: bool = False) -> Path:
+    """Export every tree of the forest as one mesh (wood and leaf parts), streamed per tree.
+
+    ``fmt`` is ``"ply"`` (binary; faces carry ``part`` 0 = wood / 1 = leaves and
+    ``tree_id``) or ``"obj"`` (``o wood`` then ``o leaves``). Branches are open
+    ``facets``-prisms, leaf triangles keep their own vertices; in PLY tree ``i``'s
+    wood vertices precede its leaf vertices, trees in order.
+    """
+    return _write_mesh(_Stand.of(forest), Path(path), fmt, facets, progress,
+                       ["simlidar-mi forest stand, metres", "part 0 = wood (open prisms), 1 = leaves",
+                        f"seed {forest.seed}, {len(forest)} trees"])
+
+
+def _write_prototype_meshes(forest: Forest, folder: Path, fmt: str, facets: int) -> list[Path]:
+    """One mesh per prototype, in its own frame (place with the transforms of trees.csv)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    out = []
+    names = forest.species_names
+    origin = np.zeros(3)
+    for p, t in enumerate(forest.prototypes):
+        stand = _Stand(1, lambda i, t=t: t, lambda i: (origin, 0.0, 1.0), lambda i: None)
+        species = names[int(forest.prototype_species[p])]
+        out.append(_write_mesh(stand, folder / f"{species}_{p:03d}.{fmt}", fmt, facets, False,
+                               [f"simlidar-mi forest prototype {p} ({species}), own frame, metres",
+                                "part 0 = wood (open prisms), 1 = leaves"]))
+    return out
+
+
+# --- pictures --------------------------------------------------------------------------
+
+
+def _colours(n: int) -> list:
+    import matplotlib  # noqa: PLC0415
+    cmap = matplotlib.colormaps["tab10"]
+    return [cmap(i % 10) for i in range(n)]
+
+
+def plot_layout(forest: Forest, path: str | Path) -> Path:
+    """Trees as crown-sized discs by species over the intensity contours (``layout.png``)."""
+    import matplotlib  # noqa: PLC0415
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+    from matplotlib.collections import EllipseCollection  # noqa: PLC0415
+    from matplotlib.lines import Line2D  # noqa: PLC0415
+
+    d = forest.params.domain
+    sp = [s.intensity for s in forest.params.species]
+    x, y, lam = intensity_grid(sp, d, 200, 200)
+    cols = _colours(len(sp))
+    w, h = d.x_max_m - d.x_min_m, d.y_max_m - d.y_min_m
+    fig, ax = plt.subplots(figsize=(7.5 * min(2.0, max(0.6, w / h)) + 1.8, 7.5), dpi=120)
+    total = lam.sum(0)
+    cf = ax.contourf(x, y, total, levels=12, cmap="Greys", alpha=0.45)
+    fig.colorbar(cf, ax=ax, label="total intensity λ (trees per m²)", shrink=0.8)
+    for j in range(len(sp)):
+        if lam[j].max() > 0:
+            ax.contour(x, y, lam[j], levels=4, colors=[cols[j]], linewidths=0.8, alpha=0.9)
+    handles = []
+    for j, name in enumerate(forest.species_names):
+        m = forest.species == j
+        if m.any():
+            diam = 2 * forest.crown_radius_m[m]
+            ax.add_collection(EllipseCollection(diam, diam, np.zeros(m.sum()), units="xy",
+                                                offsets=np.column_stack([forest.x_m[m], forest.y_m[m]]),
+                                                offset_transform=ax.transData, facecolors=[cols[j]],
+                                                edgecolors="k", linewidths=0.2, alpha=0.55))
+            ax.plot(forest.x_m[m], forest.y_m[m], ".", ms=1.5, color="k")
+        pl = forest.placement
+        handles.append(Line2D([], [], marker="o", ls="", color=cols[j], markeredgecolor="k",
+                              label=f"{name}: {int(m.sum())} trees ({int(pl.removed[j])} removed)"))
+    ax.set_xlim(d.x_min_m, d.x_max_m)
+    ax.set_ylim(d.y_min_m, d.y_max_m)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"{len(forest)} trees; discs = crown diameter; lines = intensity per species; "
+                 f"min distance {forest.params.min_distance_m:g} m", fontsize=9)
+    ax.legend(handles=handles, loc="upper left", fontsize=8, framealpha=0.85)
+    fig.tight_layout()
+    fig.savefig(path, format="png")
+    plt.close(fig)
+    return Path(path)
+
+
+def _strip(forest: Forest, max_trees: int) -> np.ndarray:
+    """Indices of the at most ``max_trees`` trees nearest the domain's middle line y = y_mid."""
+    d = forest.params.domain
+    order = np.argsort(np.abs(forest.y_m - 0.5 * (d.y_min_m + d.y_max_m)), kind="stable")
+    return np.sort(order[:max_trees])
+
+
+def plot_preview(forest: Forest, path: str | Path, max_trees: int = 300,
+                 max_leaf_points: int = 200_000) -> Path:
+    """Side (x–z) and top (x–y) views; branches as lines, leaves as dots (``preview.png``).
+
+    Big forests show a central strip of ``max_trees`` trees (all crowns outlined in the
+    top view) and a subsample of at most ``max_leaf_points`` leaf centres.
+    """
+    import matplotlib  # noqa: PLC0415
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+    from matplotlib.collections import EllipseCollection, LineCollection  # noqa: PLC0415
+
+    d = forest.params.domain
+    idx = _strip(forest, max_trees)
+    cols = _colours(len(forest.species_names))
+    n_leaves = int(forest.n_leaves[idx].sum()) if len(idx) else 0
+    step = max(1, math.ceil(n_leaves / max_leaf_points))
+    segs_side, segs_top, lw, leaf_pts, leaf_col = [], [], [], [], []
+    for i in idx:
+        br, _ = forest.tree_geometry(int(i))
+        segs_side.append(np.stack([br.p0[:, [0, 2]], br.p1[:, [0, 2]]], 1))
+        segs_top.append(np.stack([br.p0[:, :2], br.p1[:, :2]], 1))
+        lw.append(np.clip(br.diameter * 4.0, 0.1, 1.5))
+        lt = forest.tree_leaf_table(int(i))
+        leaf_pts.append(lt.centre_m[::step])
+        leaf_col.append(np.repeat([cols[int(forest.species[i])]], len(leaf_pts[-1]), axis=0))
+    fig, (a_side, a_top) = plt.subplots(2, 1, figsize=(12, 12), dpi=110,
+                                        gridspec_kw={"height_ratios": [1, 2.0]})
+    dot = 0.6 * math.sqrt(min(step, 16))  # thinned leaves drawn bigger to keep the crown's tone
+    if len(idx):
+        pts = np.concatenate(leaf_pts) if leaf_pts else np.zeros((0, 3))
+        lc = np.concatenate(leaf_col) if leaf_col else np.zeros((0, 4))
+        a_side.add_collection(LineCollection(np.concatenate(segs_side), linewidths=np.concatenate(lw),
+                                             colors="saddlebrown"))
+        a_side.scatter(pts[:, 0], pts[:, 2], s=dot, c=lc, alpha=0.35, linewidths=0, zorder=3)
+        a_top.add_collection(LineCollection(np.concatenate(segs_top), linewidths=np.concatenate(lw),
+                                            colors="saddlebrown", alpha=0.8))
+        a_top.scatter(pts[:, 0], pts[:, 1], s=dot, c=lc, alpha=0.35, linewidths=0, zorder=3)
+    diam = 2 * forest.crown_radius_m
+    a_top.add_collection(EllipseCollection(diam, diam, np.zeros(len(forest)), units="xy",
+                                           offsets=np.column_stack([forest.x_m, forest.y_m]),
+                                           offset_transform=a_top.transData, facecolors="none",
+                                           edgecolors=[cols[int(s)] for s in forest.species],
+                                           linewidths=0.4))
+    zmax = float(forest.height_m.max()) if len(forest) else 1.0
+    a_side.set_xlim(d.x_min_m, d.x_max_m)
+    a_side.set_ylim(0, 1.05 * zmax)
+    # wide stands would be a thin strip at 1:1; exaggerate z so the side view stays readable
+    exag = max(1.0, 0.3 * (d.x_max_m - d.x_min_m) / max(zmax, 1e-9))
+    a_side.set_aspect(exag)
+    a_side.set_xlabel("x (m)")
+    a_side.set_ylabel("z (m)")
+    y_lo = float(forest.y_m[idx].min()) if len(idx) else d.y_min_m
+    y_hi = float(forest.y_m[idx].max()) if len(idx) else d.y_max_m
+    a_side.set_title(f"side view (looking along +y) of {len(idx)} of {len(forest)} trees, "
+                     f"y in [{y_lo:.0f}, {y_hi:.0f}] m; leaf dots 1 in {step}"
+                     + (f"; z exaggerated ×{exag:.1f}" if exag > 1 else ""), fontsize=9)
+    a_top.set_xlim(d.x_min_m, d.x_max_m)
+    a_top.set_ylim(d.y_min_m, d.y_max_m)
+    a_top.set_aspect("equal")
+    a_top.set_xlabel("x (m)")
+    a_top.set_ylabel("y (m)")
+    a_top.set_title("top view: the same trees drawn, every crown outlined; leaves coloured by species",
+                    fontsize=9)
+    from matplotlib.lines import Line2D  # noqa: PLC0415
+    a_side.legend(handles=[Line2D([], [], marker="o", ls="", color=cols[j], label=nm)
+                           for j, nm in enumerate(forest.species_names)], loc="upper right",
+                  fontsize=8, framealpha=0.85)
+    fig.tight_layout()
+    fig.savefig(path, format="png")
+    plt.close(fig)
+    return Path(path)

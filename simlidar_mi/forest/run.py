@@ -1,0 +1,149 @@
+"""The ``simlidar-mi forest`` command: make a scene's forest and write its files.
+
+``run_forest`` (``simlidar-mi forest SCENE.toml --out DIR``) writes into ``DIR``:
+
+``trees.csv``
+    ``tree_id, species, x, y, height_m, n_branches, n_leaves, seed, prototype,
+    yaw_deg, scale, crown_radius_m`` (metres, degrees; ``prototype = -1`` without
+    instancing; ``height_m`` is the highest z of the tree's branch end points and
+    leaf vertices).
+``leaves.csv`` (``leaves.parquet`` when pyarrow is importable)
+    ``tree_id, leaf_id, x, y, z, length_m, width_m, area_m2, nx, ny, nz, hx, hy, hz``:
+    blade centre, size, one-sided polygon area, upper-side unit normal and unit
+    base→tip heading, world frame. ``leaf_table = "prototypes"`` writes
+    ``prototype_leaves.csv`` instead (column ``prototype`` for ``tree_id``, prototype
+    frame; place rows with the transforms of ``trees.csv``). ``"auto"`` (default)
+    writes all leaves up to ``leaf_table_max_rows`` (1 M rows ≈ 110 MB of CSV),
+    else the prototypes' leaves when instancing; ``"none"`` writes nothing.
+``layout.png``
+    trees as crown-sized discs coloured by species, over the intensity contours.
+``preview.png``
+    side and top views of a central strip of at most ``preview_max_trees`` trees
+    (branches as lines, leaves as dots), every crown outlined in the top view.
+``stand.ply`` / ``stand.obj``
+    the whole stand (branches as open prisms, leaves as triangles; PLY faces carry
+    ``part`` 0 = wood / 1 = leaves and ``tree_id``; OBJ has ``o wood`` and
+    ``o leaves``) — see :mod:`simlidar_mi.io.mesh_export`. ``export = "auto"``
+    writes the stand up to ``export_max_triangles``, else (instancing only) one
+    ``prototypes/<species>_<k>.ply`` per prototype in its own frame.
+``forest.json``
+    counts per species (expected, before and removed by the distance thinning,
+    placed), totals, the modes chosen and the seconds per step.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+from ..config import SceneConfig, load_scene
+from ..errors import ConfigError
+from ..io.atomic import staged_dir
+from ..plants.tree_leaves import LeafTable
+from .outputs import (_have_pyarrow, _leaf_tables_csv, _leaf_tables_parquet, _write_prototype_meshes,
+                      _write_trees_csv, plot_layout, plot_preview, write_stand)
+from .stand import Forest, _bar, make_forest
+
+__all__ = ["ForestRun", "run_forest"]
+
+
+# --- the command -----------------------------------------------------------------------
+
+
+@dataclass
+class ForestRun:
+    """What ``run_forest`` produced."""
+
+    forest: Forest
+    files: dict[str, Path]
+    summary: dict[str, Any]
+
+
+def _resolve_modes(forest: Forest, f: dict, src: str) -> tuple[str, str]:
+    leaf_mode = f["leaf_table"]
+    n_leaves = int(forest.n_leaves.sum())
+    if leaf_mode == "auto":
+        leaf_mode = "all" if n_leaves <= f["leaf_table_max_rows"] or not forest.instancing else "prototypes"
+    if leaf_mode == "prototypes" and not forest.instancing:
+        raise ConfigError("needs instancing = true (without it there are no prototypes)", file=src,
+                          key="forest.leaf_table", value="prototypes")
+    export = f["export"]
+    k = f["export_facets"]
+    n_tri = int((2 * k * forest.n_branches + forest.n_leaf_triangles).sum())
+    if export == "auto":
+        export = "stand" if n_tri <= f["export_max_triangles"] or not forest.instancing else "prototypes"
+    if export == "prototypes" and not forest.instancing:
+        raise ConfigError("needs instancing = true (without it there are no prototypes)", file=src,
+                          key="forest.export", value="prototypes")
+    return leaf_mode, export
+
+
+def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Sequence[str] = (),
+               *, progress: bool = False) -> ForestRun:
+    """Make the forest of a scene file and write its files (see the module docstring).
+
+    All files appear together when complete (staged); a failure leaves ``out_dir``
+    as it was.
+    """
+    if not isinstance(cfg, SceneConfig):
+        cfg = load_scene(cfg, list(overrides))
+    if not (cfg.has("forest") or cfg.has("species")):
+        raise ConfigError("the scene has no [forest] section or [[species]] tables", file=cfg.source,
+                          key="forest")
+    f = cfg["forest"]
+    forest = make_forest(cfg, progress=progress)
+    leaf_mode, export = _resolve_modes(forest, f, cfg.source)
+    seconds = dict(forest.seconds)
+    files: dict[str, Path] = {}
+    out = Path(out_dir)
+    with staged_dir(out) as stage:
+        t0 = time.perf_counter()
+        _write_trees_csv(stage / "trees.csv", forest)
+        files["trees"] = out / "trees.csv"
+        rows = 0
+        if leaf_mode != "none":
+            ext = "parquet" if _have_pyarrow() else "csv"
+            if leaf_mode == "all":
+                name, id_name = f"leaves.{ext}", "tree_id"
+                tables: Iterable[LeafTable] = (forest.tree_leaf_table(i) for i in
+                                               _bar(range(len(forest)), progress, "leaves", len(forest)))
+            else:
+                name, id_name = f"prototype_leaves.{ext}", "prototype"
+                tables = (t.leaf_table for t in forest.prototypes)
+            writer = _leaf_tables_parquet if ext == "parquet" else _leaf_tables_csv
+            rows = writer(stage / name, tables, id_name)
+            files["leaves"] = out / name
+        seconds["tables"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        plot_layout(forest, stage / "layout.png")
+        plot_preview(forest, stage / "preview.png", f["preview_max_trees"])
+        files["layout"], files["preview"] = out / "layout.png", out / "preview.png"
+        seconds["plots"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        fmt, k = f["export_format"], f["export_facets"]
+        if export == "stand":
+            write_stand(forest, stage / f"stand.{fmt}", fmt, k, progress)
+            files["stand"] = out / f"stand.{fmt}"
+        elif export == "prototypes":
+            _write_prototype_meshes(forest, stage / "prototypes", fmt, k)
+            files["prototypes"] = out / "prototypes"
+        seconds["export"] = time.perf_counter() - t0
+
+        summary = forest.summary()
+        summary.update({"scene_file": cfg.source, "scene_sha256": cfg.sha256, "leaf_table": leaf_mode,
+                        "leaf_rows_written": rows, "export": export, "export_format": fmt,
+                        "export_facets": k, "seconds": seconds,
+                        "export_triangles": int((2 * k * forest.n_branches
+                                                 + forest.n_leaf_triangles).sum())
+                        if export == "stand" else int(sum(2 * k * len(t.branches) + len(t.leaves)
+                                                          for t in forest.prototypes))
+                        if export == "prototypes" else 0,
+                        "transform": "p_world = (x, y, 0) + Rz(yaw_deg) · (scale · p_local)"})
+        with open(stage / "forest.json", "w") as fh:
+            json.dump(summary, fh, indent=2)
+        files["summary"] = out / "forest.json"
+    return ForestRun(forest, files, summary)

@@ -64,7 +64,7 @@ _API = {
     "build_scene": "scene.build",
     "gap_images": "canopy.gapfraction", "run_gapfraction": "canopy.gapfraction",
     "photo_gap": "canopy.photo", "compare": "canopy.compare",
-    "make_forest": "forest.stand", "run_forest": "forest.stand",
+    "make_forest": "forest.stand", "run_forest": "forest.run",
     "write_scan_exr": "io.exr", "write_scan_las": "io.las",
 }
 

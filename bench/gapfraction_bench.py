@@ -34,9 +34,11 @@ from _machine import machine  # noqa: E402
 
 from simlidar_mi._mitsuba import mitsuba  # noqa: E402
 from simlidar_mi.config import load_scene  # noqa: E402
-from simlidar_mi.canopy.gapfraction import (DEFAULTS, analysis_window, build_canopy_scene,  # noqa: E402
-                                     canopies_from_config, make_camera, render_gap,
-                                     run_gapfraction)
+from simlidar_mi.canopy.cameras import make_camera  # noqa: E402
+from simlidar_mi.canopy.canopy import canopies_from_config  # noqa: E402
+from simlidar_mi.canopy.gapfraction import build_canopy_scene, render_gap, run_gapfraction  # noqa: E402
+from simlidar_mi.canopy.gapfraction_defaults import DEFAULTS  # noqa: E402
+from simlidar_mi.canopy.windows import analysis_window  # noqa: E402
 
 SCENE = REPO / "scenes" / "strawberry_plot.toml"
 

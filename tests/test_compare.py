@@ -20,8 +20,8 @@ from scipy.stats import pearsonr
 
 from simlidar_mi import ConfigError, SimlidarError
 from simlidar_mi.cli import main
-from simlidar_mi.canopy.compare import (COMPARISON_COLUMNS, PAIRS_COLUMNS, ManifestError, compare,
-                                 comparison_stats, read_manifest)
+from simlidar_mi.canopy.compare import COMPARISON_COLUMNS, PAIRS_COLUMNS, compare, comparison_stats
+from simlidar_mi.canopy.manifest import ManifestError, read_manifest
 from simlidar_mi.canopy.gapfraction import run_gapfraction
 
 REPO = Path(__file__).resolve().parents[1]

@@ -20,10 +20,12 @@ import pytest
 from simlidar_mi import ConfigError, Leaves
 from simlidar_mi.cli import main
 from simlidar_mi.config import SECTIONS, load_scene
-from simlidar_mi.canopy.gapfraction import (CSV_COLUMNS, DEFAULTS, Canopy, analysis_window,
-                                     build_canopy_scene, canopy_from_random_leaves, expected_p0,
-                                     gap_images, make_camera, read_gap_exr, render_gap,
-                                     run_gapfraction)
+from simlidar_mi.canopy.cameras import make_camera
+from simlidar_mi.canopy.canopy import Canopy, canopy_from_random_leaves, expected_p0
+from simlidar_mi.canopy.gapfraction import (CSV_COLUMNS, build_canopy_scene, gap_images, read_gap_exr,
+                                            render_gap, run_gapfraction)
+from simlidar_mi.canopy.gapfraction_defaults import DEFAULTS
+from simlidar_mi.canopy.windows import analysis_window
 from simlidar_mi.plants.random_leaves import random_leaves
 
 REPO = Path(__file__).resolve().parents[1]

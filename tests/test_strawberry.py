@@ -9,10 +9,11 @@ import pytest
 
 from simlidar_mi.errors import ConfigError
 from simlidar_mi.geometry import Leaves
-from simlidar_mi.plants.strawberry import (
-    PAPER_EXTRACTION_COUNTS, LeafTraits, StrawberryLeafParams, StrawberryPlotParams,
-    draw_leaf_traits, extract_leaves, extraction_steps, leaf_triangles, strawberry_leaf,
-    strawberry_plant, strawberry_plot)
+from simlidar_mi.plants.strawberry import StrawberryPlotParams, strawberry_plant, strawberry_plot
+from simlidar_mi.plants.strawberry_extraction import (PAPER_EXTRACTION_COUNTS, extract_leaves,
+                                                      extraction_steps)
+from simlidar_mi.plants.strawberry_leaf import (LeafTraits, StrawberryLeafParams, draw_leaf_traits,
+                                                leaf_triangles, strawberry_leaf)
 
 
 def _areas(v: np.ndarray) -> np.ndarray:

@@ -16,7 +16,9 @@ from PIL import Image
 from simlidar_mi import Branches, ConfigError, SimlidarError
 from simlidar_mi.canopy.compare import compare
 from simlidar_mi.config import load_scene
-from simlidar_mi.canopy.gapfraction import canopies_from_config, gap_images, make_camera
+from simlidar_mi.canopy.cameras import make_camera
+from simlidar_mi.canopy.canopy import canopies_from_config
+from simlidar_mi.canopy.gapfraction import gap_images
 from simlidar_mi.canopy.synthetic_photo import (CSV_COLUMNS, DEFAULTS, PhotoSettings, canopeo_p0,
                                          check_images, render_photo, run_synthetic_photos,
                                          save_photo_png, srgb_encode)

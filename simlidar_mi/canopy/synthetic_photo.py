@@ -248,12 +248,12 @@ class PhotoJob:
 
     vertices_m: np.ndarray  # (n, 3, 3), relative to origin_m
     origin_m: np.ndarray
-    camera: Any  # simlidar_mi.canopy.gapfraction.Camera
+    camera: Any  # simlidar_mi.canopy.cameras.Camera
     soil_z_m: float  # relative to origin_m
 
 
 def _camera_from_dict(d: dict[str, Any]):
-    from .gapfraction import Camera  # noqa: PLC0415
+    from .cameras import Camera  # noqa: PLC0415
     vec = {"position_m", "target_m", "direction", "right", "up"}
     kw = {}
     for f in fields(Camera):
@@ -265,7 +265,7 @@ def _camera_from_dict(d: dict[str, Any]):
 
 def _make_job(canopy, camera, window=None) -> PhotoJob:
     """Leaves of ``canopy`` as the coverage render sees them (tiled when periodic)."""
-    from .gapfraction import analysis_window, tile_offsets  # noqa: PLC0415
+    from .windows import analysis_window, tile_offsets  # noqa: PLC0415
     if canopy.branches is not None and len(canopy.branches):
         raise ConfigError("synthetic photos of canopies with wood are not supported yet "
                           "(only leaves are given a reflectance)", key="canopy.branches",
@@ -412,13 +412,13 @@ def render_photo(canopy, camera, settings: PhotoSettings | None = None, *, windo
 
     Parameters
     ----------
-    canopy : simlidar_mi.canopy.gapfraction.Canopy
+    canopy : simlidar_mi.canopy.canopy.Canopy
         Leaves only (wood is refused).  Periodic canopies are tiled as the coverage
         render tiles them.
-    camera : simlidar_mi.canopy.gapfraction.Camera
-        From :func:`simlidar_mi.canopy.gapfraction.make_camera` or a ``GapImage.camera``.
+    camera : simlidar_mi.canopy.cameras.Camera
+        From :func:`simlidar_mi.canopy.cameras.make_camera` or a ``GapImage.camera``.
     settings : PhotoSettings, optional
-    window : simlidar_mi.canopy.gapfraction.Window, optional
+    window : simlidar_mi.canopy.windows.Window, optional
         The coverage image's window; for periodic canopies its ray extent decides the
         tiling (computed from the camera when omitted).
     seed : sampler seed.
@@ -540,7 +540,7 @@ def check_photo(canopy, kind: str = "orthographic", zenith_deg: float = 0.0, *,
 
     Parameters
     ----------
-    canopy : simlidar_mi.canopy.gapfraction.Canopy
+    canopy : simlidar_mi.canopy.canopy.Canopy
     kind : 'orthographic' or 'perspective'
     zenith_deg : view zenith, degrees.
     settings : PhotoSettings, optional

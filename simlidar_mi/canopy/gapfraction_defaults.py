@@ -1,0 +1,23 @@
+"""Defaults of a scene file's ``[gapfraction]`` section (cameras, views, windows, rendering)."""
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["DEFAULTS"]
+
+#: Defaults of the ``[gapfraction]`` section (see ``bench/gapfraction_bench.py``
+#: for why resolution and spp are what they are).
+DEFAULTS: dict[str, Any] = {
+    "cameras": ["orthographic", "perspective"],
+    "zeniths_deg": [0.0, 15.0, 30.0],
+    "azimuth_deg": 0.0,
+    "resolution": 1024,
+    "spp": 4,
+    "window": "auto",
+    "window_fraction": 1.0,
+    "margin_m": None,
+    "fov_deg": 60.0,
+    "camera_height_m": 1.0,
+    "jitter": False,
+    "mask_threshold": 0.5,
+}

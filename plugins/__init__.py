@@ -1,0 +1,1 @@
+"""Mitsuba plugins: the LiDAR sensors and the range and coverage integrators."""

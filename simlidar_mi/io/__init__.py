@@ -1,0 +1,1 @@
+"""Writers and readers: EXR, LAS, PNG, PLY/OBJ, CSV; outputs written whole or not at all."""

@@ -1,0 +1,1 @@
+"""Plant generators: scene parameters -> plain geometry (Branches, Leaves), no Mitsuba."""

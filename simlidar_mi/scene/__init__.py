@@ -1,1 +1,1 @@
-"""scene"""
+"""Geometry -> Mitsuba shapes: meshes, curves, instancing and the float64 scene origin."""

@@ -93,7 +93,7 @@ def test_segment_pruning_drops_descending_segments_only_and_leaves_wood_floating
     assert len(seg) == len(full) - descending.sum() == 2098
     np.testing.assert_array_equal(seg.p0, full.p0[~descending])
     assert (seg.p1[:, 2] >= seg.p0[:, 2]).all()
-    assert _floating(seg, [(0, 0, 0)]) > 0      # the 62 orphans' subtree roots float
+    assert _floating(seg, [(0, 0, 0)]) == 30     # children of descending segments, in mid-air
     assert _floating(apple_tree(AppleTreeParams(6, pruning=True)), [(0, 0, 0)]) == 0
 
 

@@ -126,8 +126,11 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "rotation_deg": Key(FLOAT, 20.0, _finite),
         "d_min_m": Key(FLOAT, 0.005, positive),
         "h0_m": Key(FLOAT, 0.4, positive, "trunk element length (order 1)"),
-        "pruning": Key(BOOL, False),
+        "pruning": Key(BOOL, False, None, "remove the branches that descend in z"),
         "stochastic": Key(BOOL, False),
+        "pruning_mode": Key(STR, "subtree", one_of("subtree", "segment"),
+                            "subtree: a descending segment goes with everything growing from it; "
+                            "segment: only the segment goes, its children float"),
     },
     # --- random forests (simlidar_mi.forest.params, seed 004 §III); species are [[species]] tables
     "forest": {

@@ -48,15 +48,67 @@ def test_deterministic_tree_counts_and_height():
         np.testing.assert_array_equal(t.p0[0], [0, 0, 0])
 
 
-def test_pruning_drops_descending_segments_only():
-    p = AppleTreeParams(6, angle_deg=20, rotation_deg=20)
-    full = apple_tree(p)
-    pruned = apple_tree(AppleTreeParams(6, pruning=True))
+def _parents_by_end_points(br) -> np.ndarray:
+    """Parent of each segment found geometrically, independent of the turtle: the
+    segment of the same tree whose end is exactly this one's start (-1: none)."""
+    ends = {}
+    for i, (k, p) in enumerate(zip(br.tree_id, br.p1)):
+        ends.setdefault((int(k), p.tobytes()), i)
+    return np.array([ends.get((int(k), p.tobytes()), -1)
+                     for k, p in zip(br.tree_id, br.p0)], np.int64)
+
+
+def _floating(br, bases) -> int:
+    """Segments neither at their tree's base nor starting where a kept segment ends.
+    Asserts one trunk base per tree."""
+    parent = _parents_by_end_points(br)
+    at_base = (br.p0 == np.asarray(bases, np.float64)[br.tree_id]).all(axis=1)
+    for k in range(len(bases)):
+        assert np.count_nonzero(at_base & (br.tree_id == k)) == 1   # the trunk base
+    return int(np.count_nonzero((parent < 0) & ~at_base))
+
+
+def test_pruning_removes_descending_segments_with_everything_growing_from_them():
+    full = apple_tree(AppleTreeParams(6))
     descending = full.p1[:, 2] < full.p0[:, 2]
-    assert descending.any()
-    assert len(pruned) == len(full) - descending.sum()
+    # reference: walk the geometric parents in string order (parents come first)
+    parent = _parents_by_end_points(full)
+    assert (parent < np.arange(len(full))).all() and np.count_nonzero(parent < 0) == 1
+    cut = descending.copy()
+    for i, p in enumerate(parent):
+        cut[i] |= p >= 0 and cut[p]
+    pruned = apple_tree(AppleTreeParams(6, pruning=True))
+    np.testing.assert_array_equal(pruned.p0, full.p0[~cut])
+    np.testing.assert_array_equal(pruned.p1, full.p1[~cut])
+    # 6 deterministic iterations: 2548 segments, 450 descend, 62 more grow from them
+    assert (len(full), descending.sum(), cut.sum() - descending.sum()) == (2548, 450, 62)
+    assert len(pruned) == 2036
     assert (pruned.p1[:, 2] >= pruned.p0[:, 2]).all()
-    np.testing.assert_array_equal(pruned.p0, full.p0[~descending])
+
+
+def test_segment_pruning_drops_descending_segments_only_and_leaves_wood_floating():
+    full = apple_tree(AppleTreeParams(6))
+    descending = full.p1[:, 2] < full.p0[:, 2]
+    seg = apple_tree(AppleTreeParams(6, pruning=True, pruning_mode="segment"))
+    assert len(seg) == len(full) - descending.sum() == 2098
+    np.testing.assert_array_equal(seg.p0, full.p0[~descending])
+    assert (seg.p1[:, 2] >= seg.p0[:, 2]).all()
+    assert _floating(seg, [(0, 0, 0)]) == 30     # children of descending segments, in mid-air
+    assert _floating(apple_tree(AppleTreeParams(6, pruning=True)), [(0, 0, 0)]) == 0
+
+
+@pytest.mark.parametrize("iterations", [4, 5, 6, 7])
+@pytest.mark.parametrize("stochastic, seed", [(False, 0), (True, 1), (True, 2), (True, 3)])
+def test_every_pruned_segment_is_connected_to_its_trunk_base(iterations, stochastic, seed):
+    # Every segment is the trunk base or starts exactly where a kept segment ends, so by
+    # induction in string order every kept segment hangs from its tree's trunk base.
+    p = AppleTreeParams(iterations, stochastic=stochastic, pruning=True)
+    bases = [(2.5, 0.75 + 2.0 * k, 0.0) for k in range(2)]
+    trees = orchard(p, 2, 2.0, row_x_m=2.5, y_start_m=0.75, seed=seed)
+    assert _floating(trees, bases) == 0
+    full = orchard(AppleTreeParams(iterations, stochastic=stochastic), 2, 2.0,
+                   row_x_m=2.5, y_start_m=0.75, seed=seed)
+    assert len(trees) < len(full)               # pruning did remove wood
 
 
 # --- seeds ------------------------------------------------------------------------
@@ -124,6 +176,8 @@ def test_guard_refuses_twenty_accepts_seven_stochastic():
     (dict(iterations=4, rotation_deg="x"), "rotation_deg"),
     (dict(iterations=4, pruning="yes"), "pruning"),
     (dict(iterations=4, stochastic=1), "stochastic"),
+    (dict(iterations=4, pruning_mode="branch"), "pruning_mode"),
+    (dict(iterations=4, pruning_mode=True), "pruning_mode"),
     (dict(iterations=4, max_modules=0), "max_modules"),
 ])
 def test_params_validation_names_key_and_value(kwargs, key):
@@ -172,3 +226,22 @@ def test_cli_derive_refuses_huge(capsys):
     assert main(["derive", "--generations", "20"]) == 2
     err = capsys.readouterr().err
     assert "31,381,059,601" in err and "max_modules" in err
+
+
+# --- scene files ------------------------------------------------------------------
+def test_scene_pruning_mode_reaches_the_trees_and_bad_values_are_refused(tmp_path):
+    from simlidar_mi.config import load_scene
+    from simlidar_mi.survey import generate
+    from tests.conftest import SCENES
+    scene = SCENES / "apple_orchard.toml"
+    base = ["orchard.n_trees=1", "orchard.tree.iterations=6", "orchard.tree.stochastic=false"]
+    default = generate(load_scene(scene, base)).branches
+    seg = generate(load_scene(scene, base + ['orchard.tree.pruning_mode="segment"'])).branches
+    assert (len(default), len(seg)) == (2036, 2098)       # as in the tests above
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[orchard.tree]\npruning = true\npruning_mode = "branch"\n')
+    with pytest.raises(ConfigError) as ei:
+        load_scene(bad)
+    msg = str(ei.value)
+    assert str(bad) in msg and "orchard.tree.pruning_mode" in msg and "branch" in msg
+    assert "subtree" in msg and "segment" in msg

@@ -302,7 +302,7 @@ def test_vectorised_turtle_matches_sequential_reference(seed):
     np.testing.assert_allclose(br.p1, r1, atol=1e-12)
 
 
-def test_pruning_removes_exactly_the_descending_segments():
+def test_pruning_removes_descending_segments_with_their_subtrees_or_alone():
     # angle 120 deg: '+' and '-' point a branch 30 deg below the horizon;
     # T with rotation 90 deg makes it exactly horizontal (kept: it does not descend).
     w = parse_modules("I(1)[+I(2)]I(1)[-I(2)[+I(3)]][TI(2)]I(1)")
@@ -315,12 +315,27 @@ def test_pruning_removes_exactly_the_descending_segments():
                    [0, s / 2, 2 + c / 2 + 0.25], [0.5, 0, 2], [0, 0, 3]]
     np.testing.assert_allclose(full.p0, expected_p0, atol=1e-12)
     np.testing.assert_allclose(full.p1, expected_p1, atol=1e-12)
-    pruned = interpret(w, h0_m=1.0, d_min_m=0.01, n_substitutions=3, angle_deg=120,
-                       rotation_deg=90, prune=True)
-    keep = [0, 2, 4, 5, 6]    # segments 1 and 3 descend; 4 (child of 3) climbs, kept
-    np.testing.assert_array_equal(pruned.p0, full.p0[keep])
-    np.testing.assert_array_equal(pruned.order, [1, 1, 3, 2, 1])
-    assert len(prune_descending(pruned)) == len(pruned)
+    *_, parent = turtle_segments(w, angle_deg=120, rotation_deg=90,
+                                 step_m=np.ones(len(w)), return_parent=True)
+    np.testing.assert_array_equal(parent, [-1, 0, 0, 2, 3, 2, 2])
+    kw = dict(h0_m=1.0, d_min_m=0.01, n_substitutions=3, angle_deg=120, rotation_deg=90,
+              prune=True)
+    # default "subtree": segments 1 and 3 descend; 4 grows from 3 and goes with it
+    pruned = interpret(w, **kw)
+    np.testing.assert_array_equal(pruned.p0, full.p0[[0, 2, 5, 6]])
+    np.testing.assert_array_equal(pruned.order, [1, 1, 2, 1])
+    # "segment": only 1 and 3 go; 4 climbs and is kept, starting in mid-air
+    seg = interpret(w, **kw, prune_mode="segment")
+    np.testing.assert_array_equal(seg.p0, full.p0[[0, 2, 4, 5, 6]])
+    np.testing.assert_array_equal(seg.order, [1, 1, 3, 2, 1])
+    assert len(prune_descending(seg, mode="segment")) == len(seg)
+    np.testing.assert_array_equal(prune_descending(full, parent).p0, pruned.p0)
+    with pytest.raises(ConfigError, match="parent"):
+        prune_descending(full)                      # subtree needs the parents
+    with pytest.raises(ConfigError, match="parent"):
+        prune_descending(full, [-1, 0, 0, 2, 3, 2, 7])   # 7 is not an earlier row
+    with pytest.raises(ConfigError, match="prune_mode"):
+        interpret(w, **kw, prune_mode="branch")
 
 
 def test_interpret_needs_orders():

@@ -21,8 +21,8 @@ from .grammar import Const, ExprArg, GenerationArg, Grammar, Production, Success
 from .grammar_parse import parse_grammar, parse_modules
 from .modules import DEFAULT_ALPHABET, Module, ModuleString
 from .notation import format_table1
-from .turtle import (INITIAL_FRAME, branch_diameter_m, branch_length_m, interpret,
-                     match_brackets, prune_descending, turtle_segments)
+from .turtle import (INITIAL_FRAME, PRUNE_MODES, branch_diameter_m, branch_length_m,
+                     interpret, match_brackets, prune_descending, turtle_segments)
 
 __all__ = [
     "Module", "ModuleString", "DEFAULT_ALPHABET",
@@ -31,6 +31,6 @@ __all__ = [
     "derive", "apply_interpretation", "predict_size", "DEFAULT_MAX_MODULES",
     "interpret_abop", "TurtleConfig", "TurtleGeometry", "LeafTable",
     "format_table1",
-    "interpret", "turtle_segments", "prune_descending", "match_brackets",
+    "interpret", "turtle_segments", "prune_descending", "PRUNE_MODES", "match_brackets",
     "branch_length_m", "branch_diameter_m", "INITIAL_FRAME",
 ]

@@ -60,6 +60,9 @@ TURN_SYMBOLS = {"+": (1, +1, True), "-": (1, -1, True),
                 "t": (2, -1, False), "r": (2, -1, False)}
 #: Segments that descend by less than this (metres) count as level, not pruned.
 PRUNE_TOLERANCE_M = 1e-12
+#: Pruning readings: "subtree" removes a descending segment with everything that grows
+#: from it (wood cannot float; the default), "segment" drops the descending segment only.
+PRUNE_MODES = ("subtree", "segment")
 
 
 def branch_length_m(order, h0_m: float) -> np.ndarray:
@@ -134,7 +137,7 @@ def _chain_reduce(base: np.ndarray, values: np.ndarray, combine) -> np.ndarray:
 
 
 def turtle_segments(modules: ModuleString, *, angle_deg: float, rotation_deg: float,
-                    step_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    step_m: np.ndarray, return_parent: bool = False):
     """Walk the turtle; return the segments drawn by ``I`` modules.
 
     Parameters
@@ -142,11 +145,15 @@ def turtle_segments(modules: ModuleString, *, angle_deg: float, rotation_deg: fl
     modules : the word to interpret.
     angle_deg, rotation_deg : turn of ``+``/``-`` (about L) and ``T``/``t`` (about U).
     step_m : (n,) step length of every module; only ``I`` modules move.
+    return_parent : also return each segment's parent.
 
     Returns
     -------
     p0, p1 : (m, 3) segment ends relative to the tree base, metres.
     index : (m,) module index of each segment, in string order.
+    parent : (m,) only with ``return_parent``: row of the segment this one grows
+        from (the one whose end is its start), ``-1`` for a segment at the base.
+        A parent always precedes its child.
     """
     n = len(modules)
     codes = modules.codes
@@ -191,7 +198,10 @@ def turtle_segments(modules: ModuleString, *, angle_deg: float, rotation_deg: fl
     compact_d[idx] = np.arange(idx.size)
     draw_parent = compact_d[_nearest_in(base, draw)[idx]]
     p1 = _chain_reduce(draw_parent, disp, np.add)
-    p0 = p1 - disp
+    # A child starts exactly where its parent ends (p1 - disp would differ by rounding).
+    p0 = np.where((draw_parent >= 0)[:, None], p1[np.maximum(draw_parent, 0)], 0.0)
+    if return_parent:
+        return p0, p1, idx, draw_parent
     return p0, p1, idx
 
 
@@ -208,19 +218,49 @@ def _nearest_in(base: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return anc
 
 
-def prune_descending(branches: Branches, tol_m: float = PRUNE_TOLERANCE_M) -> Branches:
-    """Drop every segment whose turtle descends in z (``p1.z < p0.z``).
+def check_prune_mode(value, key: str = "pruning_mode") -> str:
+    """``value`` checked against :data:`PRUNE_MODES` (ConfigError naming key and value)."""
+    if not isinstance(value, str) or value not in PRUNE_MODES:
+        raise ConfigError(f"must be one of {', '.join(map(repr, PRUNE_MODES))}", key=key,
+                          value=value)
+    return value
 
-    Children of a removed segment are kept (the paper prunes segment by
-    segment). ``tol_m`` keeps level segments whose z differs by rounding only.
+
+def prune_descending(branches: Branches, parent: np.ndarray | None = None, *,
+                     mode: str = "subtree", tol_m: float = PRUNE_TOLERANCE_M) -> Branches:
+    """Remove the segments whose turtle descends in z (``p1.z < p0.z``).
+
+    Parameters
+    ----------
+    branches : segments of one or more trees.
+    parent : (n,) row of each segment's parent, ``-1`` at a base, parents before
+        children (:func:`turtle_segments` with ``return_parent``); needed by "subtree".
+    mode : "subtree" (default) also removes everything that grows from a descending
+        segment, so no kept wood floats; "segment" drops the descending segments only
+        and keeps their children, which then start in mid-air.
+    tol_m : level segments whose z differs by rounding only are kept.
     """
-    keep = branches.p1[:, 2] >= branches.p0[:, 2] - tol_m
-    return branches.subset(keep)
+    mode = check_prune_mode(mode, "mode")
+    cut = branches.p1[:, 2] < branches.p0[:, 2] - tol_m
+    if mode == "segment":
+        return branches.subset(~cut)
+    if parent is None:
+        raise ConfigError("subtree pruning needs every segment's parent row", key="parent",
+                          value=None)
+    parent = np.asarray(parent, np.int64)
+    if parent.shape != (len(branches),) or ((parent >= np.arange(len(branches)))
+                                           | (parent < -1)).any():
+        raise ConfigError("must hold one earlier row (or -1) per segment", key="parent",
+                          value=f"shape {parent.shape}")
+    # A segment goes when it or any ancestor descends: OR along the parent chain.
+    cut = _chain_reduce(parent, cut, np.logical_or)
+    return branches.subset(~cut)
 
 
 def interpret(modules: ModuleString, *, h0_m: float, d_min_m: float, n_substitutions: int,
               angle_deg: float = 20.0, rotation_deg: float = 20.0, prune: bool = False,
-              tree_id: int = 0, origin_m=(0.0, 0.0, 0.0)) -> Branches:
+              prune_mode: str = "subtree", tree_id: int = 0,
+              origin_m=(0.0, 0.0, 0.0)) -> Branches:
     """Turn a SIMLIDAR word into branch cylinders.
 
     Parameters
@@ -230,7 +270,8 @@ def interpret(modules: ModuleString, *, h0_m: float, d_min_m: float, n_substitut
     d_min_m : smallest diameter ``d_m`` (metres).
     n_substitutions : ``Ns``, the number of generations derived.
     angle_deg, rotation_deg : turns of ``+``/``-`` and ``T``/``t``/``R``/``r``.
-    prune : drop descending segments (:func:`prune_descending`).
+    prune : remove descending segments (:func:`prune_descending`).
+    prune_mode : "subtree" (default: with everything growing from them) or "segment".
     tree_id : written to every segment.
     origin_m : tree base.
 
@@ -257,14 +298,16 @@ def interpret(modules: ModuleString, *, h0_m: float, d_min_m: float, n_substitut
             bad = int(np.flatnonzero(is_i & ~(order >= 1))[0])
             raise GrammarError(f"axis order {modules.params[bad, 0]!r} must be >= 1",
                                position=bad, source="module string")
+    mode = check_prune_mode(prune_mode, "prune_mode")
     for key, v in (("h0_m", h0_m), ("d_min_m", d_min_m)):
         if not np.isfinite(v) or v <= 0:
             raise ConfigError("must be a finite length > 0 (metres)", key=key, value=v)
     step = np.where(order >= 1, branch_length_m(np.maximum(order, 1), h0_m), 0.0)
-    p0, p1, idx = turtle_segments(modules, angle_deg=angle_deg, rotation_deg=rotation_deg,
-                                  step_m=step)
+    p0, p1, idx, parent = turtle_segments(modules, angle_deg=angle_deg,
+                                          rotation_deg=rotation_deg, step_m=step,
+                                          return_parent=True)
     o = order[idx]
     origin = np.asarray(origin_m, np.float64)
     br = Branches(p0 + origin, p1 + origin, branch_diameter_m(o, n_substitutions, d_min_m),
                   o.astype(np.int32), np.full(len(idx), tree_id, np.int32))
-    return prune_descending(br) if prune else br
+    return prune_descending(br, parent, mode=mode) if prune else br

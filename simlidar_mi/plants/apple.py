@@ -38,6 +38,7 @@ from ..errors import ConfigError
 from ..geometry import Branches
 from ..lsystem import (DEFAULT_MAX_MODULES, Grammar, ModuleString, derive, format_table1,
                        interpret, parse_grammar)
+from ..lsystem.turtle import check_prune_mode
 
 SIMLIDAR_APPLE_GRAMMAR = """\
 # SIMLIDAR non-stochastic apple tree (Méndez et al., section 1)
@@ -87,7 +88,11 @@ class AppleTreeParams:
     rotation_deg : turn of ``T``/``t`` (``R``/``r``) about U.
     d_min_m : smallest branch diameter ``d_m`` (paper: 5, 6, 7 mm).
     h0_m : length of an order-1 element (module docstring explains 0.4 m).
-    pruning : remove segments that descend in z.
+    pruning : remove branches that descend in z.
+    pruning_mode : "subtree" (default) removes a descending segment with everything
+        that grows from it, the only reading in which no wood floats; "segment"
+        drops the descending segment only and keeps its children in mid-air
+        (this package's behaviour before 2026-12; BENCHMARKS.md measures both).
     stochastic : use the three-successor grammar.
     max_modules : refuse derivations predicted to exceed this many modules.
 
@@ -104,6 +109,7 @@ class AppleTreeParams:
     h0_m: float = 0.4
     pruning: bool = False
     stochastic: bool = False
+    pruning_mode: str = "subtree"
     max_modules: int = DEFAULT_MAX_MODULES
 
     def __post_init__(self) -> None:
@@ -115,6 +121,7 @@ class AppleTreeParams:
         set_(self, "h0_m", _real("h0_m", self.h0_m, positive=True))
         set_(self, "pruning", _flag("pruning", self.pruning))
         set_(self, "stochastic", _flag("stochastic", self.stochastic))
+        set_(self, "pruning_mode", check_prune_mode(self.pruning_mode))
         set_(self, "max_modules", _whole("max_modules", self.max_modules, 1))
 
 
@@ -151,6 +158,7 @@ def apple_tree(params: AppleTreeParams, rng: np.random.Generator | None = None,
     tree = interpret(word, h0_m=params.h0_m, d_min_m=params.d_min_m,
                      n_substitutions=params.iterations, angle_deg=params.angle_deg,
                      rotation_deg=params.rotation_deg, prune=params.pruning,
+                     prune_mode=params.pruning_mode,
                      tree_id=_whole("tree_id", tree_id, 0))
     # Built at the origin and moved, so a tree's shape never depends on where it stands.
     return tree.translated(base)

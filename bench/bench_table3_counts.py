@@ -29,9 +29,9 @@ sys.path.insert(0, str(REPO / "bench"))
 from _machine import machine  # noqa: E402
 
 from simlidar_mi.config import load_scene  # noqa: E402
-from simlidar_mi.measures import wood_measures  # noqa: E402
+from simlidar_mi.plants.measures import wood_measures  # noqa: E402
 from simlidar_mi.plants.apple import AppleTreeParams, orchard  # noqa: E402
-from simlidar_mi.survey import generate  # noqa: E402
+from simlidar_mi.lidar.survey import generate  # noqa: E402
 
 #: SIMLIDAR Table 3: (iterations, trees) -> total branches.
 PAPER_BRANCHES = {

@@ -231,7 +231,7 @@ def test_cli_derive_refuses_huge(capsys):
 # --- scene files ------------------------------------------------------------------
 def test_scene_pruning_mode_reaches_the_trees_and_bad_values_are_refused(tmp_path):
     from simlidar_mi.config import load_scene
-    from simlidar_mi.survey import generate
+    from simlidar_mi.lidar.survey import generate
     from tests.conftest import SCENES
     scene = SCENES / "apple_orchard.toml"
     base = ["orchard.n_trees=1", "orchard.tree.iterations=6", "orchard.tree.stochastic=false"]

@@ -1,14 +1,19 @@
 """What accuracy costs in time for the tractor LiDAR scan (results go to BENCHMARKS.md).
 
-    .venv/bin/python bench/bench_scan.py [--quick] [--only reps|table3|linear]
+    .venv/bin/python bench/bench_scan.py [--quick] [--only reps|table3|linear|sweep]
 
 Tables (markdown on stdout, also bench/out/scan_bench.md):
 1. representation (mesh k = 6, 8, 12, 24; cylinder; linearcurve) × footprint P = 0..3 on
    the 7-iteration, 4-tree orchard: build s, scan s, beams/s, A_IM, and the error against
    the float64 reference (simlidar_mi.lidar.reference) on a sample of ≥ 100k beams;
 2. SIMLIDAR Table 3 (iterations 4–7 × 1–4 trees): branches, N×M, seconds per stage and end
-   to end, peak RSS (each row in a fresh process), next to the paper's minutes;
-3. scan time against beam count (linearity) at P = 0.
+   to end, peak RSS (each row in a fresh process), next to the paper's minutes.  Every row
+   fires the paper's beam count: its N = N×M / 601 positions (Δy = 2 mm, gap 0, a y span
+   of N·Δy centred on the trees) and M = 601 angles from eq. 8 with the scanner placed at
+   the x0 that gives them (:func:`table3_placement`); the 7×4 row is run again with the
+   paper's dot matrix (P = 2, hit rule "any");
+3. scan time against beam count (linearity) at P = 0;
+4. eq. 8's near vs far reading and the hit rules: M, A_IM and the share of A_PR swept.
 """
 from __future__ import annotations
 
@@ -101,17 +106,59 @@ print(json.dumps({"n_branches": m["n_branches"], "N": m["N"], "M": m["M"], "seco
 """
 
 
+PAPER_M = 601  # every N×M of Table 3 is a multiple of 601
+
+
+def table3_placement(cfg, geo, n_positions: int, n_angles: int = PAPER_M) -> list[str]:
+    """Overrides that make ``cfg`` fire ``n_positions`` × ``n_angles`` beams with eq. 8's limits.
+
+    N: a y span of N·Δy (plus half a step against rounding) centred on the trees.  M: eq. 8
+    (near side) widens the sweep as the scanner nears the wood, so M grows with x0; the x0
+    returned is the middle of the interval where M = ``n_angles`` (bisection on
+    :func:`resolve_settings` itself), rounded to 0.1 mm."""
+    lo, hi = geo.bounds_m()
+    sc, dy = cfg["scan"], cfg["scan"]["dy_m"]
+    y0 = float(0.5 * (lo[1] + hi[1]) - n_positions * dy / 2)
+    base = {**sc, "y_start_m": y0, "y_end_m": y0 + (n_positions + 0.5) * dy,
+            "theta_min_deg": None, "theta_max_deg": None, "theta_limits_side": "near"}
+    base["y_end_m"] = float(base["y_end_m"])
+
+    def m(x0: float) -> int:
+        return resolve_settings({**base, "x0_m": x0}, cfg["ground"], lo, hi, None, geo.near_x_m).n_angles
+
+    near = geo.near_x_m(y0 - dy / 2, y0 + (n_positions - 0.5) * dy)
+
+    def last_x0_with_m_at_most(target: int) -> float:
+        a, b = near - 50.0, near - 1e-9
+        for _ in range(80):
+            mid = 0.5 * (a + b)
+            a, b = (a, mid) if m(mid) > target else (mid, b)
+        return a
+    x0 = round(0.5 * (last_x0_with_m_at_most(n_angles - 1) + last_x0_with_m_at_most(n_angles)), 4)
+    over = [f"scan.x0_m={x0}", f"scan.y_start_m={y0!r}", f"scan.y_end_m={base['y_end_m']!r}"]
+    got = resolve_settings({**base, "x0_m": x0}, cfg["ground"], lo, hi, None, geo.near_x_m)
+    assert (got.n_positions, got.n_angles) == (n_positions, n_angles), (got.n_positions, got.n_angles)
+    return over
+
+
 def table3(quick: bool) -> str:
-    rows = ["| iterations | trees | branches (paper) | branches | N×M (paper) | N×M | generate s | build s | "
-            "scan s | write EXR s | end to end s | process s | peak RSS MB | paper min |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    rows = ["| iterations | trees | P, hit rule | branches (paper) | branches | N×M (paper) | N×M | x0 m | "
+            "nearest wood m | generate s | build s | scan s | write EXR s | end to end s | process s | "
+            "peak RSS MB | paper min |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     out = REPO / "bench" / "out" / "table3"
-    combos = [(it, n) for n in (1, 2, 3, 4) for it in (4, 5, 6, 7)]
+    combos = [(it, n, 0) for n in (1, 2, 3, 4) for it in (4, 5, 6, 7)] + [(7, 4, 2)]
     if quick:
-        combos = [(4, 1), (7, 4)]
-    for it, n in combos:
-        args = [sys.executable, "-c", ROW_SCRIPT, str(SCENE), str(out / f"{it}x{n}"),
-                f"orchard.tree.iterations={it}", f"orchard.n_trees={n}"]
+        combos = [(4, 1, 0), (7, 4, 0), (7, 4, 2)]
+    for it, n, P in combos:
+        pb, pnm, pmin = PAPER_TABLE3[(it, n)]
+        grow = [f"orchard.tree.iterations={it}", f"orchard.n_trees={n}"]
+        cfg = load_scene(SCENE, grow)
+        geo = generate(cfg)
+        place = table3_placement(cfg, geo, pnm // PAPER_M)
+        x0 = float(place[0].split("=")[1])
+        rule = [f"scan.footprint={P}", f'scan.hit_rule="{"any" if P else "fraction"}"']
+        args = [sys.executable, "-c", ROW_SCRIPT, str(SCENE), str(out / f"{it}x{n}P{P}"), *grow, *place, *rule]
         t = time.perf_counter()
         proc = subprocess.run(args, capture_output=True, text=True, cwd=REPO)
         wall = time.perf_counter() - t
@@ -120,8 +167,10 @@ def table3(quick: bool) -> str:
         r = json.loads(proc.stdout.strip().splitlines()[-1])
         s = r["seconds"]
         e2e = sum(s.values())
-        pb, pnm, pmin = PAPER_TABLE3[(it, n)]
-        rows.append(f"| {it} | {n} | {pb} | {r['n_branches']} | {pnm:,} | {r['N'] * r['M']:,} | "
+        y0 = float(place[1].split("=")[1])
+        near = geo.near_x_m(y0 - 0.001, y0 + (pnm // PAPER_M) * 0.002)
+        rows.append(f"| {it} | {n} | {P}, {'any' if P else '—'} | {pb} | {r['n_branches']} | {pnm:,} | "
+                    f"{r['N'] * r['M']:,} | {x0:.4f} | {near - x0:.3f} | "
                     f"{s['generate']:.2f} | {s['build']:.2f} | {s['scan']:.2f} | {s['write']:.2f} | "
                     f"{e2e:.2f} | {wall:.2f} | {r['rss_mb']:.0f} | {pmin} |")
         print(rows[-1], file=sys.stderr)
@@ -144,10 +193,33 @@ def linearity() -> str:
     return "\n".join(rows)
 
 
+def sweep() -> str:
+    """Eq. 8's two readings of Max(x), and the two hit rules, on the shipped orchard scenes."""
+    from simlidar_mi.lidar.survey import run_scan  # noqa: PLC0415
+    cases = [("scenes/apple_orchard.toml", []), ("scenes/simlidar_table3_7x4.toml", []),
+             ("scenes/simlidar_table3_7x4.toml", ["scan.x0_m=1.0"])]
+    runs = [("near", 0, "fraction"), ("far", 0, "fraction"), ("near", 2, "fraction"), ("near", 2, "any"),
+            ("far", 2, "any")]
+    rows = ["| scene | x0 m | eq. 8 side | P, hit rule | θ_min … θ_max ° | N×M | A_PR m² | A_PR swept % | "
+            "A_IM m² | A_IM_yz m² | A_PR / A_IM |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for scene, extra in cases:
+        for side, P, rule in runs:
+            over = [*extra, f'scan.theta_limits_side="{side}"', f"scan.footprint={P}", f'scan.hit_rule="{rule}"']
+            m = run_scan(load_scene(REPO / scene, over), None).measures
+            sc = m["scan"]
+            th1 = sc["theta_min_deg"] + (sc["n_angles"] - 1) * sc["dtheta_deg"]
+            rows.append(f"| `{Path(scene).stem}` | {sc['x0_m']:g} | {side} | {P}, {rule if P else '—'} | "
+                        f"{sc['theta_min_deg']:.2f} … {th1:.2f} | {m['N']}×{m['M']} | {m['A_PR_m2']:.4f} | "
+                        f"{100 * m['A_PR_swept_share']:.1f} | {m['A_IM_m2']:.4f} | {m['A_IM_yz_m2']:.4f} | "
+                        f"{m['A_PR_m2'] / m['A_IM_m2']:.3f} |")
+            print(rows[-1], file=sys.stderr)
+    return "\n".join(rows)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer rows (smoke run)")
-    ap.add_argument("--only", choices=["reps", "table3", "linear"])
+    ap.add_argument("--only", choices=["reps", "table3", "linear", "sweep"])
     a = ap.parse_args()
     parts = [f"Machine: {machine()}  \nDate: {time.strftime('%Y-%m-%d')}  \n"
              f"Command: `.venv/bin/python bench/bench_scan.py{' --quick' if a.quick else ''}"
@@ -158,6 +230,8 @@ def main() -> None:
         parts.append("### Representation × footprint (7 iterations, 4 trees)\n\n" + representations(a.quick))
     if a.only in (None, "linear"):
         parts.append("### Scan time against beam count (default representation, P = 0)\n\n" + linearity())
+    if a.only in (None, "sweep"):
+        parts.append("### Eq. 8 near vs far side, and the hit rules\n\n" + sweep())
     text = "\n\n".join(parts) + "\n"
     out = REPO / "bench" / "out"
     out.mkdir(parents=True, exist_ok=True)

@@ -23,10 +23,17 @@ For every beam of a ``tractor_lidar`` (or any sensor exposing ``n_positions``,
  * - ground_z
    - |float|
    - Height of the ground in the scene frame. Default 0.
+ * - hit_rule
+   - |string|
+   - How a footprint's sub-beams make one return: ``"fraction"`` (default) or ``"any"``.
 
-The footprint is reduced here, never through the film: first-return range is the
-minimum over sub-beams, class and id are those of the sub-beam that gave it, and the
-hit fraction a block sum.  With footprint P = 0 none of that code runs.
+The footprint is reduced here, never through the film.  ``"fraction"``: first-return
+range is the minimum over sub-beams, class and id are those of the sub-beam that gave
+it.  ``"any"`` (SIMLIDAR §3.1: a beam hits a branch when any point of its dot matrix
+lies inside it): a beam with any sub-beam on vegetation returns the nearest vegetation
+sub-beam's range, class and id, even when another sub-beam met the ground nearer;
+other beams as under ``"fraction"``.  The hit fraction is a block sum under both rules.
+With footprint P = 0 none of that code runs and both rules agree.
 
 Which shape is wood or leaf, and which branch a triangle or curve segment belongs to,
 is given by the scene builder through :meth:`set_tables`.
@@ -50,6 +57,9 @@ class RangeIntegrator(mi.SamplingIntegrator):
         self.escape = float(props.get("escape", 1000.0))
         self.ground = bool(props.get("ground", True))
         self.ground_z = float(props.get("ground_z", 0.0))
+        self.hit_rule = str(props.get("hit_rule", "fraction"))
+        if self.hit_rule not in ("fraction", "any"):
+            raise ValueError(f"lidar_range: hit_rule must be 'fraction' or 'any', got {self.hit_rule!r}")
         self._class = mi.UInt32(np.zeros(1, np.uint32))
         self._base = mi.UInt32(np.zeros(1, np.uint32))
         self._prim = mi.UInt32(np.full(1, NO_ID, np.uint32))
@@ -120,7 +130,14 @@ class RangeIntegrator(mi.SamplingIntegrator):
         veg = (cls == WOOD) | (cls == LEAF)
         if S > 1:
             t_min = dr.block_reduce(dr.ReduceOp.Min, t, S)
-            first = t == dr.gather(mi.Float, t_min, beam)
+            if self.hit_rule == "any":
+                # The nearest vegetation sub-beam wins over nearer ground (an infinite t_veg: none).
+                t_veg = dr.block_reduce(dr.ReduceOp.Min, dr.select(veg, t, dr.inf), S)
+                any_veg = dr.isfinite(t_veg)
+                t_min = dr.select(any_veg, t_veg, t_min)
+                first = (t == dr.gather(mi.Float, t_min, beam)) & (veg | ~dr.gather(mi.Bool, any_veg, beam))
+            else:
+                first = t == dr.gather(mi.Float, t_min, beam)
             cls_first = dr.block_reduce(dr.ReduceOp.Min, dr.select(first, cls, 255), S)
             elem = dr.block_reduce(dr.ReduceOp.Min, dr.select(first, elem, NO_ID), S)
             if tree is not None:
@@ -153,7 +170,8 @@ class RangeIntegrator(mi.SamplingIntegrator):
         return ["range", "class", "element_id", "hit_fraction"]
 
     def to_string(self) -> str:
-        return f"RangeIntegrator[escape={self.escape}, ground={self.ground}, ground_z={self.ground_z}]"
+        return (f"RangeIntegrator[escape={self.escape}, ground={self.ground}, ground_z={self.ground_z}, "
+                f"hit_rule={self.hit_rule}]")
 
 
 def register() -> None:

@@ -77,6 +77,13 @@ def _study_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=1, help="Dask worker processes (default 1)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="applied to every orchard of the grid (e.g. scan.dtheta_deg=0.5)")
+    p.add_argument("--hit-rule", choices=["any", "fraction"], default="any",
+                   help="'any' (default, the paper's §3.1): a beam hits when any point of its dot "
+                        "matrix does; 'fraction': A_IM weights a beam by its share of sub-beams "
+                        "that hit, with the scene's own footprint (the study before this option)")
+    p.add_argument("--footprint", type=int, default=None, metavar="P",
+                   help="dot-matrix precision P, (P+1)² sub-beams (default: 2, the paper's, with "
+                        "--hit-rule any; the scene's with --hit-rule fraction)")
 
 
 @command("study", "SIMLIDAR §5 study: scan the 96-orchard grid, fit A_PR and A_L against A_IM "
@@ -85,7 +92,10 @@ def _study_run(args: argparse.Namespace) -> int:
     from .lidar.study import paper_grid, run_study
 
     grid = [list(args.overrides) + g for g in paper_grid()]
-    res = run_study(args.scene, args.out, grid, workers=args.workers, progress=sys.stderr.isatty())
+    res = run_study(args.scene, args.out, grid, workers=args.workers, progress=sys.stderr.isatty(),
+                    hit_rule=args.hit_rule, footprint=args.footprint)
+    print(f"hit rule {', '.join(res.regression['scan']['hit_rule'])}, footprint P = "
+          f"{', '.join(map(str, res.regression['scan']['footprint']))}")
     for key, name in (("A_PR_vs_A_IM", "A_PR"), ("A_L_vs_A_IM", "A_L")):
         fit, paper = res.regression[key], res.regression["paper"][key]
         print(f"{name} = {fit['slope']:.4f}·A_IM (R² {fit['r2']:.3f}, n {fit['n']}); "

@@ -169,9 +169,17 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "dy_m": Key(FLOAT, 0.002, positive),
         "gap": Key(INT, 0, nonneg, "sweeps skipped between two recorded ones"),
         "dtheta_deg": Key(FLOAT, 0.25, positive),
-        "theta_min_deg": Key(FLOAT, None, _finite, "default −atan(z0/(max x − x0)) (eq. 8)"),
-        "theta_max_deg": Key(FLOAT, None, _finite, "default atan((max z − z0)/(max x − x0))"),
+        "theta_min_deg": Key(FLOAT, None, _finite, "default −atan((z0 − ground z)/(x_near − x0)) (eq. 8)"),
+        "theta_max_deg": Key(FLOAT, None, _finite, "default atan((max z − z0)/(x_near − x0)) (eq. 8)"),
+        "theta_limits_side": Key(STR, "near", one_of("near", "far"),
+                                 "x_near of eq. 8: 'near' = the wood nearest the scanner in the "
+                                 "scanned y range (the paper's Max(x); the sweep covers the wood), "
+                                 "'far' = the far side of the scene's bounding box (a narrower sweep)"),
         "footprint": Key(INT, 0, nonneg, "dot-matrix precision P: (P+1)² sub-beams"),
+        "hit_rule": Key(STR, "fraction", one_of("fraction", "any"),
+                        "P > 0: 'any' = a beam hits vegetation when any sub-beam does (the paper's "
+                        "§3.1; A_IM counts the whole beam), 'fraction' = A_IM weights the beam by "
+                        "its share of sub-beams that hit"),
         "escape_m": Key(FLOAT, 1000.0, positive, "range reported for beams that hit nothing"),
         "max_beams": Key(INT, 200_000_000, at_least(1), "refuse scans larger than this"),
     },

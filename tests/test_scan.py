@@ -248,6 +248,8 @@ def _settings_from(text, tmp_path):
     ("[orchard.tree]\nd_min_m = nan", "orchard.tree.d_min_m"),
     ("[orchard.tree]\nh0_m = -1.0", "orchard.tree.h0_m"),
     ("[nonsense]\na = 1", "nonsense"),
+    ("[scan]\nhit_rule = \"all\"", "scan.hit_rule"),
+    ("[scan]\ntheta_limits_side = \"middle\"", "scan.theta_limits_side"),
 ])
 def test_bad_scene_values_name_file_key_value(tmp_path, snippet, key):
     path = _settings_from(snippet, tmp_path)
@@ -267,12 +269,132 @@ def test_theta_min_above_max_is_refused(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_impossible_scan_range_is_refused():
-    with pytest.raises(ConfigError, match="impossible scan range"):
-        resolve_settings({"x0_m": 5.0, "z0_m": 1.0, "y_start_m": None, "y_end_m": None, "dy_m": 0.002,
-                          "gap": 0, "dtheta_deg": 0.25, "theta_min_deg": None, "theta_max_deg": None,
-                          "footprint": 0, "escape_m": 1000.0, "max_beams": 10**9},
-                         {"enabled": True, "z_m": 0.0}, [0, 0, 0], [2, 1, 2], "x.toml")
+SCAN_DEFAULTS = {"x0_m": 1.0, "z0_m": 1.0, "y_start_m": None, "y_end_m": None, "dy_m": 0.002, "gap": 0,
+                 "dtheta_deg": 0.25, "theta_min_deg": None, "theta_max_deg": None, "footprint": 0,
+                 "escape_m": 1000.0, "max_beams": 10**9}
+GROUND = {"enabled": True, "z_m": 0.0}
+
+
+@pytest.mark.parametrize("x0", [5.0, 1.5, 1.0])  # beyond the wood, inside its x range, on its near face
+def test_scanner_inside_or_beyond_the_wood_is_refused(x0):
+    with pytest.raises(ConfigError, match="inside or beyond the wood") as err:
+        resolve_settings({**SCAN_DEFAULTS, "x0_m": x0}, GROUND, [0, 0, 0], [2, 1, 2], "x.toml", 1.0)
+    assert "scan.x0_m" in str(err.value) and "x.toml" in str(err.value)
+    # Explicit limits need no wood in front: the same scanner is accepted.
+    s = resolve_settings({**SCAN_DEFAULTS, "x0_m": x0, "theta_min_deg": -10.0, "theta_max_deg": 10.0},
+                         GROUND, [0, 0, 0], [2, 1, 2], "x.toml", 1.0)
+    assert s.n_angles == 80 and s.theta_limits_side == "given"
+
+
+def _two_trunks():
+    """A near trunk (front face x = 1.95 m) at y = 0 and a nearer one (x = 1.45 m) at y = 3 m."""
+    from simlidar_mi.lidar.survey import SceneGeometry
+    from simlidar_mi.geometry import Leaves
+    b = Branches(np.array([[2.0, 0.0, 0.0], [1.5, 3.0, 0.0]]), np.array([[2.0, 0.0, 2.0], [1.5, 3.0, 1.0]]),
+                 np.array([0.1, 0.1]), np.ones(2, np.int32), np.arange(2, dtype=np.int32))
+    return SceneGeometry(b, Leaves.empty(), [])
+
+
+def test_eq8_limits_come_from_the_nearest_wood_in_the_scanned_rows():
+    geo = _two_trunks()
+    lo, hi = geo.bounds_m()
+    assert hi[2] == pytest.approx(2.05)  # boxes include the radius
+    # Only the y = 0 trunk is in rows y ∈ [−0.5, 0.5]: Max(x) − x0 = 1.95 − 1 (paper eq. 8).
+    sc = {**SCAN_DEFAULTS, "y_start_m": -0.5, "y_end_m": 0.5}
+    s = resolve_settings(sc, GROUND, lo, hi, None, geo.near_x_m)
+    assert s.theta_limits_side == "near"
+    assert s.theta_min_deg == pytest.approx(-math.degrees(math.atan(1.0 / 0.95)), abs=1e-12)
+    th_max = math.degrees(math.atan(1.05 / 0.95))
+    assert s.n_angles == int((th_max - s.theta_min_deg) / 0.25)
+    # Rows that reach y = 3 m take the nearer trunk; the bounding box alone gives the same here.
+    s_all = resolve_settings(SCAN_DEFAULTS, GROUND, lo, hi, None, geo.near_x_m)
+    assert s_all.theta_min_deg == pytest.approx(-math.degrees(math.atan(1.0 / 0.45)), abs=1e-12)
+    assert resolve_settings(SCAN_DEFAULTS, GROUND, lo, hi).theta_min_deg == s_all.theta_min_deg
+    # The far reading: the bounding box's far side, x = 2.05.
+    far = resolve_settings({**sc, "theta_limits_side": "far"}, GROUND, lo, hi, None, geo.near_x_m)
+    assert far.theta_min_deg == pytest.approx(-math.degrees(math.atan(1.0 / 1.05)), abs=1e-12)
+    assert far.theta_limits_side == "far"
+    # z0 is taken relative to the ground: a ground at z = 0.5 halves the drop below the scanner.
+    g = resolve_settings(sc, {"enabled": True, "z_m": 0.5}, lo, hi, None, geo.near_x_m)
+    assert g.theta_min_deg == pytest.approx(-math.degrees(math.atan(0.5 / 0.95)), abs=1e-12)
+
+
+def _orchard_scenes():
+    from tests.conftest import SCENES
+    return sorted(p for p in SCENES.glob("*.toml") if "[orchard" in p.read_text())
+
+
+@pytest.mark.parametrize("path", _orchard_scenes(), ids=lambda p: p.stem)
+def test_default_sweep_covers_every_branch_of_the_orchard_scenes(path):
+    """Every branch end point of every included orchard lies inside the scene's sweep (θ and y)."""
+    from simlidar_mi.lidar.survey import generate, scan_patterns
+    cfg = load_scene(path)
+    geo = generate(cfg)
+    lo, hi = geo.bounds_m()
+    (s,) = scan_patterns(cfg, lo, hi, geo.near_x_m)
+    b = geo.branches
+    assert len(b) > 100
+    ends = np.concatenate([b.p0, b.p1])
+    assert s.covers(ends).all()
+    assert s.swept_share(b) == 1.0
+    # The far-side reading of eq. 8 leaves most of the wood unswept (the old default).
+    far = load_scene(path, ['scan.theta_limits_side="far"'])
+    (sf,) = scan_patterns(far, lo, hi, geo.near_x_m)
+    assert sf.n_angles < s.n_angles and not sf.covers(ends).all()
+    assert sf.swept_share(b) < 0.6
+
+
+def test_table3_scene_fires_the_papers_beam_count():
+    """Table 3's 7×4 row: N×M = 2,467,105 = 4105 × 601 angles; ours within 5 %, M exactly 601."""
+    from simlidar_mi.lidar.survey import generate, scan_patterns
+    from tests.conftest import SCENES
+    cfg = load_scene(SCENES / "simlidar_table3_7x4.toml")
+    geo = generate(cfg)
+    (s,) = scan_patterns(cfg, *geo.bounds_m(), geo.near_x_m)
+    assert s.n_angles == 601 and s.theta_limits_side == "near"
+    assert s.n_beams == pytest.approx(2_467_105, rel=0.05)
+
+
+def _low_branch_scene(rule):
+    """A branch along y, 1.1 m ahead of the scanner, just where the θ = −40° sub-beam meets it;
+    the −45° and −50° sub-beams of the same beam (Δθ = 10°, P = 2) reach the ground first."""
+    z = 1.0 - 1.1 * math.tan(math.radians(40.0))
+    b = one_branch([1.1, -1.0, z], [1.1, 1.0, z], 0.02)
+    s = ScanSettings(0.0, 1.0, 0.0, 0.002, 0, 1, -45.0, 10.0, 1, footprint=2, hit_rule=rule)
+    return scan(build_scene(b, representation="mesh", facets=24), s)
+
+
+def test_hit_rule_any_is_the_papers_dot_matrix_rule():
+    frac, anyr = _low_branch_scene("fraction"), _low_branch_scene("any")
+    # 3 of 9 sub-beams (the θ = −40° row) hit the branch under both rules.
+    assert frac.hit_fraction[0, 0] == pytest.approx(1 / 3) and anyr.hit_fraction[0, 0] == pytest.approx(1 / 3)
+    # Fraction: the first return is the ground at the −50° sub-beam, z0 / sin 50°; no A_IM.
+    assert frac.cls[0, 0] == 1
+    assert frac.range_m[0, 0] == pytest.approx(1.0 / math.sin(math.radians(50.0)), rel=1e-6)
+    assert frac.impacted_area_m2() == 0.0
+    # Any: a wood hit at the branch's front face, and A_IM counts the whole beam (eq. 2).
+    assert anyr.cls[0, 0] == 2 and anyr.element_id[0, 0] == 0
+    expect = 1.1 / math.cos(math.radians(40.0)) - 0.01
+    assert anyr.range_m[0, 0] == pytest.approx(expect, abs=1e-3)
+    dsin = math.sin(math.radians(-40.0)) - math.sin(math.radians(-50.0))
+    assert anyr.impacted_area_m2() == pytest.approx(0.002 * float(anyr.range_m[0, 0]) * dsin, rel=1e-6)
+
+
+def test_hit_rule_is_written_to_exr_and_measures(tmp_path):
+    from tests.conftest import SCENES
+    run = run_scan(SCENES / "calibration_cylinder.toml", tmp_path / "o",
+                   ["scan.footprint=1", 'scan.hit_rule="any"', "scan.dtheta_deg=1.0"],
+                   write_las=False, write_png=False)
+    m = json.loads((tmp_path / "o" / "measures.json").read_text())
+    assert m["hit_rule"] == "any" and m["scan"]["hit_rule"] == "any" and m["footprint"] == 1
+    _, header = read_scan_exr(tmp_path / "o" / "scan.exr")
+    assert header["hit_rule"] == "any" and header["scan_hit_rule"] == "any"
+    assert header["settings"].hit_rule == "any" and header["settings"].theta_limits_side == "given"
+    # Any ≥ fraction: a beam with a share of sub-beams on the target counts whole.
+    frac = run_scan(SCENES / "calibration_cylinder.toml", None,
+                    ["scan.footprint=1", "scan.dtheta_deg=1.0"]).measures
+    assert frac["hit_rule"] == "fraction"
+    assert m["A_IM_m2"] > frac["A_IM_m2"] > 0
 
 
 def test_unreadable_obj_names_the_file(tmp_path):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from simlidar_mi.errors import ConfigError
-from simlidar_mi.lidar.study import fit_through_origin, paper_grid, run_study
+from simlidar_mi.lidar.study import fit_through_origin, paper_grid, run_study, scan_overrides
 from tests.conftest import SCENES
 
 
@@ -37,12 +37,19 @@ def test_small_study_runs_and_resumes(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["correlations.png", "regression.json", "rows", "study.csv"]
     assert len(res.rows) == 4
     for r in res.rows:
-        assert 0 < r["A_IM_m2"] <= r["A_PR_m2"] < r["A_L_m2"]  # paper: A_IM ≤ A_PR; A_L = π·Σdh > A_PR
+        # A_L = π·Σdh > A_PR.  No A_IM ≤ A_PR here: under the "any" rule a 1 cm × 1° beam counts
+        # whole when one of its 9 points touches a 5 mm twig (see the fraction test below).
+        assert 0 < r["A_IM_m2"] and r["A_PR_m2"] < r["A_L_m2"]
         assert r["A_L_m2"] == pytest.approx(np.pi * r["A_PR_m2"])
+        # The paper's hit test by default, and eq. 8's near-side limits sweep the wood (eqs. 6-7's
+        # Int() may leave less than one of these coarse 1 cm / 1° steps at the ends).
+        assert (r["footprint"], r["hit_rule"]) == (2, "any") and r["A_PR_swept_share"] > 0.995
     # Thicker branches (d_m 7 vs 5 mm) scale A_PR by exactly 7/5 with the same seed.
     by = {(r["iterations"], r["d_min_m"]): r for r in res.rows}
     assert by[(4, 0.007)]["A_PR_m2"] == pytest.approx(by[(4, 0.005)]["A_PR_m2"] * 7 / 5)
     reg = json.loads((out / "regression.json").read_text())
+    assert reg["scan"] == {"hit_rule": ["any"], "footprint": [2]}
+    assert "footprint,hit_rule" in (out / "study.csv").read_text().splitlines()[0]
     assert reg["A_L_vs_A_IM"]["slope"] == pytest.approx(np.pi * reg["A_PR_vs_A_IM"]["slope"])
     # Resume: only the missing row is computed again.
     rows = sorted((out / "rows").iterdir())
@@ -51,6 +58,24 @@ def test_small_study_runs_and_resumes(tmp_path):
     again = run_study(SCENES / "apple_orchard.toml", out, grid)
     assert rows[1].stat().st_mtime_ns == kept_mtime and rows[0].exists()
     assert [r["A_IM_m2"] for r in again.rows] == [r["A_IM_m2"] for r in res.rows]
+
+
+def test_fraction_rule_reproduces_the_old_study_and_reads_lower(tmp_path):
+    grid = [["orchard.tree.iterations=4", "orchard.n_trees=1", "scan.dtheta_deg=1.0", "scan.dy_m=0.01"]]
+    any_rule = run_study(SCENES / "apple_orchard.toml", tmp_path / "any", grid).rows[0]
+    old = run_study(SCENES / "apple_orchard.toml", tmp_path / "old", grid, hit_rule="fraction").rows[0]
+    frac2 = run_study(SCENES / "apple_orchard.toml", tmp_path / "f2", grid, hit_rule="fraction",
+                      footprint=2).rows[0]
+    assert (old["footprint"], old["hit_rule"]) == (0, "fraction")  # the scene's own P = 0
+    assert (frac2["footprint"], frac2["hit_rule"]) == (2, "fraction")
+    # Same beams, same wood: only the weighting of partly hit beams differs.
+    assert any_rule["N"] == frac2["N"] and any_rule["M"] == frac2["M"]
+    assert any_rule["A_IM_m2"] > frac2["A_IM_m2"] > 0
+    assert frac2["A_IM_m2"] <= frac2["A_PR_m2"] and old["A_IM_m2"] <= old["A_PR_m2"]  # paper: A_IM ≤ A_PR
+    assert scan_overrides() == ['scan.hit_rule="any"', "scan.footprint=2"]
+    assert scan_overrides("fraction") == ['scan.hit_rule="fraction"']
+    with pytest.raises(ConfigError, match="hit_rule"):
+        scan_overrides("all")
 
 
 def test_bad_base_scene_is_refused_before_any_task(tmp_path):

@@ -5,7 +5,8 @@ Channels (all N × M, row = position y_i, column = angle θ_k):
 ``branch_id`` uint32 (element id, 0xFFFFFFFF for none), ``theta_deg`` float32,
 ``y_m`` float32 (y − origin_y, exact in float32 near the origin), and
 ``hit_fraction`` float32 when a footprint was simulated.  Header attributes hold
-every scan setting, the seed, the scene file's SHA-256 and the float64 origin.
+every scan setting, the footprint's ``hit_rule``, the seed, the scene file's SHA-256
+and the float64 origin.
 """
 from __future__ import annotations
 
@@ -53,7 +54,8 @@ def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = N
         "branch_id": np.ascontiguousarray(result.element_id, np.uint32),
     }
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
-              "origin_m": np.asarray(result.origin_m, np.float64), "scene_sha256": scene_sha256}
+              "origin_m": np.asarray(result.origin_m, np.float64), "scene_sha256": scene_sha256,
+              "hit_rule": p.hit_rule}
     if s is not None:  # the tractor: θ and y channels, every setting in the header
         channels["theta_deg"] = np.ascontiguousarray(np.broadcast_to(s.theta_deg[None, :], (n, m)), np.float32)
         channels["y_m"] = np.ascontiguousarray(

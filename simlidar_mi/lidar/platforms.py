@@ -77,6 +77,7 @@ class BeamPattern:
     ground_z_m: float = 0.0
     meta: dict = field(default_factory=dict)
     row_span_deg: float = 0.0    # yaw spanned by one beam's footprint (static 3D scans)
+    hit_rule: str = "fraction"   # footprint: "any" sub-beam on vegetation makes a hit (paper §3.1)
 
     @property
     def n_rows(self) -> int:
@@ -111,7 +112,7 @@ class BeamPattern:
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "n_rows": self.n_rows, "n_cols": self.n_cols,
-                "footprint": self.footprint, "col_span_deg": self.col_span_deg,
+                "footprint": self.footprint, "hit_rule": self.hit_rule, "col_span_deg": self.col_span_deg,
                 "row_span_deg": self.row_span_deg,
                 "col_angle_first_deg": float(self.col_angle_deg[0]),
                 "row_origin_first_m": self.row_origin_m[0].tolist(),

@@ -42,6 +42,8 @@ class ScanSettings:
     escape_m: float = 1000.0
     ground: bool = True
     ground_z_m: float = 0.0
+    hit_rule: str = "fraction"         # "any": the paper's §3.1 rule; "fraction": sub-beam share
+    theta_limits_side: str = "given"   # how eq. 8 filled θ limits: "near", "far", or "given"
 
     @property
     def theta_deg(self) -> np.ndarray:
@@ -68,41 +70,54 @@ class ScanSettings:
                            elevation_dirs(self.theta_deg), np.array([0.0, self.dy_m, 0.0]),
                            self.dtheta_deg, self.footprint, y, "scanner position y (m)",
                            "beam elevation θ (°)", self.escape_m, self.ground, self.ground_z_m,
-                           {"angle_kind": "elevation"})
+                           {"angle_kind": "elevation"}, hit_rule=self.hit_rule)
+
+    def covers(self, points_m) -> np.ndarray:
+        """Boolean (n,): which points lie inside the swept volume, i.e. in front of the
+        scanner, within the beams' y footprints [y_1 − Δy/2, y_N + Δy/2] and their elevations
+        [θ_1 − Δθ/2, θ_M + Δθ/2]."""
+        p = np.asarray(points_m, float).reshape(-1, 3)
+        y, th = self.y_m, self.theta_deg
+        el = np.degrees(np.arctan2(p[:, 2] - self.z0_m, p[:, 0] - self.x0_m))
+        return ((p[:, 0] > self.x0_m)
+                & (p[:, 1] >= y[0] - self.dy_m / 2) & (p[:, 1] <= y[-1] + self.dy_m / 2)
+                & (el >= th[0] - self.dtheta_deg / 2) & (el <= th[-1] + self.dtheta_deg / 2))
+
+    def swept_share(self, branches, samples: int = 17) -> float:
+        """Share of A_PR = Σ d·h whose branch axes lie inside the sweep (:meth:`covers`),
+        from ``samples`` evenly spaced points on each axis (ends included)."""
+        if not len(branches):
+            return float("nan")
+        t = np.linspace(0.0, 1.0, samples)
+        pts = branches.p0[:, None, :] + t[None, :, None] * (branches.p1 - branches.p0)[:, None, :]
+        inside = self.covers(pts).reshape(len(branches), samples).mean(axis=1)
+        apr = branches.diameter * np.linalg.norm(branches.p1 - branches.p0, axis=1)
+        return float(np.sum(apr * inside) / np.sum(apr))
 
 
 def resolve_settings(scan: dict, ground: dict, bbox_min_m, bbox_max_m,
-                     source: str | None = None) -> ScanSettings:
+                     source: str | None = None, near_x_m=None) -> ScanSettings:
     """Fill paper defaults (eqs. 6–8) from the scene bounds and validate.
 
     ``scan`` and ``ground`` are the validated ``[scan]`` and ``[ground]`` tables.
+    Eq. 8's Max(x) is, in the paper's frame (scanner looking towards −x, see its eq. 11),
+    the side of the wood nearest the scanner; here the scanner looks along +x, so
+    ``theta_limits_side = "near"`` (the default) takes the smallest x of the wood in the
+    scanned y range, and the sweep covers every tree.  ``near_x_m`` gives that x: a
+    number, or a callable ``(y_min_m, y_max_m) -> x or None`` such as
+    :meth:`simlidar_mi.lidar.survey.SceneGeometry.near_x_m`; by default the near side of the
+    bounding box.  ``"far"`` reads Max(x) as the bounding box's far side (a narrower sweep
+    that misses the near, low and high wood).
     """
     lo, hi = np.asarray(bbox_min_m, float), np.asarray(bbox_max_m, float)
     x0, z0 = float(scan["x0_m"]), float(scan["z0_m"])
     dy, gap, dtheta = float(scan["dy_m"]), int(scan["gap"]), float(scan["dtheta_deg"])
+    side = scan.get("theta_limits_side", "near")
+    hit_rule = scan.get("hit_rule", "fraction")
     ground_z = float(ground["z_m"])
     if ground["enabled"] and z0 <= ground_z:
         raise ConfigError(f"the scanner must be above the ground (z = {ground_z} m)",
                           file=source, key="scan.z0_m", value=z0)
-    reach = hi[0] - x0  # Max(x) − x0 of eq. 8
-    need_reach = scan["theta_min_deg"] is None or scan["theta_max_deg"] is None
-    if need_reach and not reach > 0:
-        raise ConfigError(f"impossible scan range: the scene's far side (max x = {hi[0]:.3f} m) must "
-                          "lie beyond the scanner line in +x to derive θ limits (eq. 8); move the "
-                          "scanner or give theta_min_deg and theta_max_deg",
-                          file=source, key="scan.x0_m", value=x0)
-    th_min = scan["theta_min_deg"]
-    if th_min is None:
-        th_min = -math.degrees(math.atan((z0 - ground_z) / reach))
-    th_max = scan["theta_max_deg"]
-    if th_max is None:
-        th_max = math.degrees(math.atan((hi[2] - z0) / reach))
-    for key, th in (("scan.theta_min_deg", th_min), ("scan.theta_max_deg", th_max)):
-        if not -90.0 <= th <= 90.0:
-            raise ConfigError("elevation angles must lie in [-90, 90] degrees", file=source, key=key, value=th)
-    if th_min >= th_max:
-        raise ConfigError(f"theta_min_deg must be below theta_max_deg ({th_max:.4f}°)",
-                          file=source, key="scan.theta_min_deg", value=th_min)
     y0 = scan["y_start_m"] if scan["y_start_m"] is not None else float(lo[1])
     y1 = scan["y_end_m"] if scan["y_end_m"] is not None else float(hi[1])
     if y1 <= y0:
@@ -110,10 +125,35 @@ def resolve_settings(scan: dict, ground: dict, bbox_min_m, bbox_max_m,
                           key="scan.y_end_m", value=y1)
     # Eqs. 6 and 7: N = Int(span/Δy), M = Int(span/Δθ); the 1e-9 guards 0.3/0.1 = 2.9999.
     n_pos = int(math.floor((y1 - y0) / ((gap + 1) * dy) + 1e-9))
-    n_ang = int(math.floor((th_max - th_min) / dtheta + 1e-9))
     if n_pos < 1:
         raise ConfigError(f"y span {y1 - y0:.4g} m is shorter than one step {(gap + 1) * dy:.4g} m",
                           file=source, key="scan.dy_m", value=dy)
+    th_min, th_max = scan["theta_min_deg"], scan["theta_max_deg"]
+    if th_min is None or th_max is None:
+        # Wood whose y meets the beams' footprints [y_1 − Δy/2, y_N + Δy/2].
+        y_lo, y_hi = y0 - dy / 2, y0 + (n_pos - 1) * (gap + 1) * dy + dy / 2
+        x_near = near_x_m(y_lo, y_hi) if callable(near_x_m) else near_x_m
+        x_near = float(lo[0]) if x_near is None else float(x_near)
+        if not x0 < x_near:
+            raise ConfigError(f"the scanner stands inside or beyond the wood (x from {x_near:.3f} to "
+                              f"{hi[0]:.3f} m in y {y_lo:.3f}…{y_hi:.3f} m): eq. 8 derives θ limits "
+                              "only for a scanner in front of the wood (x0 < its nearest x); move "
+                              "the scanner or give theta_min_deg and theta_max_deg",
+                              file=source, key="scan.x0_m", value=x0)
+        reach = (x_near if side == "near" else float(hi[0])) - x0  # Max(x) − x0 of eq. 8
+        if th_min is None:
+            th_min = -math.degrees(math.atan((z0 - ground_z) / reach))
+        if th_max is None:
+            th_max = math.degrees(math.atan((hi[2] - z0) / reach))
+    else:
+        side = "given"
+    for key, th in (("scan.theta_min_deg", th_min), ("scan.theta_max_deg", th_max)):
+        if not -90.0 <= th <= 90.0:
+            raise ConfigError("elevation angles must lie in [-90, 90] degrees", file=source, key=key, value=th)
+    if th_min >= th_max:
+        raise ConfigError(f"theta_min_deg must be below theta_max_deg ({th_max:.4f}°)",
+                          file=source, key="scan.theta_min_deg", value=th_min)
+    n_ang = int(math.floor((th_max - th_min) / dtheta + 1e-9))
     if n_ang < 1:
         raise ConfigError(f"θ span {th_max - th_min:.4g}° is shorter than one step", file=source,
                           key="scan.dtheta_deg", value=dtheta)
@@ -124,7 +164,7 @@ def resolve_settings(scan: dict, ground: dict, bbox_min_m, bbox_max_m,
                           file=source, key="scan.dy_m", value=dy)
     return ScanSettings(x0, z0, float(y0), dy, gap, n_pos, float(th_min), dtheta, n_ang,
                         int(scan["footprint"]), float(scan["escape_m"]), bool(ground["enabled"]),
-                        ground_z)
+                        ground_z, hit_rule, side)
 
 
 @dataclass
@@ -134,7 +174,7 @@ class ScanResult:
     ``range_m`` is float32 metres (escape distance where nothing was hit), ``cls``
     uint8 (0 escape, 1 ground, 2 wood, 3 leaf), ``element_id`` uint32 (branch row,
     ``n_branches + j`` for primitive j, leaf id; 0xFFFFFFFF for ground/escape),
-    ``hit_fraction`` float32 share of sub-beams meeting vegetation.
+    ``hit_fraction`` float32 share of sub-beams meeting vegetation (under either hit rule).
     """
 
     settings: ScanSettings | None  # the tractor's settings; None for other platforms
@@ -173,8 +213,9 @@ class ScanResult:
     def impacted_area_m2(self) -> float:
         """A_IM, the paper's eq. 2: Σ over vegetation hits of Δy·l·(sin θ⁺ − sin θ⁻).
 
-        θ± = θ_k ± Δθ/2 are the beam's edges.  With a footprint, each beam counts
-        its hit fraction.  Eq. 1 measures l·Δsin θ ≈ l·cos θ·Δθ, which undercounts the
+        θ± = θ_k ± Δθ/2 are the beam's edges.  With a footprint, each vegetation beam
+        counts whole under ``hit_rule = "any"`` (the paper's §3.1) and its hit fraction
+        under ``"fraction"``.  Eq. 1 measures l·Δsin θ ≈ l·cos θ·Δθ, which undercounts the
         area on a vertical target by cos²θ; :meth:`impacted_area_yz_m2` is exact.
         """
         s = self.settings
@@ -198,7 +239,7 @@ class ScanResult:
     def _hit_weight(self) -> np.ndarray:
         if self.settings is None:
             raise ValueError("impacted areas are defined for the tractor scan (paper eq. 2) only")
-        if self.settings.footprint > 0:
+        if self.settings.footprint > 0 and self.settings.hit_rule == "fraction":
             return np.where(self.vegetation(), self.hit_fraction, 0.0).astype(np.float64)
         return self.vegetation().astype(np.float64)
 
@@ -226,7 +267,8 @@ def scan(built: BuiltScene, settings: ScanSettings | BeamPattern,
                                "film": _film(pattern.n_cols, pattern.n_rows)})
         sensor.set_tables(*pattern.sub_tables(o))
     integrator = mi.load_dict({"type": "lidar_range", "escape": pattern.escape_m,
-                               "ground": pattern.ground, "ground_z": pattern.ground_z_m - o[2]})
+                               "ground": pattern.ground, "ground_z": pattern.ground_z_m - o[2],
+                               "hit_rule": pattern.hit_rule})
     integrator.set_tables(**built.integrator_tables())
     t0 = time.perf_counter()
     out = integrator.trace(built.scene, sensor)

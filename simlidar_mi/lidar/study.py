@@ -7,6 +7,11 @@ on a base scene, one orchard per task, with Dask as the engine (``workers`` > 1 
 tasks in separate processes).  Every finished orchard is written at once to
 ``rows/<key>.json``, so an interrupted study resumes where it stopped.  Outputs:
 ``study.csv`` (one row per orchard), ``regression.json`` and ``correlations.png``.
+
+Every orchard is scanned with the paper's hit test by default: a dot matrix of precision
+P = 2 (3 × 3 sub-beams, footprint 2) and ``scan.hit_rule = "any"`` (§3.1: a beam hits
+when any point of its dot matrix lies inside a branch).  ``hit_rule="fraction"`` keeps
+the scene's own footprint and weights each beam by its share of sub-beams that hit.
 """
 from __future__ import annotations
 
@@ -24,8 +29,9 @@ from ..io.atomic import atomic_file, write_csv
 
 PAPER = {"A_PR": (3.6166, 0.7002), "A_L": (10.812, 0.7756)}  # slope, R² (paper eq. 15)
 COLUMNS = ["key", "iterations", "d_min_m", "n_trees", "pruning", "stochastic", "n_branches",
-           "N", "M", "V_L_m3", "A_L_m2", "A_PR_m2", "A_PR_exact_m2", "A_IM_m2", "A_IM_yz_m2",
-           "scan_seconds"]
+           "N", "M", "footprint", "hit_rule", "V_L_m3", "A_L_m2", "A_PR_m2", "A_PR_exact_m2",
+           "A_IM_m2", "A_IM_yz_m2", "A_PR_swept_share", "scan_seconds"]
+PAPER_FOOTPRINT = 2  # SIMLIDAR §3.1 takes P = 2
 
 
 def paper_grid(iterations=(4, 5, 6, 7), d_min_m=(0.005, 0.006, 0.007), n_trees=(1, 4),
@@ -52,7 +58,8 @@ def run_one(scene: str, overrides: list[str], rows_dir: str) -> dict:
     t = cfg["orchard.tree"]
     row = {"key": _key(overrides), "iterations": t["iterations"], "d_min_m": t["d_min_m"],
            "n_trees": cfg["orchard"]["n_trees"], "pruning": t["pruning"], "stochastic": t["stochastic"],
-           "n_branches": m["n_branches"], "N": m["N"], "M": m["M"], "V_L_m3": m["V_L_m3"],
+           "n_branches": m["n_branches"], "N": m["N"], "M": m["M"], "footprint": m["footprint"],
+           "hit_rule": m["hit_rule"], "A_PR_swept_share": m.get("A_PR_swept_share"), "V_L_m3": m["V_L_m3"],
            "A_L_m2": m["A_L_m2"], "A_PR_m2": m["A_PR_m2"], "A_PR_exact_m2": m["A_PR_exact_m2"],
            "A_IM_m2": m["A_IM_m2"], "A_IM_yz_m2": m["A_IM_yz_m2"], "scan_seconds": m["seconds"]["scan"],
            "overrides": overrides}
@@ -78,14 +85,33 @@ class StudyResult:
     files: dict[str, Path]
 
 
+def scan_overrides(hit_rule: str = "any", footprint: int | None = None) -> list[str]:
+    """The overrides that set the study's hit test: ``"any"`` with P = 2 (the paper's) by
+    default; ``"fraction"`` with the scene's own footprint unless ``footprint`` is given."""
+    if hit_rule not in ("any", "fraction"):
+        raise ConfigError("must be 'any' or 'fraction'", key="hit_rule", value=hit_rule)
+    if footprint is None and hit_rule == "any":
+        footprint = PAPER_FOOTPRINT
+    if footprint is not None and (isinstance(footprint, bool) or not isinstance(footprint, int) or footprint < 0):
+        raise ConfigError("must be an integer ≥ 0", key="footprint", value=footprint)
+    return [f'scan.hit_rule="{hit_rule}"'] + ([f"scan.footprint={footprint}"] if footprint is not None else [])
+
+
 def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | None = None, *,
-              workers: int = 1, progress: bool = False) -> StudyResult:
-    """Run (or resume) the study of ``grid`` (default :func:`paper_grid`) on ``scene``."""
+              workers: int = 1, progress: bool = False, hit_rule: str = "any",
+              footprint: int | None = None) -> StudyResult:
+    """Run (or resume) the study of ``grid`` (default :func:`paper_grid`) on ``scene``.
+
+    ``hit_rule`` and ``footprint`` (see :func:`scan_overrides`) come before each grid
+    entry's overrides, so an entry may still set its own; they are part of each row's key,
+    so rows scanned under another rule are never reused."""
     scene = str(Path(scene).resolve())
     load_scene(scene)  # fail early, before any task, on a bad base scene
     grid = paper_grid() if grid is None else grid
     if not grid:
         raise ConfigError("the study grid is empty", file=scene)
+    rule = scan_overrides(hit_rule, footprint)
+    grid = [rule + list(g) for g in grid]
     out = Path(out_dir)
     rows_dir = out / "rows"
     rows_dir.mkdir(parents=True, exist_ok=True)
@@ -106,6 +132,8 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
         "A_PR_vs_A_IM": fit_through_origin(a_im, [r["A_PR_m2"] for r in rows]),
         "A_L_vs_A_IM": fit_through_origin(a_im, [r["A_L_m2"] for r in rows]),
         "A_PR_exact_vs_A_IM": fit_through_origin(a_im, [r["A_PR_exact_m2"] for r in rows]),
+        "scan": {"hit_rule": sorted({r["hit_rule"] for r in rows}),
+                 "footprint": sorted({r["footprint"] for r in rows})},
         "paper": {"A_PR_vs_A_IM": {"slope": PAPER["A_PR"][0], "r2": PAPER["A_PR"][1]},
                   "A_L_vs_A_IM": {"slope": PAPER["A_L"][0], "r2": PAPER["A_L"][1]}},
     }

@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -38,33 +38,34 @@ class SceneGeometry:
     seconds: float = 0.0
     instances: object = None  # mitsuba_scene.Instances for instanced forests
 
-    def bounds_m(self) -> tuple[np.ndarray, np.ndarray]:
-        """Axis-aligned bounds of branches (with radius), leaves and primitives."""
+    def boxes_m(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned boxes (lo, hi), each (n, 3), of every branch (with radius), leaf
+        triangle, primitive and placed instance."""
         lo, hi = [], []
         if len(self.branches):
-            r = (0.5 * self.branches.diameter)[:, None]
-            for p in (self.branches.p0, self.branches.p1):
-                lo.append((p - r).min(0))
-                hi.append((p + r).max(0))
+            b = self.branches
+            r = (0.5 * b.diameter)[:, None]
+            lo.append(np.minimum(b.p0, b.p1) - r)
+            hi.append(np.maximum(b.p0, b.p1) + r)
         if len(self.leaves):
-            v = self.leaves.vertices.reshape(-1, 3)
-            lo.append(v.min(0))
-            hi.append(v.max(0))
+            v = self.leaves.vertices
+            lo.append(v.min(1))
+            hi.append(v.max(1))
         for prim in self.primitives:
             p = prim.params
             if prim.kind == "cylinder":
                 ends = np.array([p["p0_m"], p["p1_m"]], float)
                 r = 0.5 * p["diameter_m"]
-                lo.append(ends.min(0) - r)
-                hi.append(ends.max(0) + r)
+                lo.append(ends.min(0, keepdims=True) - r)
+                hi.append(ends.max(0, keepdims=True) + r)
             elif prim.kind == "box":
-                lo.append(np.asarray(p["min_m"], float))
-                hi.append(np.asarray(p["max_m"], float))
+                lo.append(np.asarray([p["min_m"]], float))
+                hi.append(np.asarray([p["max_m"]], float))
             elif prim.kind == "obj":
                 from ..scene.build import read_obj  # noqa: PLC0415
                 v, _ = read_obj(p["path"])
-                lo.append(v.min(0))
-                hi.append(v.max(0))
+                lo.append(v.min(0, keepdims=True))
+                hi.append(v.max(0, keepdims=True))
         if self.instances is not None and len(self.instances):
             inst = self.instances
             # Each prototype's bounding radius about its own z axis covers any yaw.
@@ -76,13 +77,27 @@ class SceneGeometry:
             ext = np.array(ext)[inst.proto_index]
             s = np.asarray(inst.scale, float)
             t = np.asarray(inst.translation_m, float)
-            lo.append(np.min(np.column_stack([t[:, 0] - s * ext[:, 0], t[:, 1] - s * ext[:, 0],
-                                              t[:, 2] + s * ext[:, 1]]), axis=0))
-            hi.append(np.max(np.column_stack([t[:, 0] + s * ext[:, 0], t[:, 1] + s * ext[:, 0],
-                                              t[:, 2] + s * ext[:, 2]]), axis=0))
+            lo.append(np.column_stack([t[:, 0] - s * ext[:, 0], t[:, 1] - s * ext[:, 0],
+                                       t[:, 2] + s * ext[:, 1]]))
+            hi.append(np.column_stack([t[:, 0] + s * ext[:, 0], t[:, 1] + s * ext[:, 0],
+                                       t[:, 2] + s * ext[:, 2]]))
         if not lo:
             raise ConfigError("the scene holds no geometry: add [orchard], [forest] or [[primitive]]")
-        return np.min(lo, axis=0), np.max(hi, axis=0)
+        return np.concatenate(lo), np.concatenate(hi)
+
+    def bounds_m(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned bounds of branches (with radius), leaves and primitives."""
+        lo, hi = self.boxes_m()
+        return lo.min(0), hi.max(0)
+
+    def near_x_m(self, y_min_m: float, y_max_m: float) -> float | None:
+        """Smallest x of the geometry whose y extent meets [y_min_m, y_max_m]: the side of the
+        wood nearest a scanner that looks along +x (eq. 8's Max(x) in the paper's frame).
+        Per-element boxes, so a slanted branch counts with its whole box (the sweep only
+        widens).  None when nothing lies in that y range."""
+        lo, hi = self.boxes_m()
+        sel = (hi[:, 1] >= y_min_m) & (lo[:, 1] <= y_max_m)
+        return float(lo[sel, 0].min()) if sel.any() else None
 
 
 def generate(cfg: SceneConfig) -> SceneGeometry:
@@ -141,8 +156,17 @@ class ScanRun:
     files: dict[str, Path] = field(default_factory=dict)
 
 
-def scan_patterns(cfg: SceneConfig, lo_m, hi_m) -> list:
-    """The beam patterns the scene's [platform] asks for (tractor: [scan] settings, eqs. 6-8)."""
+def scan_patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m=None) -> list:
+    """The beam patterns the scene's [platform] asks for (tractor: [scan] settings, eqs. 6-8).
+
+    ``near_x_m``: the tractor's nearest wood, see :func:`simlidar_mi.lidar.scan.resolve_settings`
+    (:meth:`SceneGeometry.near_x_m` in :func:`run_scan`)."""
+    patterns = _patterns(cfg, lo_m, hi_m, near_x_m)
+    rule = cfg["scan"]["hit_rule"]
+    return [p if p.hit_rule == rule else replace(p, hit_rule=rule) for p in patterns]
+
+
+def _patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m) -> list:
     from .platforms import airborne_pattern, path_patterns, static_pattern  # noqa: PLC0415
     from .scan import resolve_settings  # noqa: PLC0415
     pf, sc, gr = cfg["platform"], cfg["scan"], cfg["ground"]
@@ -155,7 +179,7 @@ def scan_patterns(cfg: SceneConfig, lo_m, hi_m) -> list:
             raise ConfigError(f"a {kind} platform needs this key", file=cfg.source, key=f"platform.{key}")
         return pf[key]
     if kind == "tractor":
-        return [resolve_settings(sc, gr, lo_m, hi_m, cfg.source)]
+        return [resolve_settings(sc, gr, lo_m, hi_m, cfg.source, near_x_m)]
     if kind == "static":
         az = pf["azimuth_deg"]
         return [static_pattern(need("position_m"), tuple(pf["elevation_deg"]),
@@ -190,7 +214,7 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     t = time.perf_counter()
     geometry = generate(cfg)
     lo, hi = geometry.bounds_m()
-    patterns = scan_patterns(cfg, lo, hi)
+    patterns = scan_patterns(cfg, lo, hi, geometry.near_x_m)
     n_beams = sum(p.n_beams for p in patterns)
     if n_beams * (cfg["scan"]["footprint"] + 1) ** 2 > cfg["scan"]["max_beams"]:
         raise ConfigError(f"{n_beams} beams exceed scan.max_beams = {cfg['scan']['max_beams']}",
@@ -254,12 +278,15 @@ def _scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results) ->
         "n_leaf_triangles": int(len(geometry.leaves)),
         "n_instances": int(built.n_instances), "n_triangles_built": int(built.n_triangles),
         "platform": cfg["platform"]["kind"], "footprint": first.pattern.footprint,
+        "hit_rule": first.pattern.hit_rule,
     }
     if first.settings is not None:  # the tractor: the paper's N × M and impacted areas
         n, m = first.shape
         out.update({"N": n, "M": m, "A_IM_m2": first.impacted_area_m2(),
                     "A_IM_yz_m2": first.impacted_area_yz_m2(), "hits": first.class_counts(),
                     "scan": first.settings.to_dict()})
+        if len(geometry.branches):  # how much of the wood the sweep can see at all
+            out["A_PR_swept_share"] = first.settings.swept_share(geometry.branches)
     else:
         out["legs"] = [{"N": r.shape[0], "M": r.shape[1], "hits": r.class_counts(),
                         "pattern": r.pattern.to_dict()} for r in results]

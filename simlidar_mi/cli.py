@@ -84,6 +84,9 @@ def _study_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--footprint", type=int, default=None, metavar="P",
                    help="dot-matrix precision P, (P+1)² sub-beams (default: 2, the paper's, with "
                         "--hit-rule any; the scene's with --hit-rule fraction)")
+    p.add_argument("--no-readings", dest="readings", action="store_false",
+                   help="skip the re-scans under the paper's other readings (fraction rule, "
+                        "far-side limits, the old study) that regression.json compares")
 
 
 @command("study", "SIMLIDAR §5 study: scan the 96-orchard grid, fit A_PR and A_L against A_IM "
@@ -93,13 +96,19 @@ def _study_run(args: argparse.Namespace) -> int:
 
     grid = [list(args.overrides) + g for g in paper_grid()]
     res = run_study(args.scene, args.out, grid, workers=args.workers, progress=sys.stderr.isatty(),
-                    hit_rule=args.hit_rule, footprint=args.footprint)
+                    hit_rule=args.hit_rule, footprint=args.footprint, readings=args.readings)
     print(f"hit rule {', '.join(res.regression['scan']['hit_rule'])}, footprint P = "
           f"{', '.join(map(str, res.regression['scan']['footprint']))}")
     for key, name in (("A_PR_vs_A_IM", "A_PR"), ("A_L_vs_A_IM", "A_L")):
         fit, paper = res.regression[key], res.regression["paper"][key]
         print(f"{name} = {fit['slope']:.4f}·A_IM (R² {fit['r2']:.3f}, n {fit['n']}); "
               f"paper: {paper['slope']}·A_IM (R² {paper['r2']})")
+    sub = res.regression["subsets"]["A_PR_vs_A_IM"]
+    if sub["n_subsets"]:
+        print(f"A_PR slope over {sub['n_subsets']} random {sub['size']}-orchard subsets: "
+              f"{sub['slope_2.5%']:.3f} … {sub['slope_97.5%']:.3f} (95 %)")
+    for name, fit in res.regression["A_PR_vs_A_IM_by_reading"].items():
+        print(f"  reading {name:<8} A_PR = {fit['slope']:.4f}·A_IM (R² {fit['r2']:.3f})  {fit['what']}")
     for path in res.files.values():
         print(f"wrote {path}")
     return 0

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from simlidar_mi.errors import ConfigError
-from simlidar_mi.lidar.study import fit_through_origin, paper_grid, run_study, scan_overrides
+from simlidar_mi.lidar.study import (READINGS, fit_through_origin, paper_grid, regression_report,
+                                    run_study, scan_overrides, subset_slopes)
 from tests.conftest import SCENES
 
 
@@ -84,3 +85,65 @@ def test_bad_base_scene_is_refused_before_any_task(tmp_path):
     with pytest.raises(ConfigError, match="scan.dy_m"):
         run_study(bad, tmp_path / "out", [["orchard.n_trees=1"]])
     assert not (tmp_path / "out").exists()
+
+
+def test_uncentred_r2_and_subset_slopes_against_direct_formulas():
+    rng = np.random.default_rng(7)
+    x = rng.uniform(0.2, 3, 96)
+    y = 1.5 * x + rng.normal(0, 0.3, 96)
+    fit = fit_through_origin(x, y)
+    res = y - fit["slope"] * x
+    assert fit["r2_uncentred"] == pytest.approx(1 - np.sum(res ** 2) / np.sum(y ** 2), rel=1e-12)
+    assert fit["r2_uncentred"] > fit["r2"]
+    sub = subset_slopes(x, y, size=42, n_subsets=500, seed=3)
+    # recompute the same draws directly
+    draw = np.random.default_rng(3)
+    slopes = []
+    for _ in range(500):
+        i = draw.choice(96, 42, replace=False)
+        slopes.append(np.dot(x[i], y[i]) / np.dot(x[i], x[i]))
+    assert sub["slope_2.5%"] == pytest.approx(np.percentile(slopes, 2.5), rel=1e-12)
+    assert sub["slope_97.5%"] == pytest.approx(np.percentile(slopes, 97.5), rel=1e-12)
+    assert sub["slope_2.5%"] < fit["slope"] < sub["slope_97.5%"]
+    # a grid no larger than a subset has no spread to report
+    assert subset_slopes(x[:42], y[:42])["n_subsets"] == 0
+
+
+def _row(it, n, a_im, a_pr):
+    return {"iterations": it, "n_trees": n, "A_IM_m2": a_im, "A_IM_yz_m2": 2 * a_im, "A_PR_m2": a_pr,
+            "A_L_m2": np.pi * a_pr, "A_PR_exact_m2": a_pr, "hit_rule": "any", "footprint": 2,
+            **{f"A_IM_{k}_m2": a_im / 2 for k in READINGS}}
+
+
+def test_regression_report_subgroups_readings_and_the_pi_note():
+    rows = [_row(4, 1, 1.0, 2.0), _row(4, 4, 2.0, 4.4), _row(5, 1, 1.0, 3.0), _row(5, 4, 3.0, 9.0)]
+    rep = regression_report(rows)
+    assert set(rep["subgroups"]) == {"iterations=4", "iterations=5", "n_trees=1", "n_trees=4"}
+    assert rep["subgroups"]["iterations=5"]["A_PR_vs_A_IM"]["slope"] == pytest.approx(30 / 10)
+    assert rep["subgroups"]["n_trees=1"]["A_PR_vs_A_IM"]["slope"] == pytest.approx(2.5)
+    # A_L = π·A_PR: same R², slopes in the ratio π
+    assert rep["A_L_vs_A_IM"]["slope"] == pytest.approx(np.pi * rep["A_PR_vs_A_IM"]["slope"])
+    assert rep["A_L_vs_A_IM"]["r2"] == pytest.approx(rep["A_PR_vs_A_IM"]["r2"])
+    by = rep["A_PR_vs_A_IM_by_reading"]
+    assert set(by) == {"study", "A_IM_yz", *READINGS}
+    # half the A_IM doubles the slope; the YZ projection (twice A_IM here) halves it
+    assert by["far"]["slope"] == pytest.approx(2 * by["study"]["slope"])
+    assert by["A_IM_yz"]["slope"] == pytest.approx(by["study"]["slope"] / 2)
+    assert any("π" in n for n in rep["notes"])
+
+
+def test_study_rows_carry_every_reading_and_the_old_reading_is_the_old_study(tmp_path):
+    grid = [["orchard.tree.iterations=4", "orchard.n_trees=1", "scan.dtheta_deg=1.0", "scan.dy_m=0.01"]]
+    row = run_study(SCENES / "apple_orchard.toml", tmp_path / "r", grid).rows[0]
+    for name in READINGS:
+        assert row[f"A_IM_{name}_m2"] > 0
+    # far-side limits sweep less of the tree; the fraction rule weights part-hit beams down
+    assert row["A_IM_far_m2"] < row["A_IM_m2"] and row["A_IM_fraction_m2"] < row["A_IM_m2"]
+    old = run_study(SCENES / "apple_orchard.toml", tmp_path / "o",
+                    [grid[0] + ['scan.theta_limits_side="far"']], hit_rule="fraction",
+                    readings=False).rows[0]
+    assert old["A_IM_m2"] == pytest.approx(row["A_IM_old_m2"], rel=1e-12)
+    reg = json.loads((tmp_path / "r" / "regression.json").read_text())
+    assert set(reg["A_PR_vs_A_IM_by_reading"]) == {"study", "A_IM_yz", *READINGS}
+    header = (tmp_path / "r" / "study.csv").read_text().splitlines()[0]
+    assert all(f"A_IM_{k}_m2" in header for k in READINGS)

@@ -8,6 +8,13 @@ tasks in separate processes).  Every finished orchard is written at once to
 ``rows/<key>.json``, so an interrupted study resumes where it stopped.  Outputs:
 ``study.csv`` (one row per orchard), ``regression.json`` and ``correlations.png``.
 
+Each orchard is also scanned under the other readings of the paper that move the result
+(:data:`READINGS`: the fraction rule, eq. 8's far-side limits, and the study as it was
+before both were corrected), from the same built scene, so ``regression.json`` can say how
+much each choice moves the slope.  It also holds centred and uncentred R², fits per
+iteration count and per number of trees, and the 95 % range of the slope over random
+42-orchard subsets (the paper scanned 42).
+
 Every orchard is scanned with the paper's hit test by default: a dot matrix of precision
 P = 2 (3 × 3 sub-beams, footprint 2) and ``scan.hit_rule = "any"`` (§3.1: a beam hits
 when any point of its dot matrix lies inside a branch).  ``hit_rule="fraction"`` keeps
@@ -18,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +40,19 @@ COLUMNS = ["key", "iterations", "d_min_m", "n_trees", "pruning", "stochastic", "
            "N", "M", "footprint", "hit_rule", "V_L_m3", "A_L_m2", "A_PR_m2", "A_PR_exact_m2",
            "A_IM_m2", "A_IM_yz_m2", "A_PR_swept_share", "scan_seconds"]
 PAPER_FOOTPRINT = 2  # SIMLIDAR §3.1 takes P = 2
+PAPER_N_ORCHARDS = 42  # the paper's study size (§5)
+# Bump when a row's contents change, so that rows of an older study are never reused.
+ROW_SCHEMA = 2
+# Other readings of the paper, each a re-scan of the same built orchard: (scan-setting
+# changes, what it is).  The primary scan is the study's own (by default P = 2, "any",
+# near-side eq. 8 limits).
+READINGS = {
+    "fraction": ({"hit_rule": "fraction"}, "sub-beam share instead of the any-point rule"),
+    "far": ({"theta_limits_side": "far"}, "eq. 8 limits from the far side of the wood"),
+    "old": ({"hit_rule": "fraction", "theta_limits_side": "far", "footprint": 0},
+            "the study before the fidelity fixes: far-side limits, one ray per beam"),
+}
+COLUMNS += [f"A_IM_{name}_m2" for name in READINGS]
 
 
 def paper_grid(iterations=(4, 5, 6, 7), d_min_m=(0.005, 0.006, 0.007), n_trees=(1, 4),
@@ -45,37 +66,128 @@ def paper_grid(iterations=(4, 5, 6, 7), d_min_m=(0.005, 0.006, 0.007), n_trees=(
     return grid
 
 
-def _key(overrides: list[str]) -> str:
-    return hashlib.sha256("\n".join(overrides).encode()).hexdigest()[:16]
+def _key(overrides: list[str], readings: bool = True) -> str:
+    text = "\n".join([f"row-schema {ROW_SCHEMA}", f"readings {readings}", *overrides])
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def run_one(scene: str, overrides: list[str], rows_dir: str) -> dict:
-    """Scan one orchard and write its row; returns the row (a Dask task, so module-level)."""
-    from .survey import run_scan  # noqa: PLC0415  (imports Mitsuba in the worker)
+def run_one(scene: str, overrides: list[str], rows_dir: str, readings: bool = True) -> dict:
+    """Scan one orchard (and its other readings) and write its row; returns the row.
+
+    A Dask task, so module-level.  The orchard is generated and built once; each reading
+    of :data:`READINGS` is one more scan of the same Mitsuba scene.
+    """
+    from dataclasses import replace  # noqa: PLC0415
+
+    from .scan import resolve_settings, scan  # noqa: PLC0415  (imports Mitsuba in the worker)
+    from .survey import build, generate, scan_measures, scan_patterns  # noqa: PLC0415
     cfg = load_scene(scene, overrides)
-    run = run_scan(cfg, None)
-    m = run.measures
+    if cfg["platform"]["kind"] != "tractor":
+        raise ConfigError("the §5 study scans with the tractor", file=cfg.source,
+                          key="platform.kind", value=cfg["platform"]["kind"])
+    t0 = time.perf_counter()
+    geometry = generate(cfg)
+    lo, hi = geometry.bounds_m()
+    settings = scan_patterns(cfg, lo, hi, geometry.near_x_m)[0]
+    built = build(cfg, geometry)
+    t1 = time.perf_counter()
+    result = scan(built, settings, cfg["scene"]["variant"])
+    seconds = time.perf_counter() - t1
+    m = scan_measures(cfg, geometry, built, [result])
     t = cfg["orchard.tree"]
-    row = {"key": _key(overrides), "iterations": t["iterations"], "d_min_m": t["d_min_m"],
+    row = {"key": _key(overrides, readings), "iterations": t["iterations"], "d_min_m": t["d_min_m"],
            "n_trees": cfg["orchard"]["n_trees"], "pruning": t["pruning"], "stochastic": t["stochastic"],
            "n_branches": m["n_branches"], "N": m["N"], "M": m["M"], "footprint": m["footprint"],
            "hit_rule": m["hit_rule"], "A_PR_swept_share": m.get("A_PR_swept_share"), "V_L_m3": m["V_L_m3"],
            "A_L_m2": m["A_L_m2"], "A_PR_m2": m["A_PR_m2"], "A_PR_exact_m2": m["A_PR_exact_m2"],
-           "A_IM_m2": m["A_IM_m2"], "A_IM_yz_m2": m["A_IM_yz_m2"], "scan_seconds": m["seconds"]["scan"],
+           "A_IM_m2": m["A_IM_m2"], "A_IM_yz_m2": m["A_IM_yz_m2"], "scan_seconds": seconds,
            "overrides": overrides}
+    if readings:
+        for name, (change, _) in READINGS.items():
+            sc = {**cfg["scan"], **change}
+            s = (resolve_settings(sc, cfg["ground"], lo, hi, cfg.source, geometry.near_x_m)
+                 if "theta_limits_side" in change else settings)
+            s = replace(s, hit_rule=sc["hit_rule"], footprint=sc["footprint"])
+            row[f"A_IM_{name}_m2"] = scan(built, s, cfg["scene"]["variant"]).impacted_area_m2()
+    row["seconds"] = time.perf_counter() - t0
     with atomic_file(Path(rows_dir) / f"{row['key']}.json") as tmp:
         tmp.write_text(json.dumps(row, sort_keys=True))
     return row
 
 
 def fit_through_origin(x: np.ndarray, y: np.ndarray) -> dict[str, float]:
-    """y = b·x by least squares through the origin; R² = 1 − SS_res / SS_tot (about the mean)."""
+    """y = b·x by least squares through the origin.
+
+    ``r2`` is centred, 1 − SS_res / Σ(y − ȳ)², the usual reading of a reported R²;
+    ``r2_uncentred`` is 1 − SS_res / Σy², what many tools report for a fit without an
+    intercept (and always the larger of the two)."""
     x, y = np.asarray(x, float), np.asarray(y, float)
     b = float(np.dot(x, y) / np.dot(x, x))
     ss_res = float(np.sum((y - b * x) ** 2))
     ss_tot = float(np.sum((y - y.mean()) ** 2))
+    ss_unc = float(np.sum(y ** 2))
     return {"slope": b, "r2": 1.0 - ss_res / ss_tot if ss_tot > 0 else float("nan"),
-            "pearson_r": float(np.corrcoef(x, y)[0, 1]) if len(x) > 1 else float("nan"), "n": int(len(x))}
+            "r2_uncentred": 1.0 - ss_res / ss_unc if ss_unc > 0 else float("nan"),
+            "pearson_r": float(np.corrcoef(x, y)[0, 1]) if len(x) > 1 and x.std() > 0 and y.std() > 0
+            else float("nan"), "n": int(len(x))}
+
+
+def subset_slopes(x, y, size: int = PAPER_N_ORCHARDS, n_subsets: int = 2000,
+                  seed: int = 0) -> dict[str, float]:
+    """Spread of the through-origin slope over random subsets of ``size`` rows (without
+    replacement): how far a study of the paper's size could land from the full grid's."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    if len(x) <= size:
+        return {"size": int(len(x)), "n_subsets": 0, "slope_2.5%": float("nan"),
+                "slope_97.5%": float("nan")}
+    rng = np.random.default_rng(seed)
+    idx = np.array([rng.choice(len(x), size, replace=False) for _ in range(n_subsets)])
+    slopes = np.sum(x[idx] * y[idx], axis=1) / np.sum(x[idx] ** 2, axis=1)
+    lo, hi = np.percentile(slopes, [2.5, 97.5])
+    return {"size": size, "n_subsets": n_subsets, "seed": seed, "slope_2.5%": float(lo),
+            "slope_97.5%": float(hi)}
+
+
+def regression_report(rows: list[dict]) -> dict:
+    """Everything ``regression.json`` holds, from the study's rows."""
+    col = {k: np.array([r[k] for r in rows], float) for k in ("A_IM_m2", "A_IM_yz_m2", "A_PR_m2",
+                                                             "A_L_m2", "A_PR_exact_m2")}
+    a_im = col["A_IM_m2"]
+    report = {
+        "A_PR_vs_A_IM": fit_through_origin(a_im, col["A_PR_m2"]),
+        "A_L_vs_A_IM": fit_through_origin(a_im, col["A_L_m2"]),
+        "A_PR_exact_vs_A_IM": fit_through_origin(a_im, col["A_PR_exact_m2"]),
+        "scan": {"hit_rule": sorted({r["hit_rule"] for r in rows}),
+                 "footprint": sorted({r["footprint"] for r in rows})},
+        "paper": {"A_PR_vs_A_IM": {"slope": PAPER["A_PR"][0], "r2": PAPER["A_PR"][1]},
+                  "A_L_vs_A_IM": {"slope": PAPER["A_L"][0], "r2": PAPER["A_L"][1]}},
+    }
+    groups: dict[str, dict] = {}
+    for field_ in ("iterations", "n_trees"):
+        for value in sorted({r[field_] for r in rows}):
+            sel = np.array([r[field_] == value for r in rows])
+            groups[f"{field_}={value}"] = {
+                "A_PR_vs_A_IM": fit_through_origin(a_im[sel], col["A_PR_m2"][sel]),
+                "A_L_vs_A_IM": fit_through_origin(a_im[sel], col["A_L_m2"][sel])}
+    report["subgroups"] = groups
+    report["subsets"] = {"A_PR_vs_A_IM": subset_slopes(a_im, col["A_PR_m2"]),
+                         "A_L_vs_A_IM": subset_slopes(a_im, col["A_L_m2"])}
+    readings = {"study": {"what": "the study's own scan", **fit_through_origin(a_im, col["A_PR_m2"])},
+                "A_IM_yz": {"what": "A_IM projected exactly on the YZ plane (not eq. 1's l·Δsin θ)",
+                            **fit_through_origin(col["A_IM_yz_m2"], col["A_PR_m2"])}}
+    for name, (_, what) in READINGS.items():
+        key = f"A_IM_{name}_m2"
+        if all(key in r for r in rows):
+            readings[name] = {"what": what, **fit_through_origin([r[key] for r in rows], col["A_PR_m2"])}
+    report["A_PR_vs_A_IM_by_reading"] = readings
+    report["notes"] = [
+        "A_L = π·A_PR for every orchard by definition (A_L = Σπdh, A_PR = Σdh), so the two fits "
+        "have the same R² and slopes in the ratio π. The paper's 10.812 / 3.6166 = 2.990 and its "
+        "two R² (0.78 vs 0.70) show that its two fits did not use identical data.",
+        "r2 is centred (about the mean of y); r2_uncentred is about zero, as many tools report "
+        "for a fit through the origin. The paper does not say which it printed.",
+    ]
+    return report
 
 
 @dataclass
@@ -99,12 +211,13 @@ def scan_overrides(hit_rule: str = "any", footprint: int | None = None) -> list[
 
 def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | None = None, *,
               workers: int = 1, progress: bool = False, hit_rule: str = "any",
-              footprint: int | None = None) -> StudyResult:
+              footprint: int | None = None, readings: bool = True) -> StudyResult:
     """Run (or resume) the study of ``grid`` (default :func:`paper_grid`) on ``scene``.
 
     ``hit_rule`` and ``footprint`` (see :func:`scan_overrides`) come before each grid
     entry's overrides, so an entry may still set its own; they are part of each row's key,
-    so rows scanned under another rule are never reused."""
+    so rows scanned under another rule are never reused.  ``readings=False`` skips the
+    re-scans under :data:`READINGS` (about half the scan time)."""
     scene = str(Path(scene).resolve())
     load_scene(scene)  # fail early, before any task, on a bad base scene
     grid = paper_grid() if grid is None else grid
@@ -115,28 +228,19 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
     out = Path(out_dir)
     rows_dir = out / "rows"
     rows_dir.mkdir(parents=True, exist_ok=True)
-    todo = [o for o in grid if not (rows_dir / f"{_key(o)}.json").exists()]
+    todo = [o for o in grid if not (rows_dir / f"{_key(o, readings)}.json").exists()]
     if todo:
         import dask  # noqa: PLC0415
         from dask.diagnostics import ProgressBar  # noqa: PLC0415
-        tasks = [dask.delayed(run_one)(scene, o, str(rows_dir)) for o in todo]
+        tasks = [dask.delayed(run_one)(scene, o, str(rows_dir), readings) for o in todo]
         scheduler = "processes" if workers > 1 else "synchronous"
         if progress:
             with ProgressBar():
                 dask.compute(*tasks, scheduler=scheduler, num_workers=workers)
         else:
             dask.compute(*tasks, scheduler=scheduler, num_workers=workers)
-    rows = [json.loads((rows_dir / f"{_key(o)}.json").read_text()) for o in grid]
-    a_im = np.array([r["A_IM_m2"] for r in rows])
-    regression = {
-        "A_PR_vs_A_IM": fit_through_origin(a_im, [r["A_PR_m2"] for r in rows]),
-        "A_L_vs_A_IM": fit_through_origin(a_im, [r["A_L_m2"] for r in rows]),
-        "A_PR_exact_vs_A_IM": fit_through_origin(a_im, [r["A_PR_exact_m2"] for r in rows]),
-        "scan": {"hit_rule": sorted({r["hit_rule"] for r in rows}),
-                 "footprint": sorted({r["footprint"] for r in rows})},
-        "paper": {"A_PR_vs_A_IM": {"slope": PAPER["A_PR"][0], "r2": PAPER["A_PR"][1]},
-                  "A_L_vs_A_IM": {"slope": PAPER["A_L"][0], "r2": PAPER["A_L"][1]}},
-    }
+    rows = [json.loads((rows_dir / f"{_key(o, readings)}.json").read_text()) for o in grid]
+    regression = regression_report(rows)
     files = {"csv": out / "study.csv", "regression": out / "regression.json", "png": out / "correlations.png"}
     write_csv(files["csv"], COLUMNS, rows, extrasaction="ignore")
     with atomic_file(files["regression"]) as tmp:
@@ -150,7 +254,7 @@ def _plot(rows: list[dict], regression: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
     a_im = np.array([r["A_IM_m2"] for r in rows])
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), dpi=120)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4), dpi=120)
     for ax, (col, name, key) in zip(axes, [("A_PR_m2", "A_PR", "A_PR_vs_A_IM"), ("A_L_m2", "A_L", "A_L_vs_A_IM")]):
         y = np.array([r[col] for r in rows])
         trees = np.array([r["n_trees"] for r in rows])
@@ -164,6 +268,19 @@ def _plot(rows: list[dict], regression: dict, path: Path) -> None:
         ax.set_xlabel("impacted area A_IM (m²)")
         ax.set_ylabel(f"{name} (m²)")
         ax.legend(fontsize=8)
+    # How much each reading of the paper moves the A_PR slope, against the paper's.
+    ax = axes[2]
+    by = regression["A_PR_vs_A_IM_by_reading"]
+    names = list(by)
+    ax.barh(names, [by[n]["slope"] for n in names], color="0.6")
+    sub = regression["subsets"]["A_PR_vs_A_IM"]
+    if sub["n_subsets"]:
+        ax.errorbar([by["study"]["slope"]], [names.index("study")], fmt="none", ecolor="k", capsize=4,
+                    xerr=[[by["study"]["slope"] - sub["slope_2.5%"]], [sub["slope_97.5%"] - by["study"]["slope"]]])
+    ax.axvline(PAPER["A_PR"][0], color="r", ls="--", lw=1, label=f"paper {PAPER['A_PR'][0]}")
+    ax.set_xlabel("A_PR / A_IM slope (bar: 95 % over 42-orchard subsets)")
+    ax.invert_yaxis()
+    ax.legend(fontsize=8)
     fig.suptitle(f"SIMLIDAR §5 study: {len(rows)} virtual orchards")
     fig.tight_layout()
     with atomic_file(path) as tmp:

@@ -232,7 +232,7 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     seconds["scan"] = time.perf_counter() - t
     bar(f"scanned {n_beams} beams")
 
-    measures = _scan_measures(cfg, geometry, built, results)
+    measures = scan_measures(cfg, geometry, built, results)
     files: dict[str, Path] = {}
     t = time.perf_counter()
     if out_dir is not None:
@@ -264,7 +264,8 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     return ScanRun(results[0] if len(results) == 1 else results, measures, files)
 
 
-def _scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results) -> dict:
+def scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results) -> dict:
+    """measures.json of a run: the scene, the wood measures and what each scan saw."""
     wm = {}
     if len(geometry.branches):
         from ..plants.measures import wood_measures  # noqa: PLC0415

@@ -260,7 +260,9 @@ def _forest_run(args: argparse.Namespace) -> int:
     run = run_forest(args.scene, args.out, args.overrides, progress=sys.stderr.isatty())
     s = run.summary
     print(f"{s['n_trees']} trees ({s['removed_by_min_distance']} removed by the "
-          f"{s['min_distance_m']:g} m distance rule), {s['n_branches']} branches, {s['n_leaves']} leaves; "
+          f"{s['min_distance_m']:g} m distance and crown_factor {s['crown_factor']:g} rules; "
+          f"{100 * s['crown_overlap_share']:.1f} % with a neighbour's trunk in their crown), "
+          f"{s['n_branches']} branches, {s['n_leaves']} leaves; "
           f"instancing {'on: ' + str(s['n_prototypes']) + ' prototypes' if s['instancing'] else 'off'}")
     for sp in s["species"]:
         print(f"  {sp['name']:<16} {sp['count']:>7} trees  (expected {sp['expected_before_thinning']:.1f} "

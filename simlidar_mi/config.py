@@ -141,11 +141,19 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "min_distance_m": Key(FLOAT, 3.0, nonneg, "no two trees closer than this (0: no thinning)"),
         "instancing": Key(BOOL, True, None, "true: K prototypes per species, placed with yaw/scale; "
                           "false: every tree its own random draw"),
-        "prototypes_per_species": Key(INT, 12, lambda v: None if 1 <= v <= 1000
-                                      else "must lie in [1, 1000]", "K distinct trees per species"),
-        "scale_range": Key(LIST, [0.85, 1.15], lambda v: None if _numbers(v, 2) and 0 < v[0] <= v[1]
+        "prototypes_per_species": Key((int, str), "auto", lambda v: None if v == "auto" or (
+                                      isinstance(v, int) and 1 <= v <= 1000)
+                                      else "must be 'auto' or a whole number in [1, 1000]",
+                                      "K distinct trees per species; auto: ceil(Poisson points / "
+                                      "trees_per_prototype)"),
+        "trees_per_prototype": Key(INT, 5, at_least(1), "most trees placed per prototype (auto K)"),
+        "scale_range": Key(LIST, [1.0, 1.0], lambda v: None if _numbers(v, 2) and 0 < v[0] <= v[1]
                            else "must be [min, max] with 0 < min ≤ max",
-                           "uniform scale of instanced trees, drawn per tree"),
+                           "uniform scale of instanced trees ([1, 1]: none)"),
+        "scale_mode": Key(STR, "wood", one_of("wood", "whole-tree"),
+                          "wood: one scale per prototype, wood only, leaves keep their size; "
+                          "whole-tree: one per tree, leaves scaled too (earlier behaviour)"),
+        "crown_factor": Key(FLOAT, 0.65, nonneg, "k of the crown rule d_ij ≥ k·(r_i + r_j); 0: none"),
         "max_trees": Key(INT, 100_000, at_least(1), "refuse forests with more trees"),
         "leaf_table": Key(STR, "auto", one_of("auto", "all", "prototypes", "none"),
                           "auto: 'all' up to leaf_table_max_rows leaves, else 'prototypes' (instancing) or 'all'"),

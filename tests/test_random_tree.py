@@ -271,3 +271,63 @@ def test_branch_guard():
     with pytest.raises(ConfigError, match="max_branches"):
         for s in range(20):
             random_tree(P, s)
+
+
+def _lateral_offsets(t) -> np.ndarray:
+    """For each branch but the trunk's first, its distance to the nearest branch end (0 at an apex)."""
+    from scipy.spatial import cKDTree
+    d, _ = cKDTree(t.branches.p1).query(t.branches.p0[1:])
+    return d
+
+
+@pytest.mark.parametrize("per", ["tree", "branch"])
+def test_branching_flag_is_drawn_once_per_tree_by_default(per):
+    """L1 (§II-C): per tree, all daughters of a tree sprout at apices or all along mothers."""
+    P = tree_params_from_dict({"lateral_branching_per": per} if per == "branch" else {},
+                              species_preset("broadleaf-monopodial"))
+    assert RandomTreeParams().lateral_branching_per == "tree" and P.lateral_branching.p == 0.7
+    shares = []
+    for s in range(24):
+        t = random_tree(P, s, keep_draws=True)
+        flags = t.draws.locals["lateral_branching"]
+        off = _lateral_offsets(t)
+        if per == "tree":
+            assert flags.shape == (1,) and t.branching == float(flags[0])
+            if t.branching == 0:             # every daughter at its mother's apex
+                assert off.max() < 1e-9
+            else:                            # laterals at U(0.25, 1) along their mothers
+                assert (off > 1e-3).mean() > 0.3
+        else:
+            assert len(flags) > 50 and t.branching == pytest.approx(flags.mean())
+        shares.append(t.branching)
+    shares = np.array(shares)
+    if per == "tree":      # whole trees of both kinds (p = 0.7)
+        assert set(shares) == {0.0, 1.0}
+    else:                  # every tree mixes both kinds, near p
+        assert ((shares > 0.5) & (shares < 0.9)).all()
+
+
+def test_wood_scaled_keeps_leaf_sizes_and_insertions():
+    t = random_tree(species_preset("deciduous-apex"), 3)
+    s = 1.2
+    w = t.wood_scaled(s)
+    assert t.wood_scaled(1.0) is t and w.wood_scale == s
+    np.testing.assert_array_equal(w.branches.p1, s * t.branches.p1)
+    np.testing.assert_array_equal(w.branches.diameter, s * t.branches.diameter)
+    # each leaf is its drawn blade moved by (s − 1)·(insertion point): same size and orientation
+    lt, lw = t.leaf_table, w.leaf_table
+    np.testing.assert_array_equal(lw.length_m, lt.length_m)
+    np.testing.assert_array_equal(lw.normal, lt.normal)
+    moved = w.leaves.vertices - t.leaves.vertices                # (n_tri, 3, 3)
+    np.testing.assert_allclose(moved - moved[:, :1], 0.0, atol=1e-12)  # a rigid shift per leaf
+    base = lt.centre_m - 0.5 * lt.length_m[:, None] * lt.heading
+    np.testing.assert_allclose(moved[:, 0], (s - 1) * base[t.leaves.leaf_id], atol=1e-12)
+    # the insertion point stays on the (scaled) bark: its distance to the trunk axis scales by s
+    assert w.crown_radius_m == pytest.approx(s * t.crown_radius_m, rel=0.02)
+    with pytest.raises(ConfigError, match="scale"):
+        t.wood_scaled(0.0)
+
+
+def test_bad_branching_mode_is_refused():
+    with pytest.raises(ConfigError, match=r"key 'sp.tree.lateral_branching_per', value 'leaf'"):
+        tree_params_from_dict({"lateral_branching_per": "leaf"}, key_prefix="sp.tree.")

@@ -82,7 +82,7 @@ def _have_pyarrow() -> bool:
 def _write_trees_csv(path: Path, forest: Forest) -> None:
     c = forest.trees_columns()
     fmt = {"x": "{:.6f}", "y": "{:.6f}", "height_m": "{:.6f}", "yaw_deg": "{:.6f}",
-           "scale": "{:.8f}", "crown_radius_m": "{:.6f}"}
+           "scale": "{:.8f}", "crown_radius_m": "{:.6f}", "branching": "{:.6g}"}
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(list(c))
@@ -103,7 +103,8 @@ class _Stand:
     @classmethod
     def of(cls, forest: Forest) -> "_Stand":
         return cls(len(forest), forest.local_tree,
-                   lambda i: (forest.translation_m(i), float(forest.yaw_deg[i]), float(forest.scale[i])),
+                   lambda i: (forest.translation_m(i), float(forest.yaw_deg[i]),
+                              float(forest.instance_scale[i])),
                    (lambda i: int(forest.prototype[i])) if forest.instancing else (lambda i: None))
 
 
@@ -237,7 +238,8 @@ def plot_layout(forest: Forest, path: str | Path) -> Path:
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title(f"{len(forest)} trees; discs = crown diameter; lines = intensity per species; "
-                 f"min distance {forest.params.min_distance_m:g} m", fontsize=9)
+                 f"min distance {forest.params.min_distance_m:g} m, d ≥ {forest.params.crown_factor:g}·(r_i + r_j)",
+                 fontsize=9)
     ax.legend(handles=handles, loc="upper left", fontsize=8, framealpha=0.85)
     fig.tight_layout()
     fig.savefig(path, format="png")

@@ -1,10 +1,16 @@
 """Forest parameters and seeds: species, ForestParams from a scene file, per-tree and prototype seeds.
 
-Seeds: from the scene seed ``S``, the placement uses ``SeedSequence(S, spawn_key=(0,))``,
-tree ``t`` the integer ``seed_t`` made from ``SeedSequence(S, spawn_key=(1, t))`` and
-prototype ``k`` of species ``j`` one from ``spawn_key=(2, j, k)``. Integer seeds are
-53-bit, written to ``trees.csv``; ``random_tree(params, seed_t)`` rebuilds tree ``t``
-of a non-instanced forest bit for bit. Changing one tree's seed changes no other tree.
+Seeds: from the scene seed ``S``, the placement uses ``SeedSequence(S, spawn_key=(0,))``;
+Poisson point (candidate) ``c`` gets the integer ``seed_c`` made from
+``SeedSequence(S, spawn_key=(1, c))`` (it grows the tree without instancing, and draws
+its yaw, and its scale with ``scale_mode = "whole-tree"``, with instancing);
+prototype ``k`` of species ``j`` grows from ``spawn_key=(2, j, k)`` and draws its wood
+scale from ``spawn_key=(3, j, k)``; the balanced assignment of candidates to
+prototypes uses ``spawn_key=(4,)``. Integer seeds are 53-bit. The ``seed`` column of
+``trees.csv`` is the seed of the placed geometry (the tree's own, or its prototype's):
+``place_tree(random_tree(params, seed), x, y, yaw_deg, scale)`` rebuilds that tree
+(:func:`simlidar_mi.forest.stand.place_tree`). Changing one tree's seed changes no
+other tree.
 """
 from __future__ import annotations
 
@@ -19,7 +25,13 @@ from ..errors import ConfigError
 from ..plants.tree_params import SPECIES_PRESETS, RandomTreeParams, species_preset, tree_params_from_dict
 from .placement import Bump, Domain, SpeciesIntensity
 
-__all__ = ["ForestSpecies", "ForestParams", "forest_params_from_scene", "tree_seed", "prototype_seed"]
+__all__ = ["ForestSpecies", "ForestParams", "forest_params_from_scene", "tree_seed", "prototype_seed",
+           "prototype_scale", "CROWN_FACTOR"]
+
+#: Default k of the crown rule d_ij ≥ k·(r_i + r_j): the smallest of 0.05 steps that keeps
+#: the share of trees with a neighbour's trunk inside their crown ≤ 10 % on every
+#: forest in scenes/ (measured in README "Random trees and forests").
+CROWN_FACTOR = 0.65
 
 
 def _bare(exc: ConfigError) -> str:
@@ -72,18 +84,30 @@ class ForestParams:
     species : at least one, distinct names.
     min_distance_m : minimum distance between any two trees (0: no thinning).
     instancing : prototypes + per-tree transforms (true) or one draw per tree (false).
-    prototypes_per_species : K.
-    scale_range : ``(min, max)`` of the uniform per-tree scale of instanced trees.
+    prototypes_per_species : K, or ``"auto"``: ``ceil(Poisson points of the species /
+        trees_per_prototype)``, so no prototype is placed more than
+        ``trees_per_prototype`` times.
+    scale_range : ``(min, max)`` of the uniform scale of instanced trees (``(1, 1)``:
+        none; every placed tree is then a tree the species' laws drew).
     max_trees : refuse placements with more trees.
+    trees_per_prototype : the bound of ``prototypes_per_species = "auto"``.
+    scale_mode : ``"wood"`` (each prototype draws one scale, applied to its wood; leaves
+        keep their drawn size and move with their insertion point) or ``"whole-tree"``
+        (each tree draws a scale applied to the whole instance, leaves included: the
+        earlier behaviour).
+    crown_factor : k of the crown rule ``d_ij ≥ k·(r_i + r_j)`` (0: the minimum distance only).
     """
 
     domain: Domain
     species: tuple[ForestSpecies, ...]
     min_distance_m: float = 3.0
     instancing: bool = True
-    prototypes_per_species: int = 12
-    scale_range: tuple[float, float] = (0.85, 1.15)
+    prototypes_per_species: int | str = "auto"
+    scale_range: tuple[float, float] = (1.0, 1.0)
     max_trees: int = 100_000
+    trees_per_prototype: int = 5
+    scale_mode: str = "wood"
+    crown_factor: float = CROWN_FACTOR
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "domain", Domain.of(self.domain))
@@ -105,9 +129,21 @@ class ForestParams:
         if not isinstance(self.instancing, (bool, np.bool_)):
             raise ConfigError("must be true or false", key="forest.instancing", value=self.instancing)
         k = self.prototypes_per_species
-        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= 1000:
-            raise ConfigError("must be a whole number in [1, 1000]",
+        if k != "auto" and (isinstance(k, bool) or not isinstance(k, (int, np.integer))
+                            or not 1 <= k <= 1000):
+            raise ConfigError("must be 'auto' or a whole number in [1, 1000]",
                               key="forest.prototypes_per_species", value=k)
+        t = self.trees_per_prototype
+        if isinstance(t, bool) or not isinstance(t, (int, np.integer)) or t < 1:
+            raise ConfigError("must be a whole number ≥ 1", key="forest.trees_per_prototype", value=t)
+        if self.scale_mode not in ("wood", "whole-tree"):
+            raise ConfigError("must be 'wood' or 'whole-tree'", key="forest.scale_mode",
+                              value=self.scale_mode)
+        c = self.crown_factor
+        if isinstance(c, bool) or not isinstance(c, (int, float, np.floating)) \
+                or not (math.isfinite(c) and c >= 0):
+            raise ConfigError("must be a finite number ≥ 0", key="forest.crown_factor", value=c)
+        object.__setattr__(self, "crown_factor", float(c))
         lo, hi = (float(v) for v in self.scale_range)
         if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
             raise ConfigError("must be [min, max] with 0 < min ≤ max", key="forest.scale_range",
@@ -184,7 +220,8 @@ def forest_params_from_scene(cfg: SceneConfig) -> ForestParams:
         raise ConfigError("a [forest] needs at least one [[species]] table", file=src, key="species")
     try:
         return ForestParams(Domain(*f["domain_m"]), tuple(species), f["min_distance_m"], f["instancing"],
-                            f["prototypes_per_species"], tuple(f["scale_range"]), f["max_trees"])
+                            f["prototypes_per_species"], tuple(f["scale_range"]), f["max_trees"],
+                            f["trees_per_prototype"], f["scale_mode"], f["crown_factor"])
     except ConfigError as exc:
         raise ConfigError(_bare(exc), file=src, key=exc.key, value=exc.value) from None
 
@@ -205,3 +242,12 @@ def tree_seed(forest_seed: int, tree_id: int) -> int:
 def prototype_seed(forest_seed: int, species_index: int, k: int) -> int:
     """The integer seed of prototype ``k`` of species ``species_index``."""
     return _seed53(forest_seed, (2, int(species_index), int(k)))
+
+
+def prototype_scale(forest_seed: int, species_index: int, k: int, scale_range: tuple[float, float]) -> float:
+    """The wood scale of prototype ``k`` of species ``species_index`` (uniform in ``scale_range``)."""
+    lo, hi = scale_range
+    if lo == hi:
+        return float(lo)
+    ss = np.random.SeedSequence(int(forest_seed), spawn_key=(3, int(species_index), int(k)))
+    return float(np.random.default_rng(ss).uniform(lo, hi))

@@ -7,9 +7,11 @@ bumps plus an optional constant background,
 
 on a rectangle D. Points are drawn by thinning (Lewis & Shedler 1979): draw
 N ~ Poisson(λ*·|D|) uniform points with λ* ≥ max_D λ and keep each with
-probability λ(s)/λ*. The kept points of all species are then thinned to a
-minimum distance so trees do not overlap; that second step is *not* a Poisson
-process any more, so counts are reported before and after it.
+probability λ(s)/λ*. The kept points of all species are then thinned so trees
+do not overlap too much (the paper: "one is removed if two trees are too close"):
+a minimum distance and, given each point's crown radius ``r``, the crown rule
+``d_ij ≥ k·(r_i + r_j)``; that second step is *not* a Poisson process any more,
+so counts are reported before and after it.
 
 Randomness comes from the caller's ``numpy.random.Generator``: one child stream
 is spawned for the distance thinning and one per species, so appending a species
@@ -19,7 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Sequence, overload
+from typing import Callable, Sequence, overload
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -30,7 +32,7 @@ from ..errors import ConfigError
 
 __all__ = [
     "Bump", "Domain", "Placement", "SpeciesIntensity", "expected_count", "intensity_grid",
-    "place_trees", "sample_ipp", "thin_min_distance",
+    "place_trees", "sample_ipp", "thin_min_distance", "crown_overlap_share",
 ]
 
 
@@ -264,26 +266,40 @@ def sample_ipp(species: SpeciesIntensity, domain: Domain | Sequence[float],
 
 
 def thin_min_distance(x_m: np.ndarray, y_m: np.ndarray, min_distance_m: float,
-                      rng: np.random.Generator) -> np.ndarray:
-    """Mask of points kept so that no two kept points are within ``min_distance_m``.
+                      rng: np.random.Generator, crown_radius_m: np.ndarray | None = None,
+                      crown_factor: float = 0.0) -> np.ndarray:
+    """Mask of points kept so that no two kept trees are too close.
 
-    Rule: visit the points in a uniformly random order and keep a point unless
-    an already kept point lies at distance ≤ ``min_distance_m`` (Matérn type III
-    style). Kept points are therefore more than ``min_distance_m`` apart, every
-    dropped point has a kept point within ``min_distance_m``, and no species is
-    favoured. ``min_distance_m = 0`` keeps everything.
+    Rule: visit the points in a uniformly random order and keep a point unless an
+    already kept point ``j`` conflicts with it: ``d_ij ≤ min_distance_m``, or
+    ``d_ij < k·(r_i + r_j)`` with ``k = crown_factor`` and ``r`` the crown radii
+    (Matérn type III style). Kept points therefore satisfy
+    ``d_ij > min_distance_m`` and ``d_ij ≥ k·(r_i + r_j)``, every dropped point
+    conflicts with a kept one, and no species is favoured. ``min_distance_m = 0``
+    and ``k = 0`` keep everything.
     """
     d_min = real("min_distance_m", min_distance_m)
     if d_min < 0:
         raise ConfigError("must be >= 0 m", key="min_distance_m", value=min_distance_m)
+    k = real("crown_factor", crown_factor)
+    if k < 0:
+        raise ConfigError("must be >= 0", key="crown_factor", value=crown_factor)
     x_m, y_m = np.asarray(x_m, np.float64), np.asarray(y_m, np.float64)
     n = len(x_m)
+    r = np.zeros(n) if crown_radius_m is None else np.asarray(crown_radius_m, np.float64)
+    if r.shape != (n,) or not (np.isfinite(r).all() and (r >= 0).all()):
+        raise ConfigError(f"must be {n} finite radii ≥ 0", key="crown_radius_m", value=r.shape)
     keep = np.ones(n, dtype=bool)
-    if n < 2 or d_min == 0:
+    reach = max(d_min, 2.0 * k * float(r.max(initial=0.0)))   # no conflict beyond this
+    if n < 2 or reach == 0:
         return keep
     rank = np.empty(n, dtype=np.int64)
     rank[rng.permutation(n)] = np.arange(n)
-    pairs = cKDTree(np.column_stack([x_m, y_m])).query_pairs(d_min, output_type="ndarray")
+    pairs = cKDTree(np.column_stack([x_m, y_m])).query_pairs(reach, output_type="ndarray")
+    if len(pairs):
+        i, j = pairs[:, 0], pairs[:, 1]
+        d = np.hypot(x_m[i] - x_m[j], y_m[i] - y_m[j])
+        pairs = pairs[(d <= d_min) | (d < k * (r[i] + r[j]))]
     if len(pairs) == 0:
         return keep
     # adjacency (CSR) of conflicting pairs; isolated points are kept whatever the order
@@ -297,6 +313,15 @@ def thin_min_distance(x_m: np.ndarray, y_m: np.ndarray, min_distance_m: float,
         if not keep[nbrs[indptr[i]:indptr[i + 1]]].any():
             keep[i] = True
     return keep
+
+
+def crown_overlap_share(x_m: np.ndarray, y_m: np.ndarray, crown_radius_m: np.ndarray) -> float:
+    """Share of trees whose nearest neighbour's trunk stands inside their own crown (d_nn < r_i)."""
+    x_m, y_m = np.asarray(x_m, np.float64), np.asarray(y_m, np.float64)
+    if len(x_m) < 2:
+        return 0.0
+    d, _ = cKDTree(np.column_stack([x_m, y_m])).query(np.column_stack([x_m, y_m]), 2)
+    return float((d[:, 1] < np.asarray(crown_radius_m, np.float64)).mean())
 
 
 @dataclass(frozen=True)
@@ -313,6 +338,10 @@ class Placement:
     removed : (n_species,) trees per species removed by the minimum-distance step.
     lambda_max_per_m2 : (n_species,) the thinning bounds λ* used.
     min_distance_m : the distance rule applied.
+    candidate : (n,) int64 index of each tree among the Poisson points of all species
+        (species in input order), the identity its seed is made from.
+    crown_radius_m : (n,) the crown radii the crown rule used (zeros without one).
+    crown_factor : the ``k`` of the crown rule ``d_ij ≥ k·(r_i + r_j)`` (0: none).
     """
 
     x_m: np.ndarray
@@ -324,6 +353,9 @@ class Placement:
     lambda_max_per_m2: np.ndarray
     min_distance_m: float
     domain: Domain = field(repr=False, default=None)  # type: ignore[assignment]
+    candidate: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
+    crown_radius_m: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
+    crown_factor: float = 0.0
 
     def __len__(self) -> int:
         return len(self.x_m)
@@ -335,7 +367,9 @@ class Placement:
 
 
 def place_trees(species: Sequence[SpeciesIntensity], domain: Domain | Sequence[float],
-                min_distance_m: float, rng: np.random.Generator) -> Placement:
+                min_distance_m: float, rng: np.random.Generator, *,
+                crown_radius: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None,
+                crown_factor: float = 0.0) -> Placement:
     """Simulate a forest: one Poisson process per species, then distance thinning.
 
     Parameters
@@ -346,6 +380,10 @@ def place_trees(species: Sequence[SpeciesIntensity], domain: Domain | Sequence[f
     rng : random source. Child streams are spawned from it (one for the distance
         thinning order, then one per species), so the same seed gives the same
         placement and appending a species does not move the others' candidates.
+    crown_radius : ``f(x_m, y_m, species) → r_m``, called once with every Poisson point
+        (candidate order) before the thinning; with ``crown_factor = k > 0`` kept trees
+        also satisfy ``d_ij ≥ k·(r_i + r_j)`` (:func:`thin_min_distance`).
+    crown_factor : k (≥ 0; 0 = the plain minimum distance).
 
     Returns
     -------
@@ -379,11 +417,14 @@ def place_trees(species: Sequence[SpeciesIntensity], domain: Domain | Sequence[f
     y = np.concatenate(ys) if ys else np.zeros(0)
     sp = np.concatenate(ids) if ids else np.zeros(0, np.int32)
     before = np.bincount(sp, minlength=len(species)).astype(np.int64)
-    keep = thin_min_distance(x, y, d_min, order_rng)
+    k = real("crown_factor", crown_factor)
+    r = np.zeros(len(x)) if crown_radius is None else np.asarray(crown_radius(x, y, sp), np.float64)
+    keep = thin_min_distance(x, y, d_min, order_rng, r, k)
     after = np.bincount(sp[keep], minlength=len(species)).astype(np.int64)
     return Placement(
         x_m=x[keep], y_m=y[keep], species=sp[keep],
         species_names=tuple(s.name for s in species),
         count_before=before, removed=before - after,
         lambda_max_per_m2=np.array([s.upper_bound(d) for s in species], dtype=np.float64),
-        min_distance_m=d_min, domain=d)
+        min_distance_m=d_min, domain=d, candidate=np.flatnonzero(keep).astype(np.int64),
+        crown_radius_m=r[keep], crown_factor=k)

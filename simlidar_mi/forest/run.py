@@ -4,9 +4,14 @@
 
 ``trees.csv``
     ``tree_id, species, x, y, height_m, n_branches, n_leaves, seed, prototype,
-    yaw_deg, scale, crown_radius_m`` (metres, degrees; ``prototype = -1`` without
-    instancing; ``height_m`` is the highest z of the tree's branch end points and
-    leaf vertices).
+    yaw_deg, scale, crown_radius_m, branching`` (metres, degrees; ``prototype = -1``
+    without instancing; ``height_m`` is the highest z of the tree's branch end points
+    and leaf vertices, ``crown_radius_m`` their largest horizontal distance from the
+    trunk; ``branching`` the L1 flag, 0 or 1, or with ``lateral_branching_per =
+    "branch"`` the share of branches that drew it true). ``seed`` grows exactly the
+    placed tree: ``place_tree(random_tree(P, seed), x, y, yaw_deg, scale)``
+    (:func:`simlidar_mi.forest.stand.place_tree`; ``P`` the species' parameters, and
+    ``scale_mode="whole-tree"`` when the scene says so).
 ``leaves.csv`` (``leaves.parquet`` when pyarrow is importable)
     ``tree_id, leaf_id, x, y, z, length_m, width_m, area_m2, nx, ny, nz, hx, hy, hz``:
     blade centre, size, one-sided polygon area, upper-side unit normal and unit
@@ -27,8 +32,11 @@
     writes the stand up to ``export_max_triangles``, else (instancing only) one
     ``prototypes/<species>_<k>.ply`` per prototype in its own frame.
 ``forest.json``
-    counts per species (expected, before and removed by the distance thinning,
-    placed), totals, the modes chosen and the seconds per step.
+    counts per species (expected, before and removed by the thinning, placed, mean
+    height and crown radius, share of trees with the L1 flag), totals,
+    ``crown_overlap_share`` (share of trees whose nearest neighbour's trunk stands
+    inside their crown), prototypes and trees per prototype, the modes chosen and
+    the seconds per step.
 """
 from __future__ import annotations
 

@@ -7,22 +7,36 @@ reported), and one random tree (:mod:`simlidar_mi.plants.random_tree`) per
 position. Two modes:
 
 ``instancing = true``
-    Each species gets ``K = prototypes_per_species`` prototype trees, each drawn
-    from its own seed; tree ``t`` picks one of its species' prototypes and a yaw
-    (uniform 0–360°) and uniform scale (uniform in ``scale_range``) from *its* seed.
-    Geometry is built K times a species and placed as instances: the way a
-    300 m × 300 m forest fits in memory.
+    Each species gets ``K = prototypes_per_species`` prototype trees (``"auto"``:
+    one per ``trees_per_prototype`` Poisson points), each drawn from its own seed.
+    The species' Poisson points are dealt to its prototypes in a random order,
+    round-robin, so no prototype serves more than ``ceil(points / K)`` trees; each
+    tree draws a yaw (uniform 0–360°) from *its* seed. Geometry is built once per
+    prototype and placed as instances: the way a 300 m × 300 m forest fits in memory.
+    ``scale_range`` other than ``[1, 1]`` scales, with ``scale_mode = "wood"``
+    (default), each prototype's wood by one factor drawn for the prototype while its
+    leaves keep their drawn size (:meth:`RandomTree.wood_scaled`) — one affine
+    instance transform cannot scale positions but not leaf sizes, so the scale is
+    baked into the prototype; ``"whole-tree"`` scales each instance as a whole,
+    leaves included (the earlier behaviour).
 ``instancing = false``
     Every tree is its own random draw (yaw 0, scale 1).
+
+Crowns: every Poisson point's tree is known before the thinning, so the thinning
+keeps ``d_ij ≥ crown_factor·(r_i + r_j)`` besides the minimum distance
+(:func:`simlidar_mi.forest.placement.thin_min_distance`).
 
 Parameters and seeds are in :mod:`simlidar_mi.forest.params`, the files of
 ``simlidar-mi forest`` in :mod:`simlidar_mi.forest.run`.
 
-A placed tree's world coordinates are ``p_world = (x, y, 0) + Rz(yaw)·(scale·p_local)``
-(the same order as Mitsuba's ``translate · rotate · scale``).
+A placed tree's world coordinates are ``p_world = (x, y, 0) + Rz(yaw)·(s·p_local)``
+(the same order as Mitsuba's ``translate · rotate · scale``) with ``s = scale`` in
+``"whole-tree"`` mode; in ``"wood"`` mode ``p_local`` is the wood-scaled tree and
+``s = 1``. :func:`place_tree` is that call.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -36,10 +50,10 @@ from ..errors import ConfigError
 from ..geometry import Branches, Leaves
 from ..plants.random_tree import RandomTree, random_tree
 from ..plants.tree_leaves import LeafTable
-from .params import ForestParams, forest_params_from_scene, prototype_seed, tree_seed
-from .placement import Placement, expected_count, place_trees
+from .params import ForestParams, forest_params_from_scene, prototype_scale, prototype_seed, tree_seed
+from .placement import Placement, crown_overlap_share, expected_count, place_trees
 
-__all__ = ["Forest", "make_forest"]
+__all__ = ["Forest", "make_forest", "place_tree"]
 
 
 # --- the forest ------------------------------------------------------------------------
@@ -55,6 +69,40 @@ def _place(points: np.ndarray, t: np.ndarray, yaw_deg: float, scale: float) -> n
     return (scale * points) @ _rot_z(yaw_deg).T + t
 
 
+def _placed(t: RandomTree, tr: np.ndarray, yaw: float, s: float, tid: int) -> tuple[Branches, Leaves]:
+    b = t.branches
+    br = Branches(_place(b.p0, tr, yaw, s), _place(b.p1, tr, yaw, s), b.diameter * s, b.order,
+                  np.full(len(b), tid, np.int32))
+    lv = Leaves(_place(t.leaves.vertices, tr, yaw, s), t.leaves.leaf_id,
+                np.full(len(t.leaves), tid, np.int32))
+    return br, lv
+
+
+def place_tree(tree: RandomTree, x_m: float, y_m: float, yaw_deg: float = 0.0, scale: float = 1.0,
+               scale_mode: str = "wood", tree_id: int = 0) -> tuple[Branches, Leaves]:
+    """A tree in its own frame placed in the world as a forest places it: a row of ``trees.csv``.
+
+    ``scale_mode = "wood"``: ``tree.wood_scaled(scale)`` (leaves keep their size), then
+    turned by ``yaw_deg`` about z and moved to ``(x_m, y_m, 0)``; ``"whole-tree"``:
+    ``(x, y, 0) + Rz(yaw)·(scale·p)`` for every point, leaves included.
+
+    Examples
+    --------
+    Rebuild tree ``i`` of a forest from its ``trees.csv`` row (``P`` = the species'
+    parameters: ``species_preset(preset)`` unless the scene overrides laws, in general
+    ``forest_params_from_scene(cfg).species[j].tree``)::
+
+        branches, leaves = place_tree(random_tree(P, seed=row.seed), row.x, row.y,
+                                      row.yaw_deg, row.scale)
+    """
+    if scale_mode not in ("wood", "whole-tree"):
+        raise ConfigError("must be 'wood' or 'whole-tree'", key="scale_mode", value=scale_mode)
+    tr = np.array([float(x_m), float(y_m), 0.0])
+    if scale_mode == "wood":
+        return _placed(tree.wood_scaled(scale), tr, float(yaw_deg), 1.0, tree_id)
+    return _placed(tree, tr, float(yaw_deg), float(scale), tree_id)
+
+
 @dataclass
 class Forest:
     """A placed forest: positions, per-tree seeds and either prototypes or every tree.
@@ -65,13 +113,18 @@ class Forest:
     placement : the Poisson placement (counts before/after the distance thinning).
     tree_seed : (n,) int64, each tree's own seed.
     prototype : (n,) int32 index into ``prototypes`` (−1 without instancing).
-    yaw_deg, scale : (n,) the placement transform of each tree (0 and 1 without instancing).
-    prototypes : instancing: the prototype trees (own frame), ``prototype_species[k]``
-        their species and ``prototype_seed[k]`` their seeds; empty otherwise.
+    yaw_deg, scale : (n,) the placement of each tree (0 and 1 without instancing);
+        ``scale`` is the wood scale of its prototype in ``"wood"`` mode.
+    prototypes : instancing: the prototype trees placed at least once (own frame, wood
+        already scaled in ``"wood"`` mode), ``prototype_species[k]`` their species and
+        ``prototype_seed[k]`` their seeds; empty otherwise.
     trees : without instancing, every tree in its own frame (tree_id = its index).
     height_m, crown_radius_m : (n,) of each placed tree.
     n_branches, n_leaves, n_leaf_triangles : (n,) per tree.
+    branching : (n,) share of the tree's branching decisions with the L1 flag true (0/1
+        with one flag per tree).
     seconds : time spent per step.
+    info : counts of what was grown (candidates, prototypes or trees).
     """
 
     params: ForestParams
@@ -90,7 +143,9 @@ class Forest:
     n_branches: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
     n_leaves: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
     n_leaf_triangles: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
+    branching: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
     seconds: dict[str, float] = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n = len(self)
@@ -101,17 +156,20 @@ class Forest:
             pb = np.array([len(t.branches) for t in self.prototypes], np.int64)
             pl = np.array([t.n_leaves for t in self.prototypes], np.int64)
             pt = np.array([len(t.leaves) for t in self.prototypes], np.int64)
+            pf = np.array([t.branching for t in self.prototypes])
             p = self.prototype
-            self.height_m = ph[p] * self.scale if n else np.zeros(0)
-            self.crown_radius_m = pc[p] * self.scale if n else np.zeros(0)
+            self.height_m = ph[p] * self.instance_scale if n else np.zeros(0)
+            self.crown_radius_m = pc[p] * self.instance_scale if n else np.zeros(0)
             self.n_branches, self.n_leaves, self.n_leaf_triangles = (
                 (a[p] if n else np.zeros(0, np.int64)) for a in (pb, pl, pt))
+            self.branching = pf[p] if n else np.zeros(0)
         else:
             self.height_m = np.array([t.height_m for t in loc])
             self.crown_radius_m = np.array([t.crown_radius_m for t in loc])
             self.n_branches = np.array([len(t.branches) for t in loc], np.int64)
             self.n_leaves = np.array([t.n_leaves for t in loc], np.int64)
             self.n_leaf_triangles = np.array([len(t.leaves) for t in loc], np.int64)
+            self.branching = np.array([t.branching for t in loc], np.float64)
 
     def __len__(self) -> int:
         return len(self.placement)
@@ -119,6 +177,21 @@ class Forest:
     @property
     def instancing(self) -> bool:
         return self.trees is None
+
+    @property
+    def instance_scale(self) -> np.ndarray:
+        """(n,) the scale of each tree's instance transform: ``scale`` in ``"whole-tree"``
+        mode, else 1 (the wood scale is already in the prototype)."""
+        if self.params.scale_mode == "whole-tree":
+            return self.scale
+        return np.ones(len(self))
+
+    @property
+    def geometry_seed(self) -> np.ndarray:
+        """(n,) the seed that grows each tree's geometry: its prototype's, or its own."""
+        if self.instancing:
+            return self.prototype_seed[self.prototype] if len(self) else np.zeros(0, np.int64)
+        return self.tree_seed
 
     @property
     def x_m(self) -> np.ndarray:
@@ -151,19 +224,13 @@ class Forest:
 
     def tree_geometry(self, i: int) -> tuple[Branches, Leaves]:
         """Tree ``i`` placed in the world (tree_id / plant_id = ``i``)."""
-        t = self.local_tree(i)
-        tr, yaw, s = self.translation_m(i), float(self.yaw_deg[i]), float(self.scale[i])
-        b = t.branches
-        br = Branches(_place(b.p0, tr, yaw, s), _place(b.p1, tr, yaw, s), b.diameter * s, b.order,
-                      np.full(len(b), i, np.int32))
-        lv = Leaves(_place(t.leaves.vertices, tr, yaw, s), t.leaves.leaf_id,
-                    np.full(len(t.leaves), i, np.int32))
-        return br, lv
+        return _placed(self.local_tree(i), self.translation_m(i), float(self.yaw_deg[i]),
+                       float(self.instance_scale[i]), i)
 
     def tree_leaf_table(self, i: int) -> LeafTable:
         """The leaf table of tree ``i`` in the world frame."""
         return self.local_tree(i).leaf_table.placed(self.translation_m(i), float(self.yaw_deg[i]),
-                                                    float(self.scale[i]), tree_id=i)
+                                                    float(self.instance_scale[i]), tree_id=i)
 
     def geometry(self, progress: bool = False) -> tuple[Branches, Leaves]:
         """Every tree placed in the world, in one Branches and one Leaves (tree order).
@@ -204,7 +271,8 @@ class Forest:
         """Keyword arguments of ``mitsuba_scene.Instances`` (instancing forests only).
 
         ``prototypes`` is a list of (Branches, Leaves) in the prototypes' own frames;
-        tree ``t`` places ``prototypes[proto_index[t]]`` scaled by ``scale[t]``, turned
+        tree ``t`` places ``prototypes[proto_index[t]]`` scaled by ``scale[t]`` (the
+        instance scale: 1 in ``"wood"`` mode, whose prototypes carry their scale), turned
         by ``yaw_deg[t]`` about z and moved to ``translation_m[t]``.
         """
         if not self.instancing:
@@ -213,16 +281,17 @@ class Forest:
         return {"prototypes": [(t.branches, t.leaves) for t in self.prototypes],
                 "proto_index": self.prototype.astype(np.int32),
                 "translation_m": self.translation_m(), "yaw_deg": self.yaw_deg.astype(np.float64),
-                "scale": self.scale.astype(np.float64), "tree_id": np.arange(len(self), dtype=np.int32)}
+                "scale": self.instance_scale.astype(np.float64),
+                "tree_id": np.arange(len(self), dtype=np.int32)}
 
     def trees_columns(self) -> dict[str, np.ndarray]:
         """The columns of ``trees.csv``."""
         names = np.array(self.species_names, dtype=object)
         return {"tree_id": np.arange(len(self)), "species": names[self.species] if len(self) else
                 np.zeros(0, object), "x": self.x_m, "y": self.y_m, "height_m": self.height_m,
-                "n_branches": self.n_branches, "n_leaves": self.n_leaves, "seed": self.tree_seed,
+                "n_branches": self.n_branches, "n_leaves": self.n_leaves, "seed": self.geometry_seed,
                 "prototype": self.prototype, "yaw_deg": self.yaw_deg, "scale": self.scale,
-                "crown_radius_m": self.crown_radius_m}
+                "crown_radius_m": self.crown_radius_m, "branching": self.branching}
 
     def summary(self) -> dict[str, Any]:
         """Counts per species and totals (JSON-ready)."""
@@ -237,13 +306,25 @@ class Forest:
                         "removed_by_min_distance": int(p.removed[j]),
                         "count": int(m.sum()),
                         "n_leaves": int(self.n_leaves[m].sum()),
-                        "mean_height_m": float(self.height_m[m].mean()) if m.any() else None})
+                        "mean_height_m": float(self.height_m[m].mean()) if m.any() else None,
+                        "mean_crown_radius_m": float(self.crown_radius_m[m].mean()) if m.any() else None,
+                        "branching_flag_share": float(self.branching[m].mean()) if m.any() else None})
+        tpp = np.bincount(self.prototype, minlength=len(self.prototypes)) if self.instancing else None
         return {"seed": int(self.seed), "n_trees": len(self), "instancing": self.instancing,
                 "domain_m": [self.params.domain.x_min_m, self.params.domain.x_max_m,
                              self.params.domain.y_min_m, self.params.domain.y_max_m],
                 "min_distance_m": self.params.min_distance_m,
+                "crown_factor": self.params.crown_factor,
+                # removed by the thinning step: minimum distance and crown rule together
                 "removed_by_min_distance": int(p.removed.sum()),
+                # share of trees with their nearest neighbour's trunk inside their own crown
+                "crown_overlap_share": crown_overlap_share(self.x_m, self.y_m, self.crown_radius_m),
                 "n_prototypes": len(self.prototypes),
+                "trees_per_prototype_max": int(tpp.max(initial=0)) if tpp is not None else None,
+                "trees_per_prototype_mean": (float(len(self) / len(self.prototypes))
+                                             if tpp is not None and len(self.prototypes) else None),
+                "scale_range": list(self.params.scale_range), "scale_mode": self.params.scale_mode,
+                **self.info,
                 "n_branches": int(self.n_branches.sum()), "n_leaves": int(self.n_leaves.sum()),
                 "n_leaf_triangles": int(self.n_leaf_triangles.sum()),
                 # geometry actually built (the prototypes, or every tree)
@@ -262,9 +343,42 @@ def _bar(it: Iterable, enabled: bool, desc: str, total: int | None = None) -> It
     return tqdm(it, desc=desc, total=total, unit="tree", leave=False)
 
 
+def _with_tree_id(t: RandomTree, tid: int) -> RandomTree:
+    """``t`` with its tree id set to ``tid`` (branches, leaves, leaf table); geometry untouched."""
+    b, lv, lt = t.branches, t.leaves, t.leaf_table
+    return dataclasses.replace(
+        t, branches=Branches(b.p0, b.p1, b.diameter, b.order, np.full(len(b), tid, np.int32)),
+        leaves=Leaves(lv.vertices, lv.leaf_id, np.full(len(lv), tid, np.int32)),
+        leaf_table=dataclasses.replace(lt, tree_id=np.full(len(lt), tid, np.int32)))
+
+
+def _resolve(config_or_params, seed) -> tuple[ForestParams, int]:
+    if isinstance(config_or_params, (str, Path)):
+        config_or_params = load_scene(config_or_params)
+    if isinstance(config_or_params, SceneConfig):
+        params = forest_params_from_scene(config_or_params)
+        seed = config_or_params.seed if seed is None else seed
+    elif isinstance(config_or_params, ForestParams):
+        params = config_or_params
+        if seed is None:
+            raise ConfigError("make_forest(ForestParams, seed) needs a seed", key="seed", value=None)
+    else:
+        raise ConfigError("must be a SceneConfig, a scene path or ForestParams",
+                          key="config_or_params", value=config_or_params)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ConfigError("must be a whole number ≥ 0", key="seed", value=seed)
+    return params, int(seed)
+
+
 def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed: int | None = None,
                 *, progress: bool = False) -> Forest:
     """Place and grow a forest.
+
+    Order: (1) the Poisson points (candidates) of every species; (2) each candidate's
+    tree — grown from its own seed without instancing, else a prototype given to it by
+    a balanced random assignment (the prototypes of the species are grown first) — so
+    its crown radius is known; (3) the thinning (minimum distance and crown rule, in a
+    random order); (4) instancing: prototypes no kept tree uses are dropped.
 
     Parameters
     ----------
@@ -285,66 +399,100 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     >>> sp = ForestSpecies("spruce", species_preset("conifer-whorl"),
     ...                    SpeciesIntensity("spruce", [Bump(0.02, 10, 10, 100, 100)]))
     >>> f = make_forest(ForestParams(Domain(0, 20, 0, 20), (sp,), 3.0, True, 2), seed=1)
-    >>> len(f.prototypes), bool((f.prototype >= 0).all())
-    (2, True)
+    >>> len(f.prototypes) <= 2, bool((f.prototype >= 0).all())
+    (True, True)
     """
-    if isinstance(config_or_params, (str, Path)):
-        config_or_params = load_scene(config_or_params)
-    if isinstance(config_or_params, SceneConfig):
-        params = forest_params_from_scene(config_or_params)
-        seed = config_or_params.seed if seed is None else seed
-    elif isinstance(config_or_params, ForestParams):
-        params = config_or_params
-        if seed is None:
-            raise ConfigError("make_forest(ForestParams, seed) needs a seed", key="seed", value=None)
-    else:
-        raise ConfigError("must be a SceneConfig, a scene path or ForestParams",
-                          key="config_or_params", value=config_or_params)
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ConfigError("must be a whole number ≥ 0", key="seed", value=seed)
-    seed = int(seed)
+    params, seed = _resolve(config_or_params, seed)
     seconds: dict[str, float] = {}
+    t_grow = 0.0
+    nsp = len(params.species)
+    lo, hi = params.scale_range
+    whole = params.scale_mode == "whole-tree"
+    st: dict[str, Any] = {}
+
+    def grow_candidates(x, y, sp) -> np.ndarray:
+        """Every candidate's tree (or prototype and transform) → its crown radius."""
+        nonlocal t_grow
+        t0 = time.perf_counter()
+        nc = len(x)
+        if nc > params.max_trees * 4 + 1000:   # growing candidates costs memory; refuse early
+            raise ConfigError(f"the Poisson processes drew {nc} trees, far more than forest.max_trees",
+                              key="forest.max_trees", value=params.max_trees)
+        seeds = np.array([tree_seed(seed, c) for c in range(nc)], np.int64)
+        st["seeds"] = seeds
+        if not params.instancing:
+            trees = [random_tree(params.species[int(sp[c])].tree, int(seeds[c]))
+                     for c in _bar(range(nc), progress, "trees", total=nc)]
+            st["trees"] = trees
+            t_grow += time.perf_counter() - t0
+            return np.array([t.crown_radius_m for t in trees])
+        n_sp = np.bincount(sp, minlength=nsp)
+        if params.prototypes_per_species == "auto":
+            K = -(-n_sp // params.trees_per_prototype)          # ceil
+        else:
+            K = np.full(nsp, int(params.prototypes_per_species))
+        proto_sp = np.repeat(np.arange(nsp, dtype=np.int32), K)
+        proto_k = np.concatenate([np.arange(k) for k in K]).astype(np.int64) if len(K) else np.zeros(0, np.int64)
+        proto_seed = np.array([prototype_seed(seed, j, k) for j, k in zip(proto_sp, proto_k)], np.int64)
+        proto_scale = np.array([1.0 if whole else prototype_scale(seed, j, k, (lo, hi))
+                                for j, k in zip(proto_sp, proto_k)])
+        protos = [random_tree(params.species[int(j)].tree, int(s_), tree_id=p).wood_scaled(sc)
+                  for p, (j, s_, sc) in _bar(list(enumerate(zip(proto_sp, proto_seed, proto_scale))),
+                                             progress, "prototypes")]
+        # balanced assignment: a random order of the species' candidates dealt round-robin
+        first = np.concatenate([[0], np.cumsum(K)[:-1]]).astype(np.int64)
+        prototype = np.empty(nc, np.int64)
+        arng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(4,)))
+        for j in range(nsp):
+            idx = np.flatnonzero(sp == j)
+            prototype[idx[arng.permutation(len(idx))]] = first[j] + np.arange(len(idx)) % max(K[j], 1)
+        yaw, scale = np.empty(nc), np.empty(nc)
+        for c in range(nc):  # each tree's transform comes from its own seed
+            r = np.random.default_rng(int(seeds[c]))
+            yaw[c] = r.uniform(0.0, 360.0)
+            scale[c] = r.uniform(lo, hi) if whole else proto_scale[prototype[c]]
+        st.update(protos=protos, proto_sp=proto_sp, proto_seed=proto_seed, proto_k=proto_k,
+                  prototype=prototype, yaw=yaw, scale=scale)
+        t_grow += time.perf_counter() - t0
+        pc = np.array([t.crown_radius_m for t in protos])
+        return pc[prototype] * (scale if whole else 1.0) if nc else np.zeros(0)
 
     t0 = time.perf_counter()
+    use_crowns = params.crown_factor > 0 or params.instancing
     placement = place_trees([s.intensity for s in params.species], params.domain,
                             params.min_distance_m,
-                            np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,))))
+                            np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,))),
+                            crown_radius=grow_candidates if use_crowns else None,
+                            crown_factor=params.crown_factor)
     n = len(placement)
     if n > params.max_trees:
         raise ConfigError(f"the placement holds {n} trees, more than forest.max_trees",
                           key="forest.max_trees", value=params.max_trees)
-    seeds = np.array([tree_seed(seed, i) for i in range(n)], np.int64)
-    seconds["place"] = time.perf_counter() - t0
+    cand = placement.candidate
+    seeds = (st["seeds"][cand] if "seeds" in st
+             else np.array([tree_seed(seed, int(c)) for c in cand], np.int64))
+    seconds["place"] = time.perf_counter() - t0 - t_grow
 
     t0 = time.perf_counter()
-    K = int(params.prototypes_per_species)
+    info: dict[str, Any] = {"n_candidates": int(placement.count_before.sum())}
     if params.instancing:
-        proto_sp = np.repeat(np.arange(len(params.species), dtype=np.int32), K)
-        proto_seed = np.array([prototype_seed(seed, j, k) for j in range(len(params.species))
-                               for k in range(K)], np.int64)
-        protos = tuple(random_tree(params.species[int(j)].tree, int(s), tree_id=p)
-                       for p, (j, s) in _bar(list(enumerate(zip(proto_sp, proto_seed))), progress,
-                                             "prototypes"))
-        lo, hi = params.scale_range
-        prototype = np.empty(n, np.int32)
-        yaw = np.empty(n)
-        scale = np.empty(n)
-        for i in range(n):  # each tree's choice comes from its own seed
-            r = np.random.default_rng(int(seeds[i]))
-            prototype[i] = int(placement.species[i]) * K + int(r.integers(K))
-            yaw[i] = r.uniform(0.0, 360.0)
-            scale[i] = r.uniform(lo, hi)
+        used, prototype = np.unique(st["prototype"][cand], return_inverse=True)
+        protos = tuple(_with_tree_id(st["protos"][int(p)], k) for k, p in enumerate(used))
+        proto_sp, proto_seed = st["proto_sp"][used], st["proto_seed"][used]
+        info["n_prototypes_grown"] = len(st["protos"])
+        prototype = prototype.astype(np.int32).reshape(-1)
+        yaw, scale = st["yaw"][cand], st["scale"][cand]
         trees = None
     else:
-        proto_sp = np.zeros(0, np.int32)
-        proto_seed = np.zeros(0, np.int64)
-        protos = ()
-        trees = tuple(random_tree(params.species[int(placement.species[i])].tree, int(seeds[i]),
-                                  tree_id=i)
-                      for i in _bar(range(n), progress, "trees", total=n))
+        proto_sp, proto_seed, protos = np.zeros(0, np.int32), np.zeros(0, np.int64), ()
+        if "trees" in st:
+            trees = tuple(_with_tree_id(st["trees"][int(c)], i) for i, c in enumerate(cand))
+        else:
+            trees = tuple(random_tree(params.species[int(placement.species[i])].tree, int(seeds[i]),
+                                      tree_id=i) for i in _bar(range(n), progress, "trees", total=n))
+        info["n_trees_grown"] = len(st.get("trees", trees))
         prototype = np.full(n, -1, np.int32)
-        yaw = np.zeros(n)
-        scale = np.ones(n)
-    seconds["grow"] = time.perf_counter() - t0
+        yaw, scale = np.zeros(n), np.ones(n)
+    seconds["grow"] = t_grow + time.perf_counter() - t0
     return Forest(params, seed, placement, seeds, prototype, yaw, scale, protos, proto_sp,
-                  proto_seed, trees, seconds=seconds)
+                  proto_seed, trees, seconds=seconds, info=info)

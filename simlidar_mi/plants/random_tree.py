@@ -15,7 +15,9 @@ only for ``o < max_order`` above the first ``bare_trunk_levels`` trunk segments,
 and no branch shorter than ``min_length_m`` gets daughters. Daughter ``i`` of ``m``
 leaves its mother at azimuth ``twist + 360°·i/m`` about the mother's axis (a whorl
 when the flag is false), at position ``t ~ U(lateral_position_min, 1)`` along the
-mother when the flag is true, else at its apex. The leader is rolled by
+mother when the flag is true, else at its apex; the flag (L1) is drawn once per tree,
+right after the global draws (``lateral_branching_per = "tree"``, default), or once
+per growing branch (``"branch"``). The leader is rolled by
 ``divergence_deg`` (137.5°: phyllotaxis) so successive whorls interleave. A
 ``tropism`` weight ``τ`` bends every daughter but the trunk's leader:
 ``H ← normalise(H + τ·ẑ)``.
@@ -32,6 +34,7 @@ Nothing here imports Mitsuba. Lengths are metres, angles degrees at the API.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -54,8 +57,9 @@ class TreeDraws:
     """Every random value one tree drew (kept with ``keep_draws=True``; for tests and audits).
 
     ``globals`` maps a global law's name to its one draw. ``locals`` maps a local law's
-    name to all its draws in the tree: per branch that could grow (``lateral_branching``,
-    ``twist_deg``, ``n_daughters``/``trunk_n_daughters``; drawn even where the order
+    name to all its draws in the tree: ``lateral_branching`` once per tree (one value)
+    or, with ``lateral_branching_per = "branch"``, per branch that could grow; per
+    branch that could grow (``twist_deg``, ``n_daughters``/``trunk_n_daughters``; drawn even where the order
     or bare-trunk rules then forbid laterals), per lateral daughter
     (``branch_angle_deg``/``trunk_branch_angle_deg``), per leader
     (``leader_angle_deg``), per leaf-bearing branch (``leaves_per_branch``) and per
@@ -77,6 +81,9 @@ class RandomTree:
     leaf_table : one row per leaf.
     seed : the integer seed when the tree was made from one, else None.
     draws : every drawn value when asked for, else None.
+    branching : share of the tree's branching decisions made with the L1 flag true:
+        the flag itself (0 or 1) when it is drawn per tree.
+    wood_scale : the factor :meth:`wood_scaled` applied (1 for a grown tree).
     """
 
     branches: Branches
@@ -84,6 +91,30 @@ class RandomTree:
     leaf_table: LeafTable
     seed: int | None = None
     draws: TreeDraws | None = field(default=None, repr=False)
+    branching: float = 0.0
+    wood_scale: float = 1.0
+
+    def wood_scaled(self, scale: float) -> "RandomTree":
+        """This tree with its wood scaled by ``scale`` about the trunk foot; leaves keep their size.
+
+        Branch ends and diameters are multiplied by ``scale``. Every leaf moves rigidly with
+        its insertion point on the bark (``b → scale·b``; its blade is ``v → v + (scale − 1)·b``),
+        so leaf length, width, area and orientation are the drawn ones. ``scale = 1`` returns
+        the tree itself.
+        """
+        s = float(scale)
+        if not (math.isfinite(s) and s > 0):
+            raise ConfigError("must be a finite number > 0", key="scale", value=scale)
+        if s == 1.0:
+            return self
+        b, lt = self.branches, self.leaf_table
+        base = lt.centre_m - 0.5 * lt.length_m[:, None] * lt.heading   # insertion point on the bark
+        shift = (s - 1.0) * base
+        lv = self.leaves
+        leaves = Leaves(lv.vertices + shift[lv.leaf_id][:, None, :], lv.leaf_id, lv.plant_id)
+        table = dataclasses.replace(lt, centre_m=lt.centre_m + shift)
+        return RandomTree(Branches(s * b.p0, s * b.p1, s * b.diameter, b.order, b.tree_id), leaves,
+                          table, self.seed, self.draws, self.branching, self.wood_scale * s)
 
     @property
     def height_m(self) -> float:
@@ -186,6 +217,10 @@ def random_tree(params: RandomTreeParams, seed: int | np.random.SeedSequence | n
                                  if P.lateral_radius_ratio is not None else g["radius_ratio"])
     G = g["growth_level"]
     tau = P.tropism
+    per_tree = P.lateral_branching_per == "tree"
+    # L1 once per tree: one uniform, after the globals (per-branch mode draws none here)
+    tree_flag = bool(draw("lateral_branching", P.lateral_branching, 1)[0]) if per_tree else None
+    n_flag = n_flag_true = 0
 
     # frontier of one generation: start, heading H, reference U ⟂ H, length, radius, order
     start = np.zeros((1, 3))
@@ -221,7 +256,10 @@ def random_tree(params: RandomTreeParams, seed: int | np.random.SeedSequence | n
         gi = np.flatnonzero(grows)
         ng = len(gi)
         # local draws of the growing branches (L1, L2, L4)
-        flag = draw("lateral_branching", P.lateral_branching, ng)
+        flag = (np.full(ng, tree_flag) if per_tree
+                else draw("lateral_branching", P.lateral_branching, ng))
+        n_flag += ng
+        n_flag_true += int(flag.sum())
         twist = np.radians(draw("twist_deg", P.twist_deg, ng))
         is_trunk = order[gi] == 1
         m = np.zeros(ng, np.int64)
@@ -319,5 +357,7 @@ def random_tree(params: RandomTreeParams, seed: int | np.random.SeedSequence | n
         local = {k: np.zeros(0) for k in _LAWS if k not in g}  # every local law, drawn or not
         local.update({k: np.concatenate(v) for k, v in rec.items()})
         draws = TreeDraws(dict(g), local)
-    return RandomTree(branches, leaves, table, int_seed, draws)
+    branching = (float(tree_flag) if per_tree
+                 else n_flag_true / n_flag if n_flag else 0.0)
+    return RandomTree(branches, leaves, table, int_seed, draws, branching)
 

@@ -10,8 +10,11 @@ global (one draw per tree, §II-C G1–G3)
     and radius; optional ``lateral_length_ratio``, ``lateral_radius_ratio`` for the
     lateral daughters of an axis that also continues with a leader (Honda's r2).
 local (draws per branch or per leaf, §II-C L1–L4)
-    ``lateral_branching`` (Bernoulli): the branching-pattern flag; true = the
-    daughters sprout at random points along the mother, false = all at its apex;
+    ``lateral_branching`` (Bernoulli): the branching-pattern flag (L1); true = the
+    daughters sprout at random points along the mother, false = all at its apex.
+    Drawn once per tree by default (``lateral_branching_per = "tree"``: the paper
+    varies the local parameters "for each individual tree" and its Fig. 4 contrasts
+    whole trees), or once per growing branch (``"branch"``, the earlier reading);
     ``twist_deg`` (truncated normal): an extra roll of the daughters about the
     mother's axis; ``n_daughters`` (discrete; ``trunk_n_daughters`` on the trunk);
     ``branch_angle_deg`` (truncated normal, per daughter; ``trunk_branch_angle_deg``
@@ -83,6 +86,8 @@ class RandomTreeParams:
     bare_trunk_levels : the first trunk segments carry no laterals (clear bole).
     lateral_position_min : with the flag, daughters sprout at ``U(min, 1)`` along the mother.
     divergence_deg : roll of a leader relative to its mother (phyllotaxis).
+    lateral_branching_per : ``"tree"`` (default: one L1 flag per tree) or ``"branch"``
+        (one per growing branch).
     tropism : weight of ``+ẑ`` added to every daughter heading (< 0 droops).
     min_length_m : branches shorter than this get no daughters.
     leaf_levels : branches in the last this many generations bear leaves.
@@ -120,6 +125,7 @@ class RandomTreeParams:
     leaf_angle_deg: TruncNormal = TruncNormal(50.0, 15.0, 10.0, 90.0)
     leaf_roll_deg: TruncNormal = TruncNormal(0.0, 20.0, -60.0, 60.0)
     # architecture constants
+    lateral_branching_per: str = "tree"
     monopodial_orders: int = 0
     max_order: int = 99
     bare_trunk_levels: int = 0
@@ -168,6 +174,9 @@ class RandomTreeParams:
                 law.check(key, integer=integer, lo=lo, hi=hi)
             else:
                 law.check(key)
+        if self.lateral_branching_per not in ("tree", "branch"):
+            raise ConfigError("must be 'tree' (one branching-pattern flag per tree) or 'branch'",
+                              key=f"{prefix}lateral_branching_per", value=self.lateral_branching_per)
         set_(self, "monopodial_orders", _whole(self.monopodial_orders, f"{prefix}monopodial_orders", 0))
         set_(self, "max_order", _whole(self.max_order, f"{prefix}max_order", 1))
         set_(self, "bare_trunk_levels", _whole(self.bare_trunk_levels, f"{prefix}bare_trunk_levels", 0))
@@ -283,7 +292,8 @@ SPECIES_PRESETS: dict[str, RandomTreeParams] = {
     # elm/birch-like: sympodial, every split at the apex; ~13–20 m, leaves 6–14 cm
     "deciduous-apex": RandomTreeParams(),
     # spruce-like: a leader trunk with whorls of 4–6 near-horizontal laterals
-    # (some scattered between whorls: flag p = 0.3), drooping; ~15–24 m, shoots 6–10 cm
+    # (flag p = 0.3: with one flag per tree, 3 trees in 10 scatter their laterals between
+    # whorls), drooping; ~15–24 m, shoots 6–10 cm
     "conifer-whorl": RandomTreeParams(
         name="conifer-whorl",
         trunk_length_m=_T(1.9, 0.2, 1.4, 2.4), trunk_radius_m=_T(0.20, 0.03, 0.12, 0.30),
@@ -300,7 +310,7 @@ SPECIES_PRESETS: dict[str, RandomTreeParams] = {
         monopodial_orders=2, max_order=3, bare_trunk_levels=2, lateral_position_min=0.2,
         tropism=-0.04, min_length_m=0.08, leaf_levels=2, leaf_min_order=3),
     # beech/ash-like Honda monopodial broadleaf: leader trunk and main limbs, laterals
-    # at random points along them (flag p = 0.7); ~14–22 m, leaves 5–11 cm
+    # at random points along them (flag p = 0.7 of the trees); ~14–22 m, leaves 5–11 cm
     "broadleaf-monopodial": RandomTreeParams(
         name="broadleaf-monopodial",
         trunk_length_m=_T(2.6, 0.3, 1.8, 3.4), trunk_radius_m=_T(0.25, 0.04, 0.15, 0.38),

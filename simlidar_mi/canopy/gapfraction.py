@@ -396,7 +396,9 @@ def _render_replicate(cfg: SceneConfig, g: dict[str, Any], replicate: int,
                                  variant=cfg["scene"]["variant"], views=views, **kw)
     except ConfigError as exc:
         if exc.file is None:
-            raise ConfigError(str(exc), file=cfg.source, key=exc.key, value=exc.value) from exc
+            err = ConfigError(str(exc), file=cfg.source)  # the message already names key, value
+            err.key, err.value = exc.key, exc.value
+            raise err from exc
         raise
     for im in images:
         im.replicate = replicate

@@ -11,8 +11,15 @@ Prints markdown tables:
    the same view at 4096² × 16 spp (1024² × 16 with --quick).  Cameras and windows
    are the scene file's (inset window, 60° perspective), so the windows cover the
    same ground at every resolution.
-2. The paper's whole experiment (4 canopies × 3 zeniths × 2 cameras) at the
-   default settings: seconds per stage, without and with writing the files.
+2. The paper's whole experiment (4 canopies × 3 zeniths × 2 cameras, times the
+   scene's replicate plots) at the scene's settings: seconds per stage, without and
+   with writing the files.
+3. (``--readings``) The strawberry comparison under each reading of the paper:
+   virtual P0 (perspective, mean over the scene's replicate plots, ± the SD of that
+   mean) per extraction step and view zenith, and its bias against the measured mean
+   P0 of ``scenes/strawberry_manifest.csv``: leaf extraction by fractions (default)
+   or by the paper's bare counts, petiole zenith φ (default) or θ, and the fold and
+   inclination readings of the leaf.
 
 Seconds are wall time of one render (rays cast and reduced) after a warm-up
 render of the same view, so the Dr.Jit kernel compile is not counted.
@@ -38,6 +45,7 @@ from simlidar_mi.canopy.cameras import make_camera  # noqa: E402
 from simlidar_mi.canopy.canopy import canopies_from_config  # noqa: E402
 from simlidar_mi.canopy.gapfraction import build_canopy_scene, render_gap, run_gapfraction  # noqa: E402
 from simlidar_mi.canopy.gapfraction_defaults import DEFAULTS  # noqa: E402
+from simlidar_mi.canopy.manifest import read_manifest  # noqa: E402
 from simlidar_mi.canopy.windows import analysis_window  # noqa: E402
 
 SCENE = REPO / "scenes" / "strawberry_plot.toml"
@@ -86,27 +94,105 @@ def experiment_table(scene: Path):
     t = time.perf_counter()
     run = run_gapfraction(scene, None)
     total = time.perf_counter() - t
-    n = len(run.images)
-    rows.append(f"| {n} images at {DEFAULTS['resolution']}², spp {DEFAULTS['spp']}: generate plot + "
-                f"extraction steps | {run.seconds['generate']:.2f} |")
-    rows.append(f"| build 4 scenes + render {n} images (incl. kernel compile) | {run.seconds['render']:.2f} |")
+    g = load_scene(scene)["gapfraction"]
+    reps = len(run.replicate_images)
+    n = sum(len(r) for r in run.replicate_images)
+    rows.append(f"| {reps} plots × {len(run.images)} images = {n} images at {g['resolution']}², "
+                f"spp {g['spp']}: generate plots + extraction steps | {run.seconds['generate']:.2f} |")
+    rows.append(f"| build {reps * len(run.canopies)} scenes + render {n} images (incl. kernel "
+                f"compile) | {run.seconds['render']:.2f} |")
     rows.append(f"| of which rendering only (sum of per-image seconds) | "
-                f"{sum(i.seconds for i in run.images):.2f} |")
+                f"{sum(i.seconds for r in run.replicate_images for i in r):.2f} |")
     rows.append(f"| end to end, no files | {total:.2f} |")
     with tempfile.TemporaryDirectory() as tmp:
         t = time.perf_counter()
         run = run_gapfraction(scene, Path(tmp) / "out")
         total = time.perf_counter() - t
-    rows.append(f"| end to end, writing CSV + JSON + {n} PNG + {n} EXR | {total:.2f} "
+    m = len(run.images)
+    rows.append(f"| end to end, writing 2 CSV + JSON + {m} PNG + {m} EXR | {total:.2f} "
                 f"(write {run.seconds['write']:.2f}) |")
     return "\n".join(rows)
+
+
+#: Readings of the paper behind the strawberry comparison (name, scene overrides).
+READINGS = [
+    ("default: fractions 1/6 ×3, petiole zenith φ, folds up by α, β, γ", []),
+    ("extraction by the paper's bare counts 44, 39, 44", ["strawberry.extraction_counts=[44, 39, 44]"]),
+    ("extraction shares 44/254, 39/254, 44/254 (the counts as shares)",
+     ["strawberry.extraction_fractions=[0.17323, 0.15354, 0.17323]"]),
+    ("petiole zenith θ (65 ± 45°), φ the divergence", ['strawberry.leaf.petiole_zenith="theta"']),
+    ("folds α, β as the V's full opening (halves turn α/2, β/2)",
+     ["strawberry.leaf.alpha_mean_deg=3.75", "strawberry.leaf.alpha_sd_deg=1.875",
+      "strawberry.leaf.beta_mean_deg=5.625", "strawberry.leaf.beta_sd_deg=2.8125"]),
+    ("folds downwards (α, β, γ means negated)",
+     ["strawberry.leaf.alpha_mean_deg=-7.5", "strawberry.leaf.beta_mean_deg=-11.25",
+      "strawberry.leaf.gamma_mean_deg=-7.5"]),
+    ("flat leaves (α = β = γ = 0)",
+     [f"strawberry.leaf.{k}_{m}_deg=0.0" for k in ("alpha", "beta", "gamma") for m in ("mean", "sd")]),
+    ("inclination λ reversed (leaf tip up, −10 ± 12°)", ["strawberry.leaf.lambda_mean_deg=-10.0"]),
+    ("even planting at Table 4's density: 6 plants/m² (0.5 m × 0.333 m) of 44 leaves of 47 cm²",
+     ["strawberry.inter_row_m=0.5", "strawberry.intra_row_m=0.33333", "strawberry.inter_row_sd_m=0.0",
+      "strawberry.intra_row_sd_m=0.0", "strawberry.leaves_per_plant_mean=44.0",
+      "strawberry.leaf.area_mean_m2=16.57e-4"]),
+]
+
+
+def readings_table(scene: Path, manifest: Path, readings=READINGS):
+    """Virtual P0 (perspective) per reading: per step at 0°, and bias of the step mean."""
+    measured = {r.zenith_deg: r.p0_measured for r in read_manifest(manifest)}
+    zens = sorted(measured)
+    head = ("| reading | P0 at 0°, steps 0/1/2/3 | mean P0 0° / 15° / 30° (± SD of the mean) "
+            "| bias 0° / 15° / 30° | seconds |")
+    rows = [head, "|---|---|---|---|---|"]
+    for name, extra in readings:
+        t = time.perf_counter()
+        run = run_gapfraction(scene, None, ['gapfraction.cameras=["perspective"]',
+                                            f"gapfraction.zeniths_deg={zens}", *extra])
+        secs = time.perf_counter() - t
+        steps0 = [s for s in run.summary if s.zenith_deg == 0.0]
+        means, ses, bias = [], [], []
+        for z in zens:
+            per_rep = np.array([[im.p0 for im in rep if im.camera.zenith_deg == z]
+                                for rep in run.replicate_images]).mean(1)  # step mean per plot
+            means.append(per_rep.mean())
+            ses.append(per_rep.std(ddof=1) / np.sqrt(len(per_rep)))
+            bias.append(per_rep.mean() - measured[z])
+        rows.append(f"| {name} | " + " / ".join(f"{s.p0:.3f}" for s in steps0) + " | "
+                    + " / ".join(f"{m:.3f} ± {e:.3f}" for m, e in zip(means, ses)) + " | "
+                    + " / ".join(f"{b:+.3f}" for b in bias) + f" | {secs:.0f} |")
+        print(f"  done {name}", file=sys.stderr)
+    return "\n".join(rows)
+
+
+def replicate_table(scene: Path):
+    """Per view and step: mean P0, SD between plots, SD of the mean (the CSV's columns)."""
+    run = run_gapfraction(scene, None)
+    rows = ["| camera | zenith | step 0 | step 1 | step 2 | step 3 |", "|---|---|---|---|---|---|"]
+    for kind in ("orthographic", "perspective"):
+        for z in sorted({s.zenith_deg for s in run.summary}):
+            ss = sorted((s for s in run.summary if s.camera == kind and s.zenith_deg == z),
+                        key=lambda s: s.step)
+            rows.append(f"| {kind} | {z:g}° | " + " | ".join(
+                f"{s.p0:.3f} (sd {s.p0_sd:.3f}, se {s.p0_se:.4f})" for s in ss) + " |")
+    n = len(run.replicate_images)
+    lai = [f"{s.lai:.2f}" for s in run.summary if s.camera == "orthographic" and s.zenith_deg == 0]
+    return (f"{n} replicate plots; LAI per step {' / '.join(lai)}.\n\n" + "\n".join(rows))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", type=Path, default=SCENE)
     ap.add_argument("--quick", action="store_true", help="256–1024, spp 1–16, 1024² reference")
+    ap.add_argument("--readings", action="store_true",
+                    help="only the replicate table and the readings table (strawberry scene)")
+    ap.add_argument("--manifest", type=Path, default=REPO / "scenes" / "strawberry_manifest.csv")
     args = ap.parse_args()
+    if args.readings:
+        print(f"## Strawberry P0 over replicate plots\n\nMachine: {machine()}\n")
+        print(replicate_table(args.scene))
+        print("\n## Readings of the paper\n")
+        print(readings_table(args.scene, args.manifest))
+        return
     if args.quick:
         res, spps, ref = [256, 512, 1024], [1, 4, 16], (1024, 16)
     else:

@@ -288,12 +288,14 @@ def _gapfraction_run(args: argparse.Namespace) -> int:
     from .canopy.gapfraction import run_gapfraction
 
     run = run_gapfraction(args.scene, args.out, _overrides(args), write_images=not args.no_images)
-    print(f"{'camera':<12}  {'zenith':>6}  {'step':>4}  {'p0':>7}  {'lai':>6}  {'spp':>4}  "
-          f"{'size':>10}  {'seconds':>7}")
-    for img in run.images:
-        print(f"{img.camera.kind:<12}  {img.camera.zenith_deg:>6g}  {img.step:>4}  {img.p0:7.4f}  "
-              f"{img.lai:6.3f}  {img.spp:>4}  {f'{img.width}x{img.height}':>10}  {img.seconds:7.3f}")
-    print(f"wrote {run.files['csv']} and {len(run.files) - 2} image files")
+    n = len(run.replicate_images)
+    print(f"mean over {n} replicate plot{'s' if n > 1 else ''}; p0_sd = SD between them")
+    print(f"{'camera':<12}  {'zenith':>6}  {'step':>4}  {'p0':>7}  {'p0_sd':>7}  {'lai':>6}  "
+          f"{'spp':>4}  {'size':>10}  {'seconds':>7}")
+    for s in run.summary:
+        print(f"{s.camera:<12}  {s.zenith_deg:>6g}  {s.step:>4}  {s.p0:7.4f}  {s.p0_sd:7.4f}  "
+              f"{s.lai:6.3f}  {s.spp:>4}  {f'{s.width}x{s.height}':>10}  {s.seconds:7.3f}")
+    print(f"wrote {run.files['csv']} and {len(run.files) - 3} image files")
     return 0
 
 
@@ -314,12 +316,23 @@ def _compare_run(args: argparse.Namespace) -> int:
     from .canopy.compare import compare
 
     res = compare(args.manifest, args.out)
-    print(f"{'zenith':>6}  {'n':>3}  {'r':>6}  {'rmse':>7}  {'rmse_r':>7}  {'bias':>8}  {'bias_r':>7}")
+    print(f"{'row':>4}  {'camera':<12}  {'zenith':>6}  {'step':>4}  {'measured':>8}  "
+          f"{'virtual':>7}  {'sd':>6}  {'se':>6}  {'reps':>4}  {'diff':>7}")
+    for p in res.pairs:
+        print(f"{p.row.row:>4}  {p.row.camera:<12}  {p.row.zenith_deg:>6g}  {p.row.step_label:>4}  "
+              f"{p.p0_measured:8.4f}  {p.p0_virtual:7.4f}  {p.p0_virtual_sd:6.4f}  "
+              f"{p.p0_virtual_se:6.4f}  {p.replicates:>4}  {p.difference:+7.4f}")
+
+    def f(v, fmt):
+        return "-" if not math.isfinite(v) else format(v, fmt)
+    print(f"\n{'zenith':>6}  {'n':>3}  {'r':>6}  {'rmse':>7}  {'rmse_r':>7}  {'bias':>8}  "
+          f"{'± se':>6}  {'bias_r':>7}  {'scatter':>7}  {'paper: rmse':>11}  {'bias':>6}  {'scatter':>7}")
     for s in res.stats:
         z = s["zenith_deg"] if isinstance(s["zenith_deg"], str) else f"{s['zenith_deg']:g}"
-        r = "-" if not math.isfinite(s["r"]) else f"{s['r']:.3f}"
-        print(f"{z:>6}  {s['n']:>3}  {r:>6}  {s['rmse']:7.4f}  {s['rmse_r']:7.2%}  "
-              f"{s['bias']:+8.4f}  {s['bias_r']:+7.2%}")
+        print(f"{z:>6}  {s['n']:>3}  {f(s['r'], '.3f'):>6}  {s['rmse']:7.4f}  {s['rmse_r']:7.2%}  "
+              f"{s['bias']:+8.4f}  {f(s['bias_se'], '.4f'):>6}  {s['bias_r']:+7.2%}  "
+              f"{f(s['scatter'], '.4f'):>7}  {f(s['paper_rmse'], '.3f'):>11}  "
+              f"{f(s['paper_bias'], '.3f'):>6}  {f(s['paper_scatter'], '.4f'):>7}")
     print(f"wrote {', '.join(str(f) for f in res.files.values())}")
     return 0
 

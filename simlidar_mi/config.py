@@ -233,10 +233,16 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "leaves_per_plant_mean": Key(FLOAT, 42.0, positive, "Table 3: 42 ± 5"),
         "leaves_per_plant_sd": Key(FLOAT, 5.0, nonneg),
         "base_height_m": Key(FLOAT, 0.0, nonneg, "petioles' start point above the ground"),
-        "extraction": Key(LIST, [44, 39, 44], lambda v: None if all(
+        "extraction_fractions": Key(LIST, None, lambda v: None if all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and 0 <= x <= 1 for x in v)
+            and sum(v) <= 1 + 1e-9 else "must be a list of numbers in [0, 1] adding up to ≤ 1 "
+            "(shares of the starting leaves removed at each step)",
+            "default [1/6, 1/6, 1/6]: the paper's sixths of the starting leaves, leaving half"),
+        "extraction_counts": Key(LIST, None, lambda v: None if all(
             isinstance(x, int) and not isinstance(x, bool) and x >= 0 for x in v)
             else "must be a list of integers ≥ 0 (leaves removed at each step)",
-            "leaves removed in successive steps (paper: 44, 39, 44)"),
+            "option: fixed numbers of leaves removed (the paper's 44, 39, 44 fit only a "
+            "~254-leaf canopy); excludes extraction_fractions"),
     },
     "strawberry.leaf": {  # StrawberryLeafParams; omitted keys keep the paper's Tables 1–3
         **{k: Key(FLOAT, None, _finite) for k in (
@@ -268,6 +274,8 @@ SECTIONS: dict[str, dict[str, Key]] = {
                        "perspective field of view along each image axis"),
         "camera_height_m": Key(FLOAT, 1.0, positive, "perspective camera above the highest leaf"),
         "jitter": Key(BOOL, False, None, "jitter samples in their strata (seeded by scene.seed)"),
+        "replicates": Key(INT, 16, at_least(1), "independent plots (child seeds of scene.seed) "
+                          "rendered and averaged: p0 = mean, p0_sd = SD between them"),
         "mask_threshold": Key(FLOAT, 0.5, lambda v: None if 0 < v <= 1 else "must lie in (0, 1]",
                               "coverage drawn as vegetation in mask PNGs (display only)"),
     },

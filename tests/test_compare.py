@@ -42,6 +42,7 @@ angle_law = "spherical"
 [gapfraction]
 resolution = 128
 spp = 1
+replicates = 2
 """
 SB_SCENE = """\
 [scene]
@@ -49,10 +50,11 @@ seed = 5
 [strawberry]
 rows = 3
 plants_per_row = 3
-extraction = [20, 20]
+extraction_counts = [20, 20]
 [gapfraction]
 resolution = 128
 spp = 1
+replicates = 2
 """
 
 
@@ -70,6 +72,25 @@ def test_stats_hand_computed() -> None:
     assert got["bias_r"] == pytest.approx(0.0025 / 0.2675, abs=1e-12)
     assert got["r"] == pytest.approx(pearsonr(s, o)[0], abs=1e-12)
     assert got["r"] == pytest.approx(np.corrcoef(s, o)[0, 1], abs=1e-12)
+
+
+def test_scatter_is_rmse_without_bias() -> None:
+    """scatter = √(RMSE² − bias²) = the SD (ddof 0) of the errors: errors 0.03, −0.01,
+    0.04, 0.02 have bias 0.02, RMSE √(30e-4/4) and, around 0.02, deviations 0.01, −0.03,
+    0.02, 0: scatter √(14e-4/4)."""
+    o = [0.2, 0.3, 0.4, 0.5]
+    s = [0.23, 0.29, 0.44, 0.52]
+    got = comparison_stats(s, o)
+    assert got["bias"] == pytest.approx(0.02, abs=1e-12)
+    assert got["rmse"] == pytest.approx(math.sqrt(30e-4 / 4), abs=1e-12)
+    assert got["scatter"] == pytest.approx(math.sqrt(14e-4 / 4), abs=1e-12)
+    assert got["scatter"] == pytest.approx(np.std(np.subtract(s, o)), abs=1e-12)
+    # A constant offset has no scatter; the paper's Table 5 scatter at 0/15/30°.
+    assert comparison_stats([0.25, 0.35], [0.2, 0.3])["scatter"] == pytest.approx(0.0, abs=1e-9)
+    assert math.isnan(comparison_stats([0.3], [0.2])["scatter"])
+    from simlidar_mi.canopy.compare import PAPER_TABLE5
+    paper = [math.sqrt(r * r - b * b) for r, b in PAPER_TABLE5.values()]
+    assert paper == pytest.approx([0.021, 0.0145, 0.009], abs=0.0005)
 
 
 def test_stats_small_exact_case() -> None:
@@ -156,23 +177,34 @@ def test_manifest_with_values(scenes: Path) -> None:
     out = scenes / "out"
     res = compare(m, out)
     assert [p.row.row for p in res.pairs] == [3, 5, 6, 7]  # rows numbered like file lines
-    # virtual P0 = what the gap-fraction pipeline gives for the same view
+    # virtual P0 = what the gap-fraction pipeline gives for the same view: the mean over
+    # the scene's 2 replicate plots, with the SD between them
     run = run_gapfraction(scenes / "rl.toml", None)
-    want = {(im.camera.kind, im.camera.zenith_deg): im.p0 for im in run.images}
-    assert res.pairs[0].p0_virtual == pytest.approx(want[("orthographic", 0.0)], abs=1e-12)
-    assert res.pairs[1].p0_virtual == pytest.approx(want[("perspective", 0.0)], abs=1e-12)
-    assert res.pairs[2].p0_virtual == pytest.approx(want[("orthographic", 30.0)], abs=1e-12)
+    want = {(s.camera, s.zenith_deg): s for s in run.summary}
+    for pair, view in zip(res.pairs, [("orthographic", 0.0), ("perspective", 0.0),
+                                      ("orthographic", 30.0)]):
+        assert pair.p0_virtual == pytest.approx(want[view].p0, abs=1e-12)
+        assert pair.p0_virtual_sd == pytest.approx(want[view].p0_sd, abs=1e-12)
+        assert pair.replicates == 2 and pair.p0_virtual_sd > 0
+        assert pair.p0_virtual_se == pytest.approx(pair.p0_virtual_sd / math.sqrt(2), abs=1e-15)
     sb = run_gapfraction(scenes / "sb.toml", None, ["gapfraction.cameras=['orthographic']",
                                                      "gapfraction.zeniths_deg=[0.0]"])
     assert res.pairs[3].p0_virtual == pytest.approx(
-        next(im.p0 for im in sb.images if im.step == 1), abs=1e-12)
+        next(s.p0 for s in sb.summary if s.step == 1), abs=1e-12)
     # statistics per zenith and for all rows
     zero = [p for p in res.pairs if p.row.zenith_deg == 0]
-    assert res.stats_for(0.0) == {"zenith_deg": 0.0, **comparison_stats(
-        [p.p0_virtual for p in zero], [p.p0_measured for p in zero])}
-    assert res.stats_for(30.0)["n"] == 1
-    assert res.stats_for("all") == {"zenith_deg": "all", **comparison_stats(
-        [p.p0_virtual for p in res.pairs], [p.p0_measured for p in res.pairs])}
+    got = res.stats_for(0.0)
+    assert got == {**got, **comparison_stats([p.p0_virtual for p in zero],
+                                             [p.p0_measured for p in zero])}
+    assert got["bias_se"] == pytest.approx(
+        math.sqrt(sum(p.p0_virtual_se ** 2 for p in zero)) / 3, abs=1e-15)
+    assert (got["paper_rmse"], got["paper_bias"]) == (0.022, 0.007)
+    assert got["paper_scatter"] == pytest.approx(0.02086, abs=1e-5)
+    assert res.stats_for(30.0)["n"] == 1 and math.isnan(res.stats_for(30.0)["scatter"])
+    every = res.stats_for("all")
+    assert every == {**every, **comparison_stats([p.p0_virtual for p in res.pairs],
+                                                 [p.p0_measured for p in res.pairs])}
+    assert math.isnan(every["paper_rmse"])
     # files
     rows = _read_csv(out / "comparison.csv")
     assert tuple(rows[0]) == COMPARISON_COLUMNS
@@ -254,6 +286,13 @@ def test_shipped_strawberry_manifest(tmp_path: Path) -> None:
     res = compare(manifest, tmp_path / "out")
     assert [s["zenith_deg"] for s in res.stats] == [0.0, 15.0, 30.0, "all"]
     assert all(0.0 < p.p0_virtual < 1.0 for p in res.pairs)
+    # 16 replicate plots: the virtual P0's seed-to-seed SD is under the 0.015 target,
+    # though one plot's scatters by more than twice that
+    assert all(p.replicates == 16 and p.p0_virtual_se < 0.015 < 2 * 0.015 < p.p0_virtual_sd
+               for p in res.pairs)
+    for s, paper_scatter in zip(res.stats, (0.0209, 0.0145, 0.0089)):
+        assert s["paper_scatter"] == pytest.approx(paper_scatter, abs=1e-4)
+        assert math.isnan(s["scatter"])  # one (mean) pair per zenith: no scatter to measure
     assert (tmp_path / "out" / "comparison.png").is_file()
 
 

@@ -21,9 +21,10 @@ from simlidar_mi import ConfigError, Leaves
 from simlidar_mi.cli import main
 from simlidar_mi.config import SECTIONS, load_scene
 from simlidar_mi.canopy.cameras import make_camera
-from simlidar_mi.canopy.canopy import Canopy, canopy_from_random_leaves, expected_p0
-from simlidar_mi.canopy.gapfraction import (CSV_COLUMNS, build_canopy_scene, gap_images, read_gap_exr,
-                                            render_gap, run_gapfraction)
+from simlidar_mi.canopy.canopy import (Canopy, canopies_from_config, canopy_from_random_leaves,
+                                       expected_p0, replicate_seed)
+from simlidar_mi.canopy.gapfraction import (CSV_COLUMNS, REPLICATE_COLUMNS, build_canopy_scene,
+                                            gap_images, read_gap_exr, render_gap, run_gapfraction)
 from simlidar_mi.canopy.gapfraction_defaults import DEFAULTS
 from simlidar_mi.canopy.windows import analysis_window
 from simlidar_mi.plants.random_leaves import random_leaves
@@ -272,6 +273,7 @@ height_range_m = [0.0, 0.4]
 resolution = 96
 spp = 4
 jitter = {jitter}
+replicates = 2
 """
 
 
@@ -350,14 +352,15 @@ def test_cli(tmp_path, capsys):
     rc = main(["gapfraction", str(path), "--out", str(tmp_path / "out"),
                "--set", "gapfraction.cameras=['orthographic']", "--no-images"])
     assert rc == 0
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["gap_fraction.csv", "gap_fraction.json"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
+        "gap_fraction.csv", "gap_fraction.json", "gap_fraction_replicates.csv"]
     assert "orthographic" in capsys.readouterr().out
     assert main(["gapfraction", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "x")]) == 2
 
 
 def test_shipped_random_leaves_scene(tmp_path):
     run = run_gapfraction(REPO / "scenes" / "random_leaves_spherical.toml", None,
-                          ["gapfraction.resolution=128", "gapfraction.spp=1"])
+                          ["gapfraction.resolution=128", "gapfraction.spp=1"], replicates=1)
     assert len(run.images) == 6 and run.canopies[0].lai == pytest.approx(1.0)
     ortho = [im.p0 for im in run.images if im.camera.kind == "orthographic"]
     want = expected_p0(1000, 0.001, 1.0, [0, 15, 30], "spherical")
@@ -370,8 +373,7 @@ def test_strawberry_steps_share_views_and_p0_never_falls():
     cameras and windows, so no ray can become covered: P0 is non-decreasing, exactly."""
     run = run_gapfraction(REPO / "scenes" / "strawberry_plot.toml", None,
                           ["gapfraction.resolution=160", "gapfraction.spp=1",
-                           "strawberry.rows=3", "strawberry.plants_per_row=3",
-                           "strawberry.extraction=[30, 20, 20]"])
+                           "strawberry.rows=3", "strawberry.plants_per_row=3"], replicates=1)
     by_view: dict = {}
     for im in run.images:
         by_view.setdefault((im.camera.kind, im.camera.zenith_deg), []).append(im)
@@ -384,3 +386,60 @@ def test_strawberry_steps_share_views_and_p0_never_falls():
         assert all(b >= a for a, b in zip(p0, p0[1:])) and p0[-1] > p0[0]
         lai = [im.lai for im in ims]
         assert all(b < a for a, b in zip(lai, lai[1:]))
+
+
+def test_strawberry_extraction_in_scene_files(tmp_path):
+    """Default: a sixth of the starting leaves per step; extraction_counts is the option;
+    both at once is refused, naming the file and key."""
+    def counts(extra):
+        cfg = load_scene(REPO / "scenes" / "strawberry_plot.toml", extra)
+        return [len(np.unique(c.leaves.leaf_id)) for c in canopies_from_config(cfg)]
+    n = counts([])
+    assert n == [n[0] - math.floor(n[0] * k / 6 + 0.5) for k in range(4)] and n[0] > 600
+    assert counts(["strawberry.extraction_fractions=[0.5]"]) == [n[0], n[0] - n[0] // 2]
+    assert counts(["strawberry.extraction_counts=[44, 39, 44]"]) == [n[0] - c for c in (0, 44, 83, 127)]
+    cfg = load_scene(REPO / "scenes" / "strawberry_plot.toml", ["strawberry.extraction_counts=[44]"])
+    cfg["strawberry"]["extraction_fractions"] = [0.2]
+    with pytest.raises(ConfigError, match="not both") as e:
+        canopies_from_config(cfg)
+    assert e.value.file.endswith("strawberry_plot.toml")
+    with pytest.raises(ConfigError, match="extraction_fractions"):
+        load_scene(REPO / "scenes" / "strawberry_plot.toml", ["strawberry.extraction_fractions=[0.6, 0.6]"])
+
+
+def test_replicate_seeds():
+    assert replicate_seed(7, 0) == 7
+    assert replicate_seed(7, 0, 1).entropy == [7, 1]
+    kids = np.random.SeedSequence(7).spawn(3)
+    for k in (1, 2):
+        a, b = replicate_seed(7, k), kids[k]
+        assert (a.entropy, a.spawn_key) == (b.entropy, b.spawn_key)
+    assert replicate_seed(7, 2, 1).spawn_key == (2,)
+
+
+def test_replicates_mean_sd_and_files(tmp_path):
+    """gap_fraction.csv: p0 = mean over replicate plots, p0_sd = their SD (ddof 1),
+    p0_se = p0_sd/√n; the replicate values are in gap_fraction_replicates.csv.
+    Replicate 0 is the scene seed's own plot, and adding replicates keeps the others."""
+    path = tmp_path / "rl.toml"
+    path.write_text(RL_SCENE.format(jitter="false"))
+    run = run_gapfraction(path, tmp_path / "out", ["gapfraction.replicates=3"])
+    rows = list(csv.DictReader(open(tmp_path / "out" / "gap_fraction.csv", newline="")))
+    reps = list(csv.DictReader(open(tmp_path / "out" / "gap_fraction_replicates.csv", newline="")))
+    assert len(rows) == 6 and len(reps) == 18
+    assert tuple(reps[0]) == REPLICATE_COLUMNS
+    for r in rows:
+        v = [float(x["p0"]) for x in reps if (x["camera"], x["zenith_deg"], x["step"])
+             == (r["camera"], r["zenith_deg"], r["step"])]
+        assert len(v) == 3 and int(r["replicates"]) == 3
+        assert float(r["p0"]) == pytest.approx(np.mean(v), abs=2e-6)
+        assert float(r["p0_sd"]) == pytest.approx(np.std(v, ddof=1), abs=2e-6)
+        assert float(r["p0_se"]) == pytest.approx(np.std(v, ddof=1) / math.sqrt(3), abs=2e-6)
+        assert float(r["p0_sd"]) > 0.002  # independent plots really differ
+    one = run_gapfraction(path, None, ["gapfraction.replicates=1"])
+    two = run_gapfraction(path, None, ["gapfraction.replicates=2"])
+    assert [im.p0 for im in one.images] == [im.p0 for im in run.replicate_images[0]]
+    assert [im.p0 for im in two.replicate_images[1]] == [im.p0 for im in run.replicate_images[1]]
+    assert all(math.isnan(s.p0_sd) for s in one.summary)
+    with pytest.raises(ConfigError, match="replicates"):
+        load_scene(path, ["gapfraction.replicates=0"])

@@ -10,8 +10,9 @@ import pytest
 from simlidar_mi.errors import ConfigError
 from simlidar_mi.geometry import Leaves
 from simlidar_mi.plants.strawberry import StrawberryPlotParams, strawberry_plant, strawberry_plot
-from simlidar_mi.plants.strawberry_extraction import (PAPER_EXTRACTION_COUNTS, extract_leaves,
-                                                      extraction_steps)
+from simlidar_mi.plants.strawberry_extraction import (PAPER_EXTRACTION_COUNTS,
+                                                      PAPER_EXTRACTION_FRACTIONS, extract_leaves,
+                                                      extraction_steps, fraction_counts)
 from simlidar_mi.plants.strawberry_leaf import (LeafTraits, StrawberryLeafParams, draw_leaf_traits,
                                                 leaf_triangles, strawberry_leaf)
 
@@ -57,6 +58,7 @@ def test_defaults_are_the_paper_tables():
         (0.268, 0.03, 0.227, 0.02)
     assert (q.leaves_per_plant_mean, q.leaves_per_plant_sd) == (42, 5)
     assert PAPER_EXTRACTION_COUNTS == (44, 39, 44)
+    assert PAPER_EXTRACTION_FRACTIONS == (1 / 6, 1 / 6, 1 / 6)
 
 
 # --------------------------------------------------------------------------- leaf
@@ -324,13 +326,69 @@ def test_extraction_steps_leaf_area_and_lai(seed):
     plot = strawberry_plot(seed=seed)
     steps = extraction_steps(plot, seed=1)
     assert [s.step for s in steps] == [0, 1, 2, 3]
-    assert [s.n_leaves for s in steps] == [plot.n_leaves - c for c in (0, 44, 83, 127)]
+    # Default: a sixth of the starting leaves per step, so step 3 holds half.
+    n0 = plot.n_leaves
+    assert [s.n_leaves for s in steps] == [n0 - math.floor(n0 * k / 6 + 0.5) for k in range(4)]
+    assert steps[3].n_leaves == n0 - round(n0 / 2 + 0.1)  # half (rounded up when n0 is odd)
+    counts = extraction_steps(plot, (44, 39, 44), seed=1)  # the explicit counts option
+    assert [s.n_leaves for s in counts] == [n0 - c for c in (0, 44, 83, 127)]
     assert steps[0].leaf_area_m2 == pytest.approx(plot.leaf_area_m2)
     for s in steps:
         assert s.lai == pytest.approx(s.leaf_area_m2 / plot.ground_area_m2)
         assert s.leaf_area_m2 == pytest.approx(s.leaves.triangle_area.sum())
     assert steps[0].leaf_area_m2 > steps[1].leaf_area_m2 > steps[2].leaf_area_m2 \
         > steps[3].leaf_area_m2
+
+
+@pytest.mark.parametrize("n0,want", [
+    (254, [42, 43, 42]),    # the paper's sample area: 127 = half, in sixths
+    (682, [114, 113, 114]),  # the shipped 4 × 4 plot (seed 2014): 341 left = half
+    (6, [1, 1, 1]), (7, [1, 1, 2]), (0, [0, 0, 0]), (5, [1, 1, 1])])
+def test_fraction_counts_are_cumulatively_rounded_sixths(n0, want):
+    got = fraction_counts(n0, PAPER_EXTRACTION_FRACTIONS)
+    assert got == want
+    assert sum(got) == math.floor(n0 / 2 + 0.5)
+    assert all(abs(c - n0 / 6) <= 1 for c in got)
+    assert fraction_counts(100, [0.1, 0.25, 0.0]) == [10, 25, 0]
+    assert fraction_counts(9, [1.0]) == [9]
+
+
+def test_fraction_extraction_area_falls_by_a_sixth_of_the_start():
+    """Leaves are removed by count (exactly a sixth of the starting leaves per step);
+    leaves differ in size, so the *area* falls by a sixth of the start in expectation:
+    for each step the removed set is a uniform random subset of the original leaves, so
+    E[area removed at step k] = c_k/n0 · A0 exactly. Checked over K = 200 extraction
+    seeds of one plot against 4·SD/√K; the SD of one step's share is ~0.011 here."""
+    plot = strawberry_plot(StrawberryPlotParams(rows=2, plants_per_row=3), seed=7)
+    n0, a0 = plot.n_leaves, plot.leaf_area_m2
+    c = fraction_counts(n0, PAPER_EXTRACTION_FRACTIONS)
+    share = np.array([np.diff([-s.leaf_area_m2 for s in extraction_steps(plot, seed=k)]) / a0
+                      for k in range(200)])                    # (K, 3) area shares removed
+    assert [len(np.unique(s.leaf_id)) for s in extract_leaves(plot.leaves, seed=3)] == \
+        [n0 - x for x in np.cumsum([0] + c)]
+    for k in range(3):
+        assert abs(c[k] / n0 - 1 / 6) <= 1 / n0
+        sd = share[:, k].std(ddof=1)
+        assert 0.003 < sd < 0.03                               # leaves really differ in size
+        assert abs(share[:, k].mean() - c[k] / n0) < 4 * sd / math.sqrt(len(share))
+        assert abs(share[:, k].mean() - 1 / 6) < 4 * sd / math.sqrt(len(share)) + 1 / n0
+    # Step 3 holds half the area on average.
+    assert abs(1 - share.sum(1).mean() - 0.5) < 4 * share.sum(1).std(ddof=1) / math.sqrt(200) \
+        + 1 / n0
+
+
+def test_extraction_fractions_errors(seed):
+    plot = strawberry_plot(StrawberryPlotParams(rows=1, plants_per_row=2), seed)
+    with pytest.raises(ConfigError, match="not both"):
+        extract_leaves(plot.leaves, (3,), fractions=(0.1,))
+    with pytest.raises(ConfigError, match=r"add up to 1\.2 > 1"):
+        extract_leaves(plot.leaves, fractions=(0.6, 0.6))
+    with pytest.raises(ConfigError) as e:
+        fraction_counts(10, [0.1, -0.1])
+    assert e.value.key == "fractions[1]"
+    with pytest.raises(ConfigError):
+        fraction_counts(10, [float("nan")])
+    assert len(extract_leaves(plot.leaves, fractions=(1.0,))[-1]) == 0
 
 
 PAPER_TABLE4_VIRTUAL_M2 = (1.241, 1.034, 0.849, 0.642)   # leaf area on 1 m², per step
@@ -348,19 +406,32 @@ def test_table4_density_reproduction():
     assert 2.4 < paper_grid < 2.8
 
 
-def test_table4_extraction_series():
-    """The paper's virtual canopy lost ≈47 cm² a removed leaf (0.207 m² for 44 leaves),
-    i.e. S ≈ 16.6 cm², within one SD of Table 3 as the paper says it used. Six plants of
-    42 leaves on 1 m² with that S reproduce every step of Table 4 within the paper's
-    SD of the real canopy (0.215 m²), and within 0.06 m² of its virtual canopy."""
+def test_table4_reading_six_plants_of_44_leaves():
+    """Table 4's virtual canopy lost 47 cm² per removed leaf at every step
+    ((1.241 − 1.034)/44, (1.034 − 0.849)/39, (0.849 − 0.642)/44), so 1.241 m² was
+    ≈ 264 leaves = 6 plants × 44: with 47.0 cm² a leaf and the paper's 44, 39, 44
+    removals the four values come back within 0.002 m² (0.0020 at step 3).  Table 3's S makes a leaf
+    37 cm², not 47 (unexplained), and its 0.268 × 0.227 m grid 16.4 plants per m², not
+    6: the 1 m² sample areas must include unplanted ground.  Simulated: 6 plants of 44
+    leaves on 1 m² with S = 16.57 cm² (47 cm² leaves), mean over K = 30 seeds within
+    4·SD/√K + 0.002 of every step."""
+    per_leaf = np.diff(PAPER_TABLE4_VIRTUAL_M2) / -np.array(PAPER_EXTRACTION_COUNTS)
+    assert np.all(np.abs(per_leaf - 47.0e-4) < 0.5e-4)
+    a = PAPER_TABLE4_VIRTUAL_M2[0] / (6 * 44)
+    removed = np.cumsum([0, *PAPER_EXTRACTION_COUNTS])
+    err = np.abs(PAPER_TABLE4_VIRTUAL_M2[0] - a * removed - PAPER_TABLE4_VIRTUAL_M2)
+    assert np.all(err < 0.00201) and err[3] > 0.0019  # 0, 0.0002, 0.0018, 0.0020
+    assert StrawberryLeafParams().leaf_area_factor * 13.10e-4 == pytest.approx(37.15e-4, abs=0.05e-4)
+    assert 1 / (0.268 * 0.227) == pytest.approx(16.44, abs=0.01)
     pp = StrawberryPlotParams(rows=2, plants_per_row=3, inter_row_m=0.5, intra_row_m=1 / 3,
-                              leaf={"area_mean_m2": 16.6e-4})
+                              leaves_per_plant_mean=44, leaves_per_plant_sd=0,
+                              leaf={"area_mean_m2": 16.57e-4})
     assert pp.ground_area_m2 == pytest.approx(1.0)
-    areas = np.mean([[st.leaf_area_m2 for st in extraction_steps(strawberry_plot(pp, s),
-                                                                 seed=s)]
-                     for s in range(40)], axis=0)
-    assert np.all(np.abs(areas - PAPER_TABLE4_VIRTUAL_M2) < 0.06)
-    assert np.all(np.abs(areas - PAPER_TABLE4_REAL_M2) < 0.215)
+    areas = np.array([[st.leaf_area_m2 for st in extraction_steps(
+        strawberry_plot(pp, s), PAPER_EXTRACTION_COUNTS, seed=s)] for s in range(30)])
+    tol = 4 * areas.std(0, ddof=1) / math.sqrt(len(areas)) + 0.002
+    assert np.all(np.abs(areas.mean(0) - PAPER_TABLE4_VIRTUAL_M2) < tol)
+    assert np.all(np.abs(areas.mean(0) - PAPER_TABLE4_REAL_M2) < 0.215)  # paper's SD
 
 
 # --------------------------------------------------------------------- validation

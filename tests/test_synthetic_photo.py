@@ -76,8 +76,11 @@ def test_loop_through_compare_manifest(nadir_checks, tmp_path: Path) -> None:
     """The synthetic photo as a manifest row: compare() reads back Canopeo's P0."""
     chk = nadir_checks["sb_ortho"]
     save_photo_png(chk.rgb, tmp_path / "photo.png")
-    text = STRAWBERRY.read_text(encoding="utf-8").replace(
-        "[gapfraction]", f"[gapfraction]\nresolution = {RES}")
+    # one plot (replicate 0, the one the photo shows), at the photo's resolution
+    text = STRAWBERRY.read_text(encoding="utf-8")
+    assert "resolution = 512 " in text and "replicates = 16 " in text
+    text = text.replace("resolution = 512 ", f"resolution = {RES} ").replace(
+        "replicates = 16 ", "replicates = 1 ")
     (tmp_path / "sb.toml").write_text(text, encoding="utf-8")
     x0, y0, x1, y1 = chk.image.window.box_px
     (tmp_path / "m.csv").write_text(
@@ -94,7 +97,7 @@ def test_run_synthetic_photos_writes_files(tmp_path: Path) -> None:
     out = tmp_path / "photos"
     checks = run_synthetic_photos(STRAWBERRY, out, [
         "gapfraction.resolution=256", "gapfraction.cameras=['orthographic']",
-        "gapfraction.zeniths_deg=[30.0]", "strawberry.extraction=[127]", "photo_render.spp=8"])
+        "gapfraction.zeniths_deg=[30.0]", "strawberry.extraction_counts=[127]", "photo_render.spp=8"])
     assert [(c.image.camera.zenith_deg, c.image.step) for c in checks] == [(30.0, 0), (30.0, 1)]
     assert all(c.settings.spp == 8 for c in checks)
     assert checks[1].p0_coverage > checks[0].p0_coverage  # 127 leaves fewer
@@ -187,7 +190,7 @@ def test_synthetic_photo_cli(tmp_path, capsys):
     out = tmp_path / "synth"
     rc = main(["synthetic-photo", str(SCENES / "strawberry_plot.toml"), "--out", str(out),
                "--set", "gapfraction.resolution=384", "--set", "gapfraction.zeniths_deg=[0.0]",
-               "--set", 'gapfraction.cameras=["orthographic"]', "--set", "strawberry.extraction=[44]"])
+               "--set", 'gapfraction.cameras=["orthographic"]', "--set", "strawberry.extraction_counts=[44]"])
     assert rc == 0
     rows = list(_csv.DictReader(open(out / "synthetic_photo.csv")))
     assert len(rows) == 2

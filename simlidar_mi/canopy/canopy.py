@@ -16,7 +16,8 @@ from ..config import SceneConfig
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
 
-__all__ = ["Canopy", "expected_p0", "canopies_from_config", "canopy_from_random_leaves"]
+__all__ = ["Canopy", "expected_p0", "canopies_from_config", "canopy_from_random_leaves",
+           "replicate_seed"]
 
 
 # ------------------------------------------------------------------------- canopy
@@ -126,11 +127,27 @@ def expected_p0(n_leaves: int, leaf_area_m2: float, plot_area_m2: float, zenith_
 
 
 # ----------------------------------------------------------------------- scene file
-def canopies_from_config(cfg: SceneConfig) -> list[Canopy]:
+def replicate_seed(seed: int, replicate: int, stream: int | None = None) -> int | np.random.SeedSequence:
+    """Seed of one replicate plot of a scene (``[gapfraction] replicates``).
+
+    Replicate 0 is the scene seed's own plot (``seed``, or ``SeedSequence([seed,
+    stream])`` for a side stream such as the extraction's); replicate ``k ≥ 1`` is the
+    ``k``-th child that ``SeedSequence(seed).spawn`` (resp. ``SeedSequence([seed,
+    stream]).spawn``) hands out, so adding replicates never changes the earlier ones.
+    """
+    entropy = seed if stream is None else [seed, stream]
+    if replicate == 0:
+        return seed if stream is None else np.random.SeedSequence(entropy)
+    return np.random.SeedSequence(entropy, spawn_key=(int(replicate),))
+
+
+def canopies_from_config(cfg: SceneConfig, replicate: int = 0) -> list[Canopy]:
     """The canopies a scene file describes: one per extraction step.
 
     ``[random_leaves]`` gives one periodic canopy; ``[strawberry]`` a plot and its
-    extraction steps (``[strawberry] extraction``).
+    extraction steps (``[strawberry] extraction_fractions``, default one sixth of the
+    starting leaves three times, or ``extraction_counts``).  ``replicate`` selects an
+    independent plot of the same scene (:func:`replicate_seed`).
     """
     has_rl, has_sb = cfg.has("random_leaves"), cfg.has("strawberry")
     if has_rl == has_sb:
@@ -142,19 +159,26 @@ def canopies_from_config(cfg: SceneConfig) -> list[Canopy]:
         try:
             rl = random_leaves(r["n_leaves"], r["leaf_area_m2"], plot_size_m=tuple(r["plot_size_m"]),
                                height_range_m=tuple(r["height_range_m"]),
-                               angle_law=r["angle_law"], shape=r["shape"], seed=cfg.seed)
+                               angle_law=r["angle_law"], shape=r["shape"],
+                               seed=replicate_seed(cfg.seed, replicate))
         except ConfigError as exc:
             raise ConfigError(str(exc), file=cfg.source) from exc
         return [canopy_from_random_leaves(rl)]
     from ..plants import strawberry as sb  # noqa: PLC0415
     from ..plants.strawberry_extraction import extraction_steps  # noqa: PLC0415
     s = dict(cfg["strawberry"])
-    extraction = [int(n) for n in s.pop("extraction")]
+    fractions, counts = s.pop("extraction_fractions"), s.pop("extraction_counts")
+    if fractions is not None and counts is not None:
+        raise ConfigError("give strawberry.extraction_fractions (shares of the starting leaves) "
+                          "or strawberry.extraction_counts (fixed numbers), not both",
+                          file=cfg.source, key="strawberry.extraction_counts", value=counts)
     leaf = {k: v for k, v in cfg["strawberry.leaf"].items() if v is not None}
     try:
-        plot = sb.strawberry_plot(sb.StrawberryPlotParams(**s, leaf=leaf), seed=cfg.seed)
-        # Its own stream: changing the extraction counts never changes the plot.
-        steps = extraction_steps(plot, extraction, seed=np.random.SeedSequence([cfg.seed, 1]))
+        plot = sb.strawberry_plot(sb.StrawberryPlotParams(**s, leaf=leaf),
+                                  seed=replicate_seed(cfg.seed, replicate))
+        # Its own stream: changing the extraction never changes the plot.
+        steps = extraction_steps(plot, counts, seed=replicate_seed(cfg.seed, replicate, 1),
+                                 fractions=fractions)
     except ConfigError as exc:
         raise ConfigError(str(exc), file=cfg.source) from exc
     return [Canopy(st.leaves, plot.bounds_m, periodic=False, step=st.step, name="strawberry",

@@ -15,11 +15,19 @@ asks for); every photo once per (method, crop).
 Outputs (written together, or not at all)
 -----------------------------------------
 ``comparison.csv``
-    ``zenith_deg, n, r, rmse, rmse_r, bias, bias_r``: one row per zenith, then ``all``.
-    Relative values are fractions (the paper prints percentages).  ``r`` is ``nan``
-    with fewer than two pairs or no spread.
+    ``zenith_deg, n, r, rmse, rmse_r, bias, bias_r, bias_se, scatter, paper_rmse,
+    paper_bias, paper_scatter``: one row per zenith, then ``all``.  Relative values are
+    fractions (the paper prints percentages).  ``scatter = √(rmse² − bias²)`` is the
+    spread of the errors around their mean; ``bias_se`` the part of the bias's
+    uncertainty due to the virtual side's seed noise (√Σ p0_virtual_se² / n);
+    ``paper_*`` are the paper's Table 5 values at that zenith (its scatter: 0.021,
+    0.0145, 0.009 at 0/15/30°).  ``r`` and ``scatter`` are ``nan`` with fewer than two
+    pairs (``r`` also with no spread).
 ``pairs.csv``
-    Every manifest row with its virtual and measured P0 (:data:`PAIRS_COLUMNS`).
+    Every manifest row with its measured P0 and the virtual P0: the mean over the
+    scene's ``[gapfraction] replicates`` plots, the SD between them
+    (``p0_virtual_sd``) and the SD of the mean (``p0_virtual_se``); see
+    :data:`PAIRS_COLUMNS`.
 ``comparison.png``
     Measured (x) vs virtual (y) P0, one panel per zenith, with the 1:1 line (Fig. 4).
 ``photo_mask_row<row>_<photo>_<method>.png``, ``virtual_<scene>_gap_<camera>_z<zenith>_s<step>.png``
@@ -40,16 +48,23 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import ConfigError, PhotoError, SimlidarError
+from .gapfraction import replicate_sd
 from .manifest import ManifestError, ManifestRow, read_manifest
 
 __all__ = [
-    "Pair", "ComparisonResult", "COMPARISON_COLUMNS", "PAIRS_COLUMNS",
+    "Pair", "ComparisonResult", "COMPARISON_COLUMNS", "PAIRS_COLUMNS", "PAPER_TABLE5",
     "comparison_stats", "compare", "plot_comparison",
 ]
 
-COMPARISON_COLUMNS = ("zenith_deg", "n", "r", "rmse", "rmse_r", "bias", "bias_r")
+COMPARISON_COLUMNS = ("zenith_deg", "n", "r", "rmse", "rmse_r", "bias", "bias_r", "bias_se",
+                      "scatter", "paper_rmse", "paper_bias", "paper_scatter")
 PAIRS_COLUMNS = ("row", "scene", "camera", "zenith_deg", "step", "p0_measured", "p0_virtual",
-                 "difference", "measured_from", "photo", "method", "crop", "lai_virtual", "note")
+                 "p0_virtual_sd", "p0_virtual_se", "replicates", "difference", "measured_from",
+                 "photo", "method", "crop", "lai_virtual", "note")
+
+#: The paper's Table 5 per view zenith: (RMSE, Bias) over its 4 densities.  Its error
+#: scatter √(RMSE² − Bias²) is 0.0209, 0.0145 and 0.0089.
+PAPER_TABLE5 = {0.0: (0.022, 0.007), 15.0: (0.015, 0.004), 30.0: (0.012, 0.008)}
 _ZENITH_TOL_DEG = 1e-9
 
 
@@ -62,6 +77,13 @@ class Pair:
     p0_virtual: float
     lai_virtual: float
     photo_result: Any = None  # simlidar_mi.canopy.photo.PhotoGapResult for photo rows
+    p0_virtual_sd: float = math.nan  # SD between the scene's replicate plots
+    replicates: int = 1
+
+    @property
+    def p0_virtual_se(self) -> float:
+        """Seed-to-seed SD of ``p0_virtual`` (a mean over ``replicates`` plots)."""
+        return self.p0_virtual_sd / math.sqrt(self.replicates)
 
     @property
     def difference(self) -> float:
@@ -74,6 +96,8 @@ class Pair:
         return {"row": r.row, "scene": r.scene_text, "camera": r.camera,
                 "zenith_deg": f"{r.zenith_deg:g}", "step": r.step_label,
                 "p0_measured": f"{self.p0_measured:.6f}", "p0_virtual": f"{self.p0_virtual:.6f}",
+                "p0_virtual_sd": f"{self.p0_virtual_sd:.6f}",
+                "p0_virtual_se": f"{self.p0_virtual_se:.6f}", "replicates": self.replicates,
                 "difference": f"{self.difference:+.6f}", "measured_from": src,
                 "photo": r.photo_text, "method": r.method if r.photo is not None else "",
                 "crop": r.crop_text, "lai_virtual": f"{self.lai_virtual:.4f}", "note": r.note}
@@ -123,7 +147,9 @@ def comparison_stats(simulated: Sequence[float], observed: Sequence[float]) -> d
     dict
         ``n``; ``r`` Pearson's correlation (nan when n < 2 or either has no spread);
         ``rmse`` = √mean((s − o)²); ``rmse_r`` = rmse / mean(o); ``bias`` = mean(s − o);
-        ``bias_r`` = bias / mean(o) (relative values are fractions; nan when mean(o) = 0).
+        ``bias_r`` = bias / mean(o) (relative values are fractions; nan when mean(o) = 0);
+        ``scatter`` = √(rmse² − bias²), the SD (ddof 0) of the errors around their mean
+        (nan when n < 2: one pair has no scatter to measure).
 
     Raises
     ------
@@ -157,8 +183,9 @@ def comparison_stats(simulated: Sequence[float], observed: Sequence[float]) -> d
             # clip: rounding can put a perfect correlation a hair above 1
             r = float(min(1.0, max(-1.0, float(np.sum(ds * do)) / den)))
     rel = (lambda x: x / mean_o) if mean_o != 0 else (lambda x: math.nan)
+    scatter = math.sqrt(max(rmse * rmse - bias * bias, 0.0)) if s.size >= 2 else math.nan
     return {"n": int(s.size), "r": r, "rmse": rmse, "rmse_r": rel(rmse), "bias": bias,
-            "bias_r": rel(bias)}
+            "bias_r": rel(bias), "scatter": scatter}
 
 
 # ------------------------------------------------------------------------ helpers
@@ -199,7 +226,7 @@ def _photo_p0s(rows: list[ManifestRow], src: str, mask_dir: Path) -> dict[int, A
 
 
 def _render_scenes(rows: list[ManifestRow], src: str):
-    """Render every distinct scene once; returns {scene path: (run, first row)}."""
+    """Render every distinct scene once (all its replicate plots); {scene: (run, cfg)}."""
     from ..config import load_scene  # noqa: PLC0415
     from .gapfraction import run_gapfraction  # noqa: PLC0415
     by_scene: dict[Path, list[ManifestRow]] = {}
@@ -221,20 +248,28 @@ def _render_scenes(rows: list[ManifestRow], src: str):
     return runs
 
 
-def _virtual(row: ManifestRow, run, src: str) -> tuple[float, float, list]:
-    """(P0, LAI, images used) of the virtual view a row asks for."""
+def _virtual(row: ManifestRow, run, src: str) -> tuple[list[float], float, list]:
+    """(P0 of each replicate plot, LAI, replicate 0's images) of the view a row asks for.
+
+    With ``step = mean`` each replicate's value is its mean over the steps, so the SD
+    between replicates is that of the mean, not a mix of the steps' SDs.
+    """
     steps = sorted({c.step for c in run.canopies})
-    imgs = [im for im in run.images if im.camera.kind == row.camera
-            and abs(im.camera.zenith_deg - row.zenith_deg) <= _ZENITH_TOL_DEG]
-    if row.step is not None:
-        if row.step not in steps:
-            raise ManifestError(f"the scene has extraction steps {steps[0]}–{steps[-1]} only",
-                                file=src, row=row.row, column="step", value=row.step_label)
-        imgs = [im for im in imgs if im.step == row.step]
-    if not imgs:  # cannot happen: the scene was rendered for exactly these views
+    if row.step is not None and row.step not in steps:
+        raise ManifestError(f"the scene has extraction steps {steps[0]}–{steps[-1]} only",
+                            file=src, row=row.row, column="step", value=row.step_label)
+
+    def pick(images):
+        return [im for im in images if im.camera.kind == row.camera
+                and abs(im.camera.zenith_deg - row.zenith_deg) <= _ZENITH_TOL_DEG
+                and (row.step is None or im.step == row.step)]
+    reps = [pick(images) for images in run.replicate_images]
+    if not reps[0]:  # cannot happen: the scene was rendered for exactly these views
         raise ManifestError("no virtual image of this view was rendered", file=src, row=row.row,
                             column="camera", value=row.camera)
-    return (float(np.mean([im.p0 for im in imgs])), float(np.mean([im.lai for im in imgs])), imgs)
+    values = [float(np.mean([im.p0 for im in imgs])) for imgs in reps]
+    lai = float(np.mean([im.lai for imgs in reps for im in imgs]))
+    return values, lai, reps[0]
 
 
 def _fmt(v: Any) -> str:
@@ -245,14 +280,24 @@ def _fmt(v: Any) -> str:
     return "nan" if not math.isfinite(v) else f"{v:.6g}"
 
 
+def _stats_row(zenith: float | str, ps: list[Pair]) -> dict[str, Any]:
+    st = comparison_stats([p.p0_virtual for p in ps], [p.p0_measured for p in ps])
+    # seed noise of the virtual side only (measured values carry their own)
+    bias_se = math.sqrt(sum(p.p0_virtual_se ** 2 for p in ps)) / len(ps)
+    paper = next((v for z, v in PAPER_TABLE5.items() if not isinstance(zenith, str)
+                  and abs(z - zenith) <= _ZENITH_TOL_DEG), None)
+    ref = {"paper_rmse": math.nan, "paper_bias": math.nan, "paper_scatter": math.nan}
+    if paper is not None:
+        ref = {"paper_rmse": paper[0], "paper_bias": paper[1],
+               "paper_scatter": math.sqrt(paper[0] ** 2 - paper[1] ** 2)}
+    return {"zenith_deg": zenith, **st, "bias_se": bias_se, **ref}
+
+
 def _group_stats(pairs: list[Pair]) -> list[dict[str, Any]]:
     out = []
     for z in sorted({p.row.zenith_deg for p in pairs}):
-        ps = [p for p in pairs if abs(p.row.zenith_deg - z) <= _ZENITH_TOL_DEG]
-        out.append({"zenith_deg": z, **comparison_stats([p.p0_virtual for p in ps],
-                                                         [p.p0_measured for p in ps])})
-    out.append({"zenith_deg": "all", **comparison_stats([p.p0_virtual for p in pairs],
-                                                        [p.p0_measured for p in pairs])})
+        out.append(_stats_row(z, [p for p in pairs if abs(p.row.zenith_deg - z) <= _ZENITH_TOL_DEG]))
+    out.append(_stats_row("all", pairs))
     return out
 
 
@@ -261,7 +306,8 @@ def plot_comparison(pairs: Sequence[Pair], stats: Sequence[dict[str, Any]], path
     """Measured vs virtual P0, one panel per zenith, with the 1:1 line (the paper's Fig. 4).
 
     Points are labelled with their extraction step; photo-derived and typed-in
-    measurements use different markers.
+    measurements use different markers; error bars are the virtual P0's seed-to-seed SD
+    (``p0_virtual_se``).
     """
     import matplotlib  # noqa: PLC0415
     matplotlib.use("Agg")
@@ -285,6 +331,9 @@ def plot_comparison(pairs: Sequence[Pair], stats: Sequence[dict[str, Any]], path
                 ax.scatter([p.p0_measured for p in sel], [p.p0_virtual for p in sel], s=36,
                            marker=marker, color=colour, zorder=3,
                            label="from photo" if src == "photo" else "measured value")
+                se = [p.p0_virtual_se if math.isfinite(p.p0_virtual_se) else 0.0 for p in sel]
+                ax.errorbar([p.p0_measured for p in sel], [p.p0_virtual for p in sel], yerr=se,
+                            fmt="none", ecolor=colour, elinewidth=1, capsize=2, zorder=2)
         for p in ps:
             label = p.row.step_label if p.row.step is None else f"step {p.row.step}"
             ax.annotate(label, (p.p0_measured, p.p0_virtual), textcoords="offset points",
@@ -296,7 +345,7 @@ def plot_comparison(pairs: Sequence[Pair], stats: Sequence[dict[str, Any]], path
         ax.set_ylabel("virtual P0")
         r = "–" if not math.isfinite(s["r"]) else f"{s['r']:.3f}"
         ax.set_title(f"θ = {z:g}°   n = {s['n']}\nr = {r}, RMSE = {s['rmse']:.3f}, "
-                     f"bias = {s['bias']:+.3f}", fontsize=9)
+                     f"bias = {s['bias']:+.3f} ± {s['bias_se']:.3f}", fontsize=9)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="upper left")
     if title:
@@ -343,11 +392,12 @@ def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[st
         pairs, used = [], {}
         for r in rows:
             run, _cfg = runs[r.scene.resolve()]
-            p0_v, lai, imgs = _virtual(r, run, src)
+            values, lai, imgs = _virtual(r, run, src)
             for im in imgs:
                 used[(r.scene.resolve(), im.stem())] = (r.scene.stem, im)
             p0_m = photos[r.row].p0 if r.photo is not None else float(r.p0_measured)
-            pairs.append(Pair(r, float(p0_m), p0_v, lai, photos.get(r.row)))
+            pairs.append(Pair(r, float(p0_m), float(np.mean(values)), lai, photos.get(r.row),
+                              replicate_sd(values), len(values)))
         stats = _group_stats(pairs)
         files: dict[str, Path] = {}
         write_csv(stage / "comparison.csv", COMPARISON_COLUMNS,

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import numbers
 import time
 from dataclasses import dataclass, field, replace
@@ -44,12 +45,15 @@ from .windows import Window, analysis_window, tile_offsets
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "GapImage", "GapFractionRun", "CSV_COLUMNS", "build_canopy_scene", "render_gap",
-    "gap_images", "run_gapfraction", "write_gap_exr", "read_gap_exr",
+    "GapImage", "GapFractionRun", "GapSummary", "CSV_COLUMNS", "REPLICATE_COLUMNS",
+    "build_canopy_scene", "render_gap", "gap_views", "gap_images", "run_gapfraction",
+    "replicate_sd", "summarise", "write_gap_exr", "read_gap_exr",
 ]
 
-CSV_COLUMNS = ("camera", "zenith_deg", "step", "p0", "leaf_area_m2", "lai", "spp",
-               "width", "height", "seconds")
+CSV_COLUMNS = ("camera", "zenith_deg", "step", "p0", "p0_sd", "p0_se", "replicates",
+               "leaf_area_m2", "lai", "spp", "width", "height", "seconds")
+REPLICATE_COLUMNS = ("replicate", "camera", "zenith_deg", "step", "p0", "leaf_area_m2", "lai",
+                     "seconds")
 
 
 def _tiled_leaves(leaves: Leaves, offsets: np.ndarray) -> Leaves:
@@ -104,6 +108,8 @@ class GapImage:
         Whether samples were jittered inside their strata.
     seed : int
         Seed of the jitter (irrelevant without jitter).
+    replicate : int
+        Which replicate plot of the scene (0 = the scene seed's own plot).
     """
 
     coverage: np.ndarray
@@ -117,6 +123,7 @@ class GapImage:
     lai: float = 0.0
     jitter: bool = False
     seed: int = 0
+    replicate: int = 0
 
     @property
     def zenith_deg(self) -> float:
@@ -143,7 +150,7 @@ class GapImage:
         return f"gap_{self.camera.kind}_z{self.camera.zenith_deg:g}_s{self.step}"
 
     def row(self) -> dict[str, Any]:
-        """One line of gap_fraction.csv."""
+        """This image's values (unformatted; gap_fraction.csv averages them over replicates)."""
         return {"camera": self.camera.kind, "zenith_deg": self.camera.zenith_deg,
                 "step": self.step, "p0": self.p0, "leaf_area_m2": self.leaf_area_m2,
                 "lai": self.lai, "spp": self.spp, "width": self.width, "height": self.height,
@@ -152,7 +159,7 @@ class GapImage:
     def metadata(self) -> dict[str, Any]:
         """Everything but the pixels, JSON-friendly."""
         return {**self.row(), "azimuth_deg": self.camera.azimuth_deg, "jitter": self.jitter,
-                "seed": self.seed, "camera_settings": self.camera.to_dict(),
+                "seed": self.seed, "replicate": self.replicate, "camera_settings": self.camera.to_dict(),
                 "window": self.window.to_dict()}
 
 
@@ -176,6 +183,34 @@ def render_gap(built, canopy: Canopy, camera: Camera, window: Window, *, spp: in
                     float(canopy.leaf_area_m2), canopy.lai, bool(jitter), int(seed))
 
 
+def gap_views(reference: Canopy, *, cameras: Sequence[str] = DEFAULTS["cameras"],
+              zeniths_deg: Sequence[float] = DEFAULTS["zeniths_deg"],
+              azimuth_deg: float = DEFAULTS["azimuth_deg"],
+              resolution: int = DEFAULTS["resolution"], window: str = DEFAULTS["window"],
+              window_fraction: float = DEFAULTS["window_fraction"],
+              margin_m: float | None = DEFAULTS["margin_m"], fov_deg: float = DEFAULTS["fov_deg"],
+              camera_height_m: float = DEFAULTS["camera_height_m"]):
+    """Every (camera, zenith) view of ``reference``: ``(views, offsets)``.
+
+    ``views`` is a list of (Camera, Window); ``offsets`` the periodic tiling (None in
+    inset mode).  Computed once and shared by all extraction steps of a plot.
+    """
+    mode = window if window != "auto" else ("periodic" if reference.periodic else "inset")
+    views = []
+    for kind in cameras:
+        for zen in zeniths_deg:
+            cam = make_camera(kind, reference, zen, azimuth_deg=azimuth_deg, resolution=resolution,
+                              fov_deg=fov_deg, camera_height_m=camera_height_m,
+                              periodic=mode == "periodic")
+            views.append((cam, analysis_window(cam, reference, mode, fraction=window_fraction,
+                                               margin_m=margin_m)))
+    offsets = None
+    if mode == "periodic":
+        offsets, tiles = tile_offsets(reference, [w.safe_region_m for _, w in views])
+        views = [(c, replace(w, tiles=tiles)) for c, w in views]
+    return views, offsets
+
+
 def gap_images(canopy: Canopy, *, cameras: Sequence[str] = DEFAULTS["cameras"],
                zeniths_deg: Sequence[float] = DEFAULTS["zeniths_deg"],
                azimuth_deg: float = DEFAULTS["azimuth_deg"],
@@ -184,28 +219,21 @@ def gap_images(canopy: Canopy, *, cameras: Sequence[str] = DEFAULTS["cameras"],
                margin_m: float | None = DEFAULTS["margin_m"], fov_deg: float = DEFAULTS["fov_deg"],
                camera_height_m: float = DEFAULTS["camera_height_m"], jitter: bool = False,
                seed: int = 0, variant: str | None = None,
-               reference: Canopy | None = None) -> list[GapImage]:
+               reference: Canopy | None = None, views=None) -> list[GapImage]:
     """Every (camera, zenith) image of one canopy; the Mitsuba scene is built once.
 
     Cameras and windows are placed from ``reference`` (default ``canopy``): pass the
     full canopy when rendering its extraction steps, so that every step is seen
     through the same cameras and windows, as the paper photographed the same area.
     In periodic mode the plot is tiled once for the union of all views' ray extents.
+    ``views`` (from :func:`gap_views`) skips placing them again.
     """
-    ref = canopy if reference is None else reference
-    mode = window if window != "auto" else ("periodic" if ref.periodic else "inset")
-    views = []
-    for kind in cameras:
-        for zen in zeniths_deg:
-            cam = make_camera(kind, ref, zen, azimuth_deg=azimuth_deg, resolution=resolution,
-                              fov_deg=fov_deg, camera_height_m=camera_height_m,
-                              periodic=mode == "periodic")
-            views.append((cam, analysis_window(cam, ref, mode, fraction=window_fraction,
-                                               margin_m=margin_m)))
-    offsets = None
-    if mode == "periodic":
-        offsets, tiles = tile_offsets(ref, [w.safe_region_m for _, w in views])
-        views = [(c, replace(w, tiles=tiles)) for c, w in views]
+    if views is None:
+        views = gap_views(canopy if reference is None else reference, cameras=cameras,
+                          zeniths_deg=zeniths_deg, azimuth_deg=azimuth_deg,
+                          resolution=resolution, window=window, window_fraction=window_fraction,
+                          margin_m=margin_m, fov_deg=fov_deg, camera_height_m=camera_height_m)
+    views, offsets = views
     built = build_canopy_scene(canopy, offsets, variant=variant)
     from .._mitsuba import mitsuba  # noqa: PLC0415
     mi = mitsuba(variant)
@@ -258,13 +286,86 @@ def read_gap_exr(path: str | Path) -> tuple[np.ndarray, dict]:
 
 
 @dataclass
+class GapSummary:
+    """One line of gap_fraction.csv: a view and step averaged over the replicate plots.
+
+    ``p0`` is the mean of ``p0_values`` (one per replicate), ``p0_sd`` their sample SD
+    (ddof 1; nan for one replicate): how much one plot's P0 scatters between seeds.
+    ``p0_se = p0_sd/√n`` is the seed-to-seed SD of ``p0`` itself.
+    """
+
+    camera: str
+    zenith_deg: float
+    step: int
+    p0_values: tuple[float, ...]
+    leaf_area_m2: float
+    lai: float
+    spp: int
+    width: int
+    height: int
+    seconds: float
+
+    @property
+    def replicates(self) -> int:
+        return len(self.p0_values)
+
+    @property
+    def p0(self) -> float:
+        return float(np.mean(self.p0_values))
+
+    @property
+    def p0_sd(self) -> float:
+        return replicate_sd(self.p0_values)
+
+    @property
+    def p0_se(self) -> float:
+        return self.p0_sd / math.sqrt(self.replicates)
+
+    def row(self) -> dict[str, Any]:
+        """One line of gap_fraction.csv (formatted)."""
+        return {"camera": self.camera, "zenith_deg": f"{self.zenith_deg:g}", "step": self.step,
+                "p0": f"{self.p0:.6f}", "p0_sd": f"{self.p0_sd:.6f}", "p0_se": f"{self.p0_se:.6f}",
+                "replicates": self.replicates, "leaf_area_m2": f"{self.leaf_area_m2:.6g}",
+                "lai": f"{self.lai:.6g}", "spp": self.spp, "width": self.width,
+                "height": self.height, "seconds": f"{self.seconds:.4f}"}
+
+
+def replicate_sd(values: Sequence[float]) -> float:
+    """Sample SD (ddof 1) of replicate values; nan for fewer than two."""
+    v = np.asarray(values, np.float64)
+    return float(np.std(v, ddof=1)) if v.size >= 2 else math.nan
+
+
+def summarise(replicate_images: Sequence[Sequence[GapImage]]) -> list[GapSummary]:
+    """Average each (camera, zenith, step) over replicates (image lists in the same order)."""
+    out = []
+    for i, im in enumerate(replicate_images[0]):
+        ims = [rep[i] for rep in replicate_images]
+        assert all((x.camera.kind, x.camera.zenith_deg, x.step) ==
+                   (im.camera.kind, im.camera.zenith_deg, im.step) for x in ims)
+        out.append(GapSummary(im.camera.kind, float(im.camera.zenith_deg), im.step,
+                              tuple(float(x.p0) for x in ims),
+                              float(np.mean([x.leaf_area_m2 for x in ims])),
+                              float(np.mean([x.lai for x in ims])), im.spp, im.width, im.height,
+                              float(sum(x.seconds for x in ims))))
+    return out
+
+
+@dataclass
 class GapFractionRun:
-    """What :func:`run_gapfraction` produced."""
+    """What :func:`run_gapfraction` produced.
+
+    ``images`` and ``canopies`` are those of replicate 0 (the scene seed's own plot,
+    whose PNG/EXR files are written); ``replicate_images[k]`` the images of replicate
+    ``k`` in the same order; ``summary`` the per-view means and SDs over replicates.
+    """
 
     images: list[GapImage]
     canopies: list[Canopy]
     files: dict[str, Path] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
+    replicate_images: list[list[GapImage]] = field(default_factory=list)
+    summary: list[GapSummary] = field(default_factory=list)
 
 
 def _settings(cfg: SceneConfig) -> dict[str, Any]:
@@ -278,58 +379,87 @@ def _settings(cfg: SceneConfig) -> dict[str, Any]:
     return g
 
 
+def _render_replicate(cfg: SceneConfig, g: dict[str, Any], replicate: int,
+                      seconds: dict[str, float]):
+    t0 = time.perf_counter()
+    canopies = canopies_from_config(cfg, replicate)
+    seconds["generate"] = seconds.get("generate", 0.0) + time.perf_counter() - t0
+    t0 = time.perf_counter()
+    kw = dict(cameras=g["cameras"], zeniths_deg=g["zeniths_deg"], azimuth_deg=g["azimuth_deg"],
+              resolution=g["resolution"], window=g["window"], window_fraction=g["window_fraction"],
+              margin_m=g["margin_m"], fov_deg=g["fov_deg"], camera_height_m=g["camera_height_m"])
+    images: list[GapImage] = []
+    try:
+        views = gap_views(canopies[0], **kw)
+        for canopy in canopies:
+            images += gap_images(canopy, spp=g["spp"], jitter=g["jitter"], seed=cfg.seed,
+                                 variant=cfg["scene"]["variant"], views=views, **kw)
+    except ConfigError as exc:
+        if exc.file is None:
+            err = ConfigError(str(exc), file=cfg.source)  # the message already names key, value
+            err.key, err.value = exc.key, exc.value
+            raise err from exc
+        raise
+    for im in images:
+        im.replicate = replicate
+    seconds["render"] = seconds.get("render", 0.0) + time.perf_counter() - t0
+    return canopies, images
+
+
 def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None = None,
-                    overrides: Sequence[str] = (), *, write_images: bool = True) -> GapFractionRun:
-    """Scene file → canopies (one per extraction step) → gap images → files.
+                    overrides: Sequence[str] = (), *, write_images: bool = True,
+                    replicates: int | None = None) -> GapFractionRun:
+    """Scene file → canopies (one per extraction step) of each replicate plot → images → files.
+
+    ``[gapfraction] replicates`` (or ``replicates=``) independent plots of the scene
+    (:func:`~simlidar_mi.canopy.canopy.replicate_seed`) are rendered through their own
+    cameras and windows; every P0 reported is the mean over them, with their SD.
 
     Writes into ``out_dir`` (all files appear together when complete; a failure
     leaves ``out_dir`` as it was):
 
-    - ``gap_fraction.csv``: ``camera, zenith_deg, step, p0, leaf_area_m2, lai, spp,
-      width, height, seconds``, one line per image;
-    - ``gap_fraction.json``: the same plus every camera setting and window;
-    - ``gap_<camera>_z<zenith>_s<step>.png``: vegetation mask (coverage ≥
-      ``mask_threshold``, display only) with the window outlined;
-    - ``gap_<camera>_z<zenith>_s<step>.exr``: float32 coverage with the settings
-      in the header.
+    - ``gap_fraction.csv``: ``camera, zenith_deg, step, p0, p0_sd, p0_se, replicates,
+      leaf_area_m2, lai, spp, width, height, seconds``, one line per view and step;
+      ``p0`` is the mean over replicates, ``p0_sd`` the SD between them,
+      ``p0_se = p0_sd/√replicates``; leaf area, LAI are means, seconds a sum;
+    - ``gap_fraction_replicates.csv``: ``replicate, camera, zenith_deg, step, p0,
+      leaf_area_m2, lai, seconds``, one line per rendered image;
+    - ``gap_fraction.json``: the settings and every image's settings and window;
+    - ``gap_<camera>_z<zenith>_s<step>.png``: vegetation mask of replicate 0
+      (coverage ≥ ``mask_threshold``, display only) with the window outlined;
+    - ``gap_<camera>_z<zenith>_s<step>.exr``: replicate 0's float32 coverage with the
+      settings in the header.
     """
     cfg = scene if isinstance(scene, SceneConfig) else load_scene(scene, list(overrides))
     g = _settings(cfg)
-    variant = cfg["scene"]["variant"]
-    t0 = time.perf_counter()
-    canopies = canopies_from_config(cfg)
-    seconds = {"generate": time.perf_counter() - t0}
-    images: list[GapImage] = []
-    t0 = time.perf_counter()
-    for canopy in canopies:
-        try:
-            images += gap_images(canopy, cameras=g["cameras"], zeniths_deg=g["zeniths_deg"],
-                                 azimuth_deg=g["azimuth_deg"], resolution=g["resolution"],
-                                 spp=g["spp"], window=g["window"],
-                                 window_fraction=g["window_fraction"], margin_m=g["margin_m"],
-                                 fov_deg=g["fov_deg"], camera_height_m=g["camera_height_m"],
-                                 jitter=g["jitter"], seed=cfg.seed, variant=variant,
-                                 reference=canopies[0])
-        except ConfigError as exc:
-            if exc.file is None:
-                raise ConfigError(str(exc), file=cfg.source) from exc
-            raise
-    seconds["render"] = time.perf_counter() - t0
-    run = GapFractionRun(images, canopies, {}, seconds)
+    if replicates is not None:
+        if isinstance(replicates, bool) or not isinstance(replicates, int) or replicates < 1:
+            raise ConfigError("replicates must be an integer ≥ 1", key="gapfraction.replicates",
+                              value=replicates)
+        g["replicates"] = replicates
+    seconds: dict[str, float] = {}
+    reps = [_render_replicate(cfg, g, k, seconds) for k in range(g["replicates"])]
+    canopies, images = reps[0]
+    run = GapFractionRun(images, canopies, {}, seconds, [r[1] for r in reps],
+                         summarise([r[1] for r in reps]))
     if out_dir is None:
         return run
     from ..io.png import write_mask_png  # noqa: PLC0415
     out = Path(out_dir)
     t0 = time.perf_counter()
     with staged_dir(out) as stage:
-        write_csv(stage / "gap_fraction.csv", CSV_COLUMNS, (
-            {**img.row(), "p0": f"{img.p0:.6f}", "leaf_area_m2": f"{img.leaf_area_m2:.6g}",
-             "lai": f"{img.lai:.6g}", "seconds": f"{img.seconds:.4f}",
-             "zenith_deg": f"{img.camera.zenith_deg:g}"} for img in images))
+        write_csv(stage / "gap_fraction.csv", CSV_COLUMNS, (s.row() for s in run.summary))
         run.files["csv"] = out / "gap_fraction.csv"
+        write_csv(stage / "gap_fraction_replicates.csv", REPLICATE_COLUMNS, (
+            {"replicate": im.replicate, "camera": im.camera.kind,
+             "zenith_deg": f"{im.camera.zenith_deg:g}", "step": im.step, "p0": f"{im.p0:.6f}",
+             "leaf_area_m2": f"{im.leaf_area_m2:.6g}", "lai": f"{im.lai:.6g}",
+             "seconds": f"{im.seconds:.4f}"} for rep in run.replicate_images for im in rep))
+        run.files["replicates_csv"] = out / "gap_fraction_replicates.csv"
         extra = {"scene_file": cfg.source, "scene_sha256": cfg.sha256, "seed": cfg.seed}
         meta = {"scene": cfg.source, "scene_sha256": cfg.sha256, "seed": cfg.seed,
-                "settings": g, "images": []}
+                "settings": g, "images": [],
+                "summary": [{**s.row(), "p0_values": list(s.p0_values)} for s in run.summary]}
         for img in images:
             stem = img.stem()
             if write_images:

@@ -563,7 +563,8 @@ def run_synthetic_photos(scene, out_dir: str | Path | None = None, overrides: Se
                          *, isolate: bool | None = None) -> list[SyntheticPhotoCheck]:
     """Every gap-fraction view of a scene file, also as a synthetic photo checked by Canopeo.
 
-    The views are those of ``[gapfraction]`` (cameras × zeniths × extraction steps);
+    The views are those of ``[gapfraction]`` (cameras × zeniths × extraction steps) of the
+    scene seed's own plot (replicate 0; ``replicates`` is ignored here);
     lighting and colours come from ``[photo_render]`` (defaults: :data:`DEFAULTS`).
     All photos are rendered in one child process.
 
@@ -577,7 +578,8 @@ def run_synthetic_photos(scene, out_dir: str | Path | None = None, overrides: Se
     from .gapfraction import run_gapfraction  # noqa: PLC0415
     cfg = scene if isinstance(scene, SceneConfig) else load_scene(scene, list(overrides))
     settings = PhotoSettings.from_config(cfg)
-    run = run_gapfraction(cfg, None)
+    # one plot: each photo is checked against the coverage render of the same canopy
+    run = run_gapfraction(cfg, None, replicates=1)
     by_step = {c.step: c for c in run.canopies}
     canopies = [by_step[im.step] for im in run.images]
     checks = check_images(run.images, canopies, settings, seed=cfg.seed, isolate=isolate)

@@ -19,14 +19,18 @@ Leaf area index and the paper's Table 4
 ---------------------------------------
 LAI is the one-sided leaf area over the planted area ``rows·inter_row_m ×
 plants_per_row·intra_row_m`` (:attr:`StrawberryPlot.lai`). A leaf averages
-``2.836·E[S] ≈ 37.1 cm²`` (E[S] = 13.10 cm² after truncation), so the paper's grid
-(16.4 plants per m², 42 leaves a plant) gives LAI ≈ 2.6, about twice Table 4's
-1.241 m² of virtual leaves on its 1 m² sample. Table 4 matches at about 8 plants
-per m² (e.g. 0.227 m × 0.55 m a plant) with Table 3's S, or, step by step
-(1.20, 1.00, 0.81, 0.60 m² against 1.241, 1.034, 0.849, 0.642), with 6 plants per
-m² and ``area_mean_m2 = 16.6e-4``: the paper's virtual canopy lost ≈47 cm² a
-removed leaf, and its field extractions (44 + 39 + 44 leaves = half the canopy)
-imply ≈254 leaves, i.e. ≈6 plants of 42 leaves, on the 1 m² sample.
+``2.836·E[S] ≈ 37.1 cm²`` (E[S] = 13.10 cm² after truncation), so an even planting at
+the paper's Table 3 grid (16.4 plants per m², 42 leaves a plant) gives LAI ≈ 2.6,
+about twice Table 4's 1.241 m² of virtual leaves per 1 m² sample: the two tables
+conflict for an even planting.  The reading that fits: Table 4 is per m² of ground
+*including unplanted space*.  Its virtual canopy lost 47 cm² per removed leaf at
+every step ((1.241 − 1.034)/44, (1.034 − 0.849)/39, (0.849 − 0.642)/44), so it held
+≈ 264 leaves = 6 plants × 44, and with 47.0 cm² a leaf and the paper's removals
+6 × 44 leaves reproduce all four Table 4 values within 0.002 m²; the field's
+44 + 39 + 44 = half gives ≈ 254 leaves, ≈ 6 plants of 42.  Why a virtual leaf was
+47 cm² when Table 3's S makes it 37 cm² the paper does not say.  The gap fraction
+was measured in "the central part of the row", i.e. over the planted bed, which is
+what an even plot at Table 3's grid models.
 """
 from __future__ import annotations
 

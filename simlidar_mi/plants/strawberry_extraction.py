@@ -1,12 +1,23 @@
 """Leaf extraction (the strawberry paper's density experiment): successive random leaf removals.
 
-Each step removes whole leaves from what the step before left (the paper removed
-44, 39 and 44 leaves in turn); :func:`extraction_steps` gives each step's leaf area
-and LAI on a :class:`~simlidar_mi.plants.strawberry.StrawberryPlot` (cf. the paper's
-Table 4).
+The paper pulled one sixth of each sample area's leaves out, three times, "leaving half
+of the original leaves at the end of the last extraction"; the 44, 39 and 44 leaves it
+reports are those sixths of a ~254-leaf sample area, and its virtual canopy (a canopy
+of that size) lost the same numbers.  On a virtual plot of another size the same
+*shares* must go, so the default here removes a fraction of the starting leaves per
+step (:data:`PAPER_EXTRACTION_FRACTIONS`); absolute counts
+(:data:`PAPER_EXTRACTION_COUNTS`) stay available as an explicit option.
+
+Leaves are removed whole and at random, each step from what the step before left, so
+every step is a subset of the previous one.  Counts are exact (see
+:func:`fraction_counts`); leaf area falls by the same share *in expectation* (leaves
+differ in size), which is what the paper's field procedure, counting leaves, did too.
+:func:`extraction_steps` gives each step's leaf area and LAI on a
+:class:`~simlidar_mi.plants.strawberry.StrawberryPlot` (cf. the paper's Table 4).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -17,41 +28,91 @@ from ..errors import ConfigError
 from ..geometry import Leaves
 from .strawberry import StrawberryPlot
 
-__all__ = ["ExtractionStep", "extract_leaves", "extraction_steps", "PAPER_EXTRACTION_COUNTS"]
+__all__ = ["ExtractionStep", "extract_leaves", "extraction_steps", "fraction_counts",
+           "PAPER_EXTRACTION_COUNTS", "PAPER_EXTRACTION_FRACTIONS"]
 
-#: Leaves removed in the paper's three successive extractions (average of 3 areas).
+#: Leaves removed in the paper's three successive extractions (average of its 3 sample
+#: areas of ~254 leaves each): right only for a canopy of that size.
 PAPER_EXTRACTION_COUNTS = (44, 39, 44)
+
+#: Share of the *starting* leaves removed at each of the paper's three extractions
+#: ("one sixth of the leaves … leaving half"): the default.
+PAPER_EXTRACTION_FRACTIONS = (1 / 6, 1 / 6, 1 / 6)
 
 
 # ----------------------------------------------------------------------- extraction
-def extract_leaves(leaves: Leaves, counts: Sequence[int] = PAPER_EXTRACTION_COUNTS,
-                   seed: int | np.random.SeedSequence | None = None) -> list[Leaves]:
+def fraction_counts(n_leaves: int, fractions: Sequence[float]) -> list[int]:
+    """Leaves to remove at each step when step ``k`` removes ``fractions[k]`` of the start.
+
+    Cumulative rounding: after step ``k`` exactly ``floor(n0·Σ_{i≤k} f_i + ½)`` leaves
+    are gone, so rounding never accumulates (1/6 three times leaves exactly
+    ``n0 − floor(n0/2 + ½)``, "half"), and each step's count is within one of
+    ``n0·f_k``.
+
+    Raises
+    ------
+    ConfigError
+        A fraction outside [0, 1] or fractions adding up to more than 1.
+    """
+    total = 0.0
+    for k, f in enumerate(fractions):
+        if isinstance(f, bool) or not isinstance(f, (int, float, np.integer, np.floating)) \
+                or not (math.isfinite(f) and 0.0 <= f <= 1.0):
+            raise ConfigError("extraction fractions must be numbers in [0, 1] (shares of the "
+                              "starting leaves)", key=f"fractions[{k}]", value=f)
+        total += float(f)
+    if total > 1.0 + 1e-9:
+        raise ConfigError(f"extraction fractions add up to {total:.6g} > 1 (they are shares "
+                          "of the starting leaves)", key="fractions", value=list(fractions))
+    out, done, acc = [], 0, 0.0
+    for f in fractions:
+        acc += float(f)
+        # the 1e-9 absorbs float error in n0·Σf (e.g. 6·(1/6 + 1/6 + 1/6))
+        gone = min(int(n_leaves), int(math.floor(n_leaves * acc + 0.5 + 1e-9)))
+        out.append(gone - done)
+        done = gone
+    return out
+
+
+def extract_leaves(leaves: Leaves, counts: Sequence[int] | None = None,
+                   seed: int | np.random.SeedSequence | None = None, *,
+                   fractions: Sequence[float] | None = None) -> list[Leaves]:
     """Successive random leaf removals, as in the paper's density experiment.
 
-    Step 0 is the full canopy; step ``k`` removes ``counts[k-1]`` whole leaves (all
-    their triangles) chosen uniformly at random, without replacement, among the
-    leaves left after step ``k-1``. Each step is therefore a subset of the previous.
+    Step 0 is the full canopy; step ``k`` removes whole leaves (all their triangles)
+    chosen uniformly at random, without replacement, among the leaves left after step
+    ``k-1``. Each step is therefore a subset of the previous.
 
     Parameters
     ----------
     leaves : Leaves
         Canopy; leaves are identified by ``leaf_id``.
-    counts : sequence of int
-        Leaves removed at each step (paper: 44, 39, 44).
+    counts : sequence of int, optional
+        Leaves removed at each step (the paper's absolute numbers were 44, 39, 44).
+        Give either ``counts`` or ``fractions``.
     seed : int, SeedSequence or None
+    fractions : sequence of float, optional
+        Share of the starting leaves removed at each step (default, when neither is
+        given: :data:`PAPER_EXTRACTION_FRACTIONS`); counts from :func:`fraction_counts`.
 
     Returns
     -------
     list of Leaves
-        ``len(counts) + 1`` canopies.
+        One canopy per step plus the full one.
 
     Raises
     ------
     ConfigError
-        If a count is negative or larger than the number of leaves remaining.
+        Both or bad counts/fractions, or a count larger than the leaves remaining.
     """
-    rng = np.random.default_rng(_root_seed(seed))
     ids = np.unique(leaves.leaf_id)
+    if counts is not None and fractions is not None:
+        raise ConfigError("give extraction counts or fractions, not both", key="counts",
+                          value=list(counts))
+    if counts is None:
+        counts = fraction_counts(len(ids), PAPER_EXTRACTION_FRACTIONS if fractions is None
+                                 else fractions)
+    rng = np.random.default_rng(_root_seed(seed))
     remaining = ids
     out = [leaves]
     for k, n in enumerate(counts, start=1):
@@ -91,16 +152,19 @@ class ExtractionStep:
     lai: float
 
 
-def extraction_steps(plot: StrawberryPlot, counts: Sequence[int] = PAPER_EXTRACTION_COUNTS,
-                     seed: int | np.random.SeedSequence | None = None) -> list[ExtractionStep]:
+def extraction_steps(plot: StrawberryPlot, counts: Sequence[int] | None = None,
+                     seed: int | np.random.SeedSequence | None = None, *,
+                     fractions: Sequence[float] | None = None) -> list[ExtractionStep]:
     """Leaf area and LAI of the plot after each extraction (cf. paper Table 4).
 
-    The ground area is the planted area ``rows·inter_row_m × plants_per_row·
-    intra_row_m`` (:attr:`StrawberryPlot.ground_area_m2`).
+    ``counts`` / ``fractions`` as in :func:`extract_leaves` (default: one sixth of
+    the starting leaves, three times). The ground area is the planted area
+    ``rows·inter_row_m × plants_per_row·intra_row_m``
+    (:attr:`StrawberryPlot.ground_area_m2`).
     """
     ground = plot.ground_area_m2
     steps = []
-    for k, lv in enumerate(extract_leaves(plot.leaves, counts, seed)):
+    for k, lv in enumerate(extract_leaves(plot.leaves, counts, seed, fractions=fractions)):
         area = float(lv.triangle_area.sum())
         steps.append(ExtractionStep(k, lv, int(len(np.unique(lv.leaf_id))), area, area / ground))
     return steps

@@ -59,12 +59,12 @@ Petiole (φ, θ) and length p
     Default ``petiole_zenith='phi'``: φ (45° ± 5.6°) is the zenith angle and θ
     (65° ± 45°) the divergence. We chose it because it reproduces the paper's
     gap fractions: with the paper's planting grid and 42 leaves a plant, removing
-    1/6 of the initial leaves three times as the paper did, an orthographic
-    point-sampled nadir P0 (central half of a 6 × 8 plot, mean of 3 seeds) goes
-    from 0.17 to 0.36 (paper, Figure 4: 0.15 to 0.40), whereas
-    ``petiole_zenith='theta'`` (θ as a zenith of 65° ± 45°, truncated) gives
-    0.09 to 0.31 and puts 7 % of the leaves partly below the ground (0.1 % with
-    the default). The central leaflet's midrib points along the petiole azimuth
+    1/6 of the initial leaves three times as the paper did, the nadir perspective
+    P0 of ``scenes/strawberry_plot.toml`` (mean of 16 plots) goes from 0.150 to
+    0.337 (paper, Figure 4: 0.15 to 0.40; mean over the 4 densities 0.229 against
+    the measured 0.270), whereas ``petiole_zenith='theta'`` (θ as a zenith of
+    65° ± 45°, truncated) gives 0.087 to 0.292 (mean 0.174) and puts 7 % of the
+    leaves partly below the ground (0.1 % with the default); BENCHMARKS.md §2. The central leaflet's midrib points along the petiole azimuth
     (away from the plant centre). The petiole length is ``p = (p/a)·a``; the
     petiole itself is not meshed (the paper meshes leaflets only), and leaves are
     not kept above the ground or apart from each other (no collision handling).

@@ -173,7 +173,7 @@ def replicate_table(scene: Path):
             ss = sorted((s for s in run.summary if s.camera == kind and s.zenith_deg == z),
                         key=lambda s: s.step)
             rows.append(f"| {kind} | {z:g}° | " + " | ".join(
-                f"{s.p0:.3f} (sd {s.p0_sd:.3f}, se {s.p0_se:.4f})" for s in ss) + " |")
+                f"{s.p0:.3f} (sd {s.p0_sd_plot:.3f}, se {s.p0_sd:.4f})" for s in ss) + " |")
     n = len(run.replicate_images)
     lai = [f"{s.lai:.2f}" for s in run.summary if s.camera == "orthographic" and s.zenith_deg == 0]
     return (f"{n} replicate plots; LAI per step {' / '.join(lai)}.\n\n" + "\n".join(rows))

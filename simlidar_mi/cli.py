@@ -289,7 +289,8 @@ def _gapfraction_run(args: argparse.Namespace) -> int:
 
     run = run_gapfraction(args.scene, args.out, _overrides(args), write_images=not args.no_images)
     n = len(run.replicate_images)
-    print(f"mean over {n} replicate plot{'s' if n > 1 else ''}; p0_sd = SD between them")
+    print(f"p0: mean over {n} replicate plot{'s' if n > 1 else ''}; p0_sd: its seed-to-seed SD "
+          f"(the SD between plots / √{n})")
     print(f"{'camera':<12}  {'zenith':>6}  {'step':>4}  {'p0':>7}  {'p0_sd':>7}  {'lai':>6}  "
           f"{'spp':>4}  {'size':>10}  {'seconds':>7}")
     for s in run.summary:
@@ -317,11 +318,11 @@ def _compare_run(args: argparse.Namespace) -> int:
 
     res = compare(args.manifest, args.out)
     print(f"{'row':>4}  {'camera':<12}  {'zenith':>6}  {'step':>4}  {'measured':>8}  "
-          f"{'virtual':>7}  {'sd':>6}  {'se':>6}  {'reps':>4}  {'diff':>7}")
+          f"{'virtual':>7}  {'sd':>6}  {'sd/plot':>7}  {'reps':>4}  {'diff':>7}")
     for p in res.pairs:
         print(f"{p.row.row:>4}  {p.row.camera:<12}  {p.row.zenith_deg:>6g}  {p.row.step_label:>4}  "
               f"{p.p0_measured:8.4f}  {p.p0_virtual:7.4f}  {p.p0_virtual_sd:6.4f}  "
-              f"{p.p0_virtual_se:6.4f}  {p.replicates:>4}  {p.difference:+7.4f}")
+              f"{p.p0_virtual_sd_plot:7.4f}  {p.replicates:>4}  {p.difference:+7.4f}")
 
     def f(v, fmt):
         return "-" if not math.isfinite(v) else format(v, fmt)

@@ -275,7 +275,7 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "camera_height_m": Key(FLOAT, 1.0, positive, "perspective camera above the highest leaf"),
         "jitter": Key(BOOL, False, None, "jitter samples in their strata (seeded by scene.seed)"),
         "replicates": Key(INT, 16, at_least(1), "independent plots (child seeds of scene.seed) "
-                          "rendered and averaged: p0 = mean, p0_sd = SD between them"),
+                          "rendered and averaged: p0 = mean, p0_sd = its seed-to-seed SD"),
         "mask_threshold": Key(FLOAT, 0.5, lambda v: None if 0 < v <= 1 else "must lie in (0, 1]",
                               "coverage drawn as vegetation in mask PNGs (display only)"),
     },

@@ -418,8 +418,8 @@ def test_replicate_seeds():
 
 
 def test_replicates_mean_sd_and_files(tmp_path):
-    """gap_fraction.csv: p0 = mean over replicate plots, p0_sd = their SD (ddof 1),
-    p0_se = p0_sd/√n; the replicate values are in gap_fraction_replicates.csv.
+    """gap_fraction.csv: p0 = mean over replicate plots, p0_sd_plot = their SD (ddof 1),
+    p0_sd = p0_sd_plot/√n; the replicate values are in gap_fraction_replicates.csv.
     Replicate 0 is the scene seed's own plot, and adding replicates keeps the others."""
     path = tmp_path / "rl.toml"
     path.write_text(RL_SCENE.format(jitter="false"))
@@ -433,13 +433,13 @@ def test_replicates_mean_sd_and_files(tmp_path):
              == (r["camera"], r["zenith_deg"], r["step"])]
         assert len(v) == 3 and int(r["replicates"]) == 3
         assert float(r["p0"]) == pytest.approx(np.mean(v), abs=2e-6)
-        assert float(r["p0_sd"]) == pytest.approx(np.std(v, ddof=1), abs=2e-6)
-        assert float(r["p0_se"]) == pytest.approx(np.std(v, ddof=1) / math.sqrt(3), abs=2e-6)
-        assert float(r["p0_sd"]) > 0.002  # independent plots really differ
+        assert float(r["p0_sd_plot"]) == pytest.approx(np.std(v, ddof=1), abs=2e-6)
+        assert float(r["p0_sd"]) == pytest.approx(np.std(v, ddof=1) / math.sqrt(3), abs=2e-6)
+        assert float(r["p0_sd_plot"]) > 0.002  # independent plots really differ
     one = run_gapfraction(path, None, ["gapfraction.replicates=1"])
     two = run_gapfraction(path, None, ["gapfraction.replicates=2"])
     assert [im.p0 for im in one.images] == [im.p0 for im in run.replicate_images[0]]
     assert [im.p0 for im in two.replicate_images[1]] == [im.p0 for im in run.replicate_images[1]]
-    assert all(math.isnan(s.p0_sd) for s in one.summary)
+    assert all(math.isnan(s.p0_sd_plot) for s in one.summary)
     with pytest.raises(ConfigError, match="replicates"):
         load_scene(path, ["gapfraction.replicates=0"])

@@ -26,7 +26,7 @@ Outputs (written together, or not at all)
 ``pairs.csv``
     Every manifest row with its measured P0 and the virtual P0: the mean over the
     scene's ``[gapfraction] replicates`` plots, the SD between them
-    (``p0_virtual_sd``) and the SD of the mean (``p0_virtual_se``); see
+    (``p0_virtual_sd_plot``) and the SD of the mean (``p0_virtual_sd``); see
     :data:`PAIRS_COLUMNS`.
 ``comparison.png``
     Measured (x) vs virtual (y) P0, one panel per zenith, with the 1:1 line (Fig. 4).
@@ -59,7 +59,7 @@ __all__ = [
 COMPARISON_COLUMNS = ("zenith_deg", "n", "r", "rmse", "rmse_r", "bias", "bias_r", "bias_se",
                       "scatter", "paper_rmse", "paper_bias", "paper_scatter")
 PAIRS_COLUMNS = ("row", "scene", "camera", "zenith_deg", "step", "p0_measured", "p0_virtual",
-                 "p0_virtual_sd", "p0_virtual_se", "replicates", "difference", "measured_from",
+                 "p0_virtual_sd", "p0_virtual_sd_plot", "replicates", "difference", "measured_from",
                  "photo", "method", "crop", "lai_virtual", "note")
 
 #: The paper's Table 5 per view zenith: (RMSE, Bias) over its 4 densities.  Its error
@@ -77,13 +77,13 @@ class Pair:
     p0_virtual: float
     lai_virtual: float
     photo_result: Any = None  # simlidar_mi.canopy.photo.PhotoGapResult for photo rows
-    p0_virtual_sd: float = math.nan  # SD between the scene's replicate plots
+    p0_virtual_sd_plot: float = math.nan  # SD between the scene's replicate plots
     replicates: int = 1
 
     @property
-    def p0_virtual_se(self) -> float:
+    def p0_virtual_sd(self) -> float:
         """Seed-to-seed SD of ``p0_virtual`` (a mean over ``replicates`` plots)."""
-        return self.p0_virtual_sd / math.sqrt(self.replicates)
+        return self.p0_virtual_sd_plot / math.sqrt(self.replicates)
 
     @property
     def difference(self) -> float:
@@ -96,8 +96,8 @@ class Pair:
         return {"row": r.row, "scene": r.scene_text, "camera": r.camera,
                 "zenith_deg": f"{r.zenith_deg:g}", "step": r.step_label,
                 "p0_measured": f"{self.p0_measured:.6f}", "p0_virtual": f"{self.p0_virtual:.6f}",
-                "p0_virtual_sd": f"{self.p0_virtual_sd:.6f}",
-                "p0_virtual_se": f"{self.p0_virtual_se:.6f}", "replicates": self.replicates,
+                "p0_virtual_sd_plot": f"{self.p0_virtual_sd_plot:.6f}",
+                "p0_virtual_sd": f"{self.p0_virtual_sd:.6f}", "replicates": self.replicates,
                 "difference": f"{self.difference:+.6f}", "measured_from": src,
                 "photo": r.photo_text, "method": r.method if r.photo is not None else "",
                 "crop": r.crop_text, "lai_virtual": f"{self.lai_virtual:.4f}", "note": r.note}
@@ -283,7 +283,7 @@ def _fmt(v: Any) -> str:
 def _stats_row(zenith: float | str, ps: list[Pair]) -> dict[str, Any]:
     st = comparison_stats([p.p0_virtual for p in ps], [p.p0_measured for p in ps])
     # seed noise of the virtual side only (measured values carry their own)
-    bias_se = math.sqrt(sum(p.p0_virtual_se ** 2 for p in ps)) / len(ps)
+    bias_se = math.sqrt(sum(p.p0_virtual_sd ** 2 for p in ps)) / len(ps)
     paper = next((v for z, v in PAPER_TABLE5.items() if not isinstance(zenith, str)
                   and abs(z - zenith) <= _ZENITH_TOL_DEG), None)
     ref = {"paper_rmse": math.nan, "paper_bias": math.nan, "paper_scatter": math.nan}
@@ -307,7 +307,7 @@ def plot_comparison(pairs: Sequence[Pair], stats: Sequence[dict[str, Any]], path
 
     Points are labelled with their extraction step; photo-derived and typed-in
     measurements use different markers; error bars are the virtual P0's seed-to-seed SD
-    (``p0_virtual_se``).
+    (``p0_virtual_sd``).
     """
     import matplotlib  # noqa: PLC0415
     matplotlib.use("Agg")
@@ -331,7 +331,7 @@ def plot_comparison(pairs: Sequence[Pair], stats: Sequence[dict[str, Any]], path
                 ax.scatter([p.p0_measured for p in sel], [p.p0_virtual for p in sel], s=36,
                            marker=marker, color=colour, zorder=3,
                            label="from photo" if src == "photo" else "measured value")
-                se = [p.p0_virtual_se if math.isfinite(p.p0_virtual_se) else 0.0 for p in sel]
+                se = [p.p0_virtual_sd if math.isfinite(p.p0_virtual_sd) else 0.0 for p in sel]
                 ax.errorbar([p.p0_measured for p in sel], [p.p0_virtual for p in sel], yerr=se,
                             fmt="none", ecolor=colour, elinewidth=1, capsize=2, zorder=2)
         for p in ps:

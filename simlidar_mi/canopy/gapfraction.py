@@ -50,7 +50,7 @@ __all__ = [
     "replicate_sd", "summarise", "write_gap_exr", "read_gap_exr",
 ]
 
-CSV_COLUMNS = ("camera", "zenith_deg", "step", "p0", "p0_sd", "p0_se", "replicates",
+CSV_COLUMNS = ("camera", "zenith_deg", "step", "p0", "p0_sd", "p0_sd_plot", "replicates",
                "leaf_area_m2", "lai", "spp", "width", "height", "seconds")
 REPLICATE_COLUMNS = ("replicate", "camera", "zenith_deg", "step", "p0", "leaf_area_m2", "lai",
                      "seconds")
@@ -289,9 +289,9 @@ def read_gap_exr(path: str | Path) -> tuple[np.ndarray, dict]:
 class GapSummary:
     """One line of gap_fraction.csv: a view and step averaged over the replicate plots.
 
-    ``p0`` is the mean of ``p0_values`` (one per replicate), ``p0_sd`` their sample SD
+    ``p0`` is the mean of ``p0_values`` (one per replicate), ``p0_sd_plot`` their sample SD
     (ddof 1; nan for one replicate): how much one plot's P0 scatters between seeds.
-    ``p0_se = p0_sd/√n`` is the seed-to-seed SD of ``p0`` itself.
+    ``p0_sd = p0_sd_plot/√n`` is the seed-to-seed SD of ``p0`` itself.
     """
 
     camera: str
@@ -314,17 +314,17 @@ class GapSummary:
         return float(np.mean(self.p0_values))
 
     @property
-    def p0_sd(self) -> float:
+    def p0_sd_plot(self) -> float:
         return replicate_sd(self.p0_values)
 
     @property
-    def p0_se(self) -> float:
-        return self.p0_sd / math.sqrt(self.replicates)
+    def p0_sd(self) -> float:
+        return self.p0_sd_plot / math.sqrt(self.replicates)
 
     def row(self) -> dict[str, Any]:
         """One line of gap_fraction.csv (formatted)."""
         return {"camera": self.camera, "zenith_deg": f"{self.zenith_deg:g}", "step": self.step,
-                "p0": f"{self.p0:.6f}", "p0_sd": f"{self.p0_sd:.6f}", "p0_se": f"{self.p0_se:.6f}",
+                "p0": f"{self.p0:.6f}", "p0_sd_plot": f"{self.p0_sd_plot:.6f}", "p0_sd": f"{self.p0_sd:.6f}",
                 "replicates": self.replicates, "leaf_area_m2": f"{self.leaf_area_m2:.6g}",
                 "lai": f"{self.lai:.6g}", "spp": self.spp, "width": self.width,
                 "height": self.height, "seconds": f"{self.seconds:.4f}"}
@@ -418,10 +418,10 @@ def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None 
     Writes into ``out_dir`` (all files appear together when complete; a failure
     leaves ``out_dir`` as it was):
 
-    - ``gap_fraction.csv``: ``camera, zenith_deg, step, p0, p0_sd, p0_se, replicates,
+    - ``gap_fraction.csv``: ``camera, zenith_deg, step, p0, p0_sd, p0_sd_plot, replicates,
       leaf_area_m2, lai, spp, width, height, seconds``, one line per view and step;
-      ``p0`` is the mean over replicates, ``p0_sd`` the SD between them,
-      ``p0_se = p0_sd/√replicates``; leaf area, LAI are means, seconds a sum;
+      ``p0`` is the mean over replicates, ``p0_sd_plot`` the SD between them,
+      ``p0_sd = p0_sd_plot/√replicates``; leaf area, LAI are means, seconds a sum;
     - ``gap_fraction_replicates.csv``: ``replicate, camera, zenith_deg, step, p0,
       leaf_area_m2, lai, seconds``, one line per rendered image;
     - ``gap_fraction.json``: the settings and every image's settings and window;

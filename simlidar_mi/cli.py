@@ -87,6 +87,10 @@ def _study_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-readings", dest="readings", action="store_false",
                    help="skip the re-scans under the paper's other readings (fraction rule, "
                         "far-side limits, the old study) that regression.json compares")
+    p.add_argument("--on-mismatch", choices=["recompute", "refuse"], default="recompute",
+                   help="rows already in DIR/rows for this grid's orchards but scanned from another "
+                        "scene or by other code: 'recompute' (default) rescans them and says which "
+                        "and why; 'refuse' stops before any scan, saying the same")
 
 
 @command("study", "SIMLIDAR §5 study: scan the 96-orchard grid, fit A_PR and A_L against A_IM "
@@ -96,7 +100,8 @@ def _study_run(args: argparse.Namespace) -> int:
 
     grid = [list(args.overrides) + g for g in paper_grid()]
     res = run_study(args.scene, args.out, grid, workers=args.workers, progress=sys.stderr.isatty(),
-                    hit_rule=args.hit_rule, footprint=args.footprint, readings=args.readings)
+                    hit_rule=args.hit_rule, footprint=args.footprint, readings=args.readings,
+                    on_mismatch=args.on_mismatch)
     print(f"hit rule {', '.join(res.regression['scan']['hit_rule'])}, footprint P = "
           f"{', '.join(map(str, res.regression['scan']['footprint']))}")
     for key, name in (("A_PR_vs_A_IM", "A_PR"), ("A_L_vs_A_IM", "A_L")):

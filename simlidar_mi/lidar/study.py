@@ -8,6 +8,15 @@ tasks in separate processes).  Every finished orchard is written at once to
 ``rows/<key>.json``, so an interrupted study resumes where it stopped.  Outputs:
 ``study.csv`` (one row per orchard), ``regression.json`` and ``correlations.png``.
 
+A row's key hashes what it was computed from: the resolved scene (every key of the
+validated scene after the overrides, OBJ files by content, see :func:`scene_table`), the
+code (:func:`code_version`), the row schema and the readings flag.  A row is reused only
+when all of these match; rows of this grid scanned from another scene or by other code
+are recomputed (``on_mismatch="recompute"``, the default) or refused
+(``on_mismatch="refuse"``), and either way the message names the orchards and what
+differs.  Worker processes end when the study process dies, even by SIGKILL
+(:func:`_die_with_parent`).
+
 Each orchard is also scanned under the other readings of the paper that move the result
 (:data:`READINGS`: the fraction rule, eq. 8's far-side limits, and the study as it was
 before both were corrected), from the same built scene, so ``regression.json`` can say how
@@ -22,18 +31,27 @@ the scene's own footprint and weights each beam by its share of sub-beams that h
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import itertools
 import json
+import logging
+import os
+import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from ..config import load_scene
+from .._version import __version__
+from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..io.atomic import atomic_file, write_csv
+
+log = logging.getLogger(__name__)
 
 PAPER = {"A_PR": (3.6166, 0.7002), "A_L": (10.812, 0.7756)}  # slope, R² (paper eq. 15)
 COLUMNS = ["key", "iterations", "d_min_m", "n_trees", "pruning", "stochastic", "n_branches",
@@ -42,7 +60,10 @@ COLUMNS = ["key", "iterations", "d_min_m", "n_trees", "pruning", "stochastic", "
 PAPER_FOOTPRINT = 2  # SIMLIDAR §3.1 takes P = 2
 PAPER_N_ORCHARDS = 42  # the paper's study size (§5)
 # Bump when a row's contents change, so that rows of an older study are never reused.
-ROW_SCHEMA = 2
+# 3: keys hash the resolved scene and the code version; rows record both.
+ROW_SCHEMA = 3
+# Scene keys that cannot change a row (left out of its key).
+NOT_IN_KEY = {"scene.name"}
 # Other readings of the paper, each a re-scan of the same built orchard: (scan-setting
 # changes, what it is).  The primary scan is the study's own (by default P = 2, "any",
 # near-side eq. 8 limits).
@@ -66,22 +87,110 @@ def paper_grid(iterations=(4, 5, 6, 7), d_min_m=(0.005, 0.006, 0.007), n_trees=(
     return grid
 
 
-def _key(overrides: list[str], readings: bool = True) -> str:
-    text = "\n".join([f"row-schema {ROW_SCHEMA}", f"readings {readings}", *overrides])
+def _legacy_key(overrides: list[str], readings: bool = True) -> str:
+    """The key of a row-schema-2 row (overrides only), to say why such rows are not reused."""
+    text = "\n".join(["row-schema 2", f"readings {readings}", *overrides])
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def run_one(scene: str, overrides: list[str], rows_dir: str, readings: bool = True) -> dict:
+def _file_sha256(path: str) -> str:
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return "unreadable"  # the scan itself will say what is wrong with the file
+
+
+def scene_table(cfg: SceneConfig) -> dict[str, Any]:
+    """The resolved scene as a flat ``{"section.key": value}`` table: every validated key
+    after defaults and overrides (so the same effective scene gives the same table however
+    it was written), OBJ primitives by the SHA-256 of their file, and the sections the file
+    declares (they choose what is generated)."""
+    table: dict[str, Any] = {"sections": sorted(cfg.present)}
+    for section, values in cfg.sections.items():
+        for key, value in values.items():
+            if f"{section}.{key}" not in NOT_IN_KEY:
+                table[f"{section}.{key}"] = value
+    for name, items in cfg.arrays.items():
+        for j, item in enumerate(items):
+            for key, value in item.items():
+                if name == "primitive" and key == "path" and value is not None:
+                    value = "sha256:" + _file_sha256(value)
+                table[f"{name}[{j}].{key}"] = value
+    return table
+
+
+@functools.lru_cache(maxsize=1)
+def code_version() -> str:
+    """``<version>+<source digest> mitsuba <v> drjit <v>``: the package version, a digest of
+    the package's and its Mitsuba plugins' Python source (so an edited checkout counts as
+    other code), and the Mitsuba and Dr.Jit that scan."""
+    import importlib.metadata as md  # noqa: PLC0415
+    import importlib.util  # noqa: PLC0415
+
+    digest = hashlib.sha256()
+    roots = [Path(__file__).resolve().parents[1]]
+    spec = importlib.util.find_spec("simlidar_mi.plugins")
+    roots += [Path(p) for p in (spec.submodule_search_locations or [])] if spec else []
+    for root in dict.fromkeys(roots):
+        for f in sorted(root.rglob("*.py")):
+            if "__pycache__" not in f.parts:
+                digest.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+    libs = []
+    for dist in ("mitsuba", "drjit"):
+        try:
+            libs.append(f"{dist} {md.version(dist)}")
+        except md.PackageNotFoundError:
+            libs.append(f"{dist} ?")
+    return " ".join([f"{__version__}+{digest.hexdigest()[:12]}", *libs])
+
+
+def _key(table: dict[str, Any], readings: bool = True, version: str | None = None) -> str:
+    """A row's key: the resolved scene, the code, the row schema and the readings flag."""
+    text = json.dumps({"row_schema": ROW_SCHEMA, "readings": readings,
+                       "code": code_version() if version is None else version, "scene": table},
+                      sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """Dask worker initializer: end this worker as soon as the study process dies, even by
+    SIGKILL, so that no orphan keeps scanning and writing rows.  Linux: the kernel sends
+    SIGKILL at the parent's death (``PR_SET_PDEATHSIG``); elsewhere a thread watches the
+    parent pid."""
+    if sys.platform.startswith("linux"):
+        import ctypes  # noqa: PLC0415
+        import signal  # noqa: PLC0415
+        try:
+            armed = ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0) == 0
+        except (OSError, AttributeError):
+            armed = False
+    else:
+        armed = False
+    if os.getppid() != parent_pid:  # the parent died before we armed
+        os._exit(1)
+    if not armed:
+        def watch() -> None:
+            while os.getppid() == parent_pid:
+                time.sleep(0.5)
+            os._exit(1)
+        threading.Thread(target=watch, name="simlidar-parent-watch", daemon=True).start()
+
+
+def run_one(scene: str, overrides: list[str], rows_dir: str, readings: bool = True,
+            version: str | None = None) -> dict:
     """Scan one orchard (and its other readings) and write its row; returns the row.
 
     A Dask task, so module-level.  The orchard is generated and built once; each reading
-    of :data:`READINGS` is one more scan of the same Mitsuba scene.
+    of :data:`READINGS` is one more scan of the same Mitsuba scene.  ``version`` is the
+    study's :func:`code_version` (default: this process's).
     """
     from dataclasses import replace  # noqa: PLC0415
 
     from .scan import resolve_settings, scan  # noqa: PLC0415  (imports Mitsuba in the worker)
     from .survey import build, generate, scan_measures, scan_patterns  # noqa: PLC0415
     cfg = load_scene(scene, overrides)
+    version = code_version() if version is None else version
+    table = scene_table(cfg)
     if cfg["platform"]["kind"] != "tractor":
         raise ConfigError("the §5 study scans with the tractor", file=cfg.source,
                           key="platform.kind", value=cfg["platform"]["kind"])
@@ -95,13 +204,14 @@ def run_one(scene: str, overrides: list[str], rows_dir: str, readings: bool = Tr
     seconds = time.perf_counter() - t1
     m = scan_measures(cfg, geometry, built, [result])
     t = cfg["orchard.tree"]
-    row = {"key": _key(overrides, readings), "iterations": t["iterations"], "d_min_m": t["d_min_m"],
+    row = {"key": _key(table, readings, version), "iterations": t["iterations"], "d_min_m": t["d_min_m"],
            "n_trees": cfg["orchard"]["n_trees"], "pruning": t["pruning"], "stochastic": t["stochastic"],
            "n_branches": m["n_branches"], "N": m["N"], "M": m["M"], "footprint": m["footprint"],
            "hit_rule": m["hit_rule"], "A_PR_swept_share": m.get("A_PR_swept_share"), "V_L_m3": m["V_L_m3"],
            "A_L_m2": m["A_L_m2"], "A_PR_m2": m["A_PR_m2"], "A_PR_exact_m2": m["A_PR_exact_m2"],
            "A_IM_m2": m["A_IM_m2"], "A_IM_yz_m2": m["A_IM_yz_m2"], "scan_seconds": seconds,
-           "overrides": overrides}
+           "overrides": overrides, "readings": readings, "row_schema": ROW_SCHEMA,
+           "code_version": version, "scene": table}
     if readings:
         for name, (change, _) in READINGS.items():
             sc = {**cfg["scan"], **change}
@@ -111,7 +221,7 @@ def run_one(scene: str, overrides: list[str], rows_dir: str, readings: bool = Tr
             row[f"A_IM_{name}_m2"] = scan(built, s, cfg["scene"]["variant"]).impacted_area_m2()
     row["seconds"] = time.perf_counter() - t0
     with atomic_file(Path(rows_dir) / f"{row['key']}.json") as tmp:
-        tmp.write_text(json.dumps(row, sort_keys=True))
+        tmp.write_text(json.dumps(row, sort_keys=True, default=str))
     return row
 
 
@@ -209,15 +319,84 @@ def scan_overrides(hit_rule: str = "any", footprint: int | None = None) -> list[
     return [f'scan.hit_rule="{hit_rule}"'] + ([f"scan.footprint={footprint}"] if footprint is not None else [])
 
 
+def _ranges(indices: list[int]) -> str:
+    """[1, 2, 3, 7] → '#1–3, #7' (1-based grid positions)."""
+    parts, i = [], 0
+    while i < len(indices):
+        j = i
+        while j + 1 < len(indices) and indices[j + 1] == indices[j] + 1:
+            j += 1
+        parts.append(f"#{indices[i]}" if i == j else f"#{indices[i]}–{indices[j]}")
+        i = j + 1
+    return ", ".join(parts)
+
+
+def _why(old: dict, table: dict[str, Any], version: str) -> str:
+    """What differs between an old row and the orchard it would stand for."""
+    if old.get("row_schema", 2) != ROW_SCHEMA or "scene" not in old:
+        return (f"an earlier row format (schema {old.get('row_schema', 2)}, now {ROW_SCHEMA}) that "
+                "did not record its scene or code")
+    why = []
+    if old.get("code_version") != version:
+        why.append(f"other code ({old.get('code_version')}, now {version})")
+    new = json.loads(json.dumps(table, default=str))
+    diff = [k for k in sorted(set(new) | set(old["scene"])) if new.get(k) != old["scene"].get(k)]
+    if diff:
+        shown = ", ".join(f"{k} {old['scene'].get(k)!r} → {new.get(k)!r}" for k in diff[:4])
+        why.append(f"another scene ({shown}{f', and {len(diff) - 4} more keys' if len(diff) > 4 else ''})")
+    return " and ".join(why) or "another key"
+
+
+def _stale(rows_dir: Path, grid: list[list[str]], keys: list[str], tables: list[dict],
+           readings: bool, version: str) -> tuple[dict[str, list[int]], int]:
+    """Rows in ``rows_dir`` that stand for orchards of this grid (same overrides and readings
+    flag) but were computed from another scene or code: ``{reason: [grid positions]}``, and
+    the number of other rows that belong to no orchard of this grid."""
+    wanted = set(keys)
+    by_overrides: dict[tuple, list[dict]] = {}
+    n_other = 0
+    for f in sorted(rows_dir.glob("*.json")):
+        if f.stem in wanted:
+            continue
+        try:
+            old = json.loads(f.read_text())
+        except (OSError, ValueError):
+            old = {}
+        n_other += 1
+        if "overrides" in old:
+            by_overrides.setdefault(tuple(old["overrides"]), []).append(old)
+    reasons: dict[str, list[int]] = {}
+    for i, (o, key, table) in enumerate(zip(grid, keys, tables)):
+        if (rows_dir / f"{key}.json").exists():
+            continue
+        for old in by_overrides.get(tuple(o), []):
+            same_flag = (old.get("readings") == readings if "readings" in old
+                         else old.get("key") == _legacy_key(o, readings))
+            if same_flag:
+                reasons.setdefault(_why(old, table, version), []).append(i + 1)
+                n_other -= 1
+                break
+    return reasons, max(n_other, 0)
+
+
 def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | None = None, *,
               workers: int = 1, progress: bool = False, hit_rule: str = "any",
-              footprint: int | None = None, readings: bool = True) -> StudyResult:
+              footprint: int | None = None, readings: bool = True,
+              on_mismatch: str = "recompute") -> StudyResult:
     """Run (or resume) the study of ``grid`` (default :func:`paper_grid`) on ``scene``.
 
     ``hit_rule`` and ``footprint`` (see :func:`scan_overrides`) come before each grid
-    entry's overrides, so an entry may still set its own; they are part of each row's key,
-    so rows scanned under another rule are never reused.  ``readings=False`` skips the
-    re-scans under :data:`READINGS` (about half the scan time)."""
+    entry's overrides, so an entry may still set its own.  ``readings=False`` skips the
+    re-scans under :data:`READINGS` (about half the scan time).
+
+    A row in ``out_dir/rows`` is reused only when its key matches: same resolved scene,
+    code, row schema and readings flag.  When rows of this grid's orchards were scanned
+    from another scene or by other code, ``on_mismatch="recompute"`` (default) rescans
+    them and logs a warning naming the orchards (grid positions) and what differs; the
+    old rows stay in ``rows/``, unused, so nothing computed is lost.
+    ``on_mismatch="refuse"`` raises :class:`ConfigError` saying the same, before any scan."""
+    if on_mismatch not in ("recompute", "refuse"):
+        raise ConfigError("must be 'recompute' or 'refuse'", key="on_mismatch", value=on_mismatch)
     scene = str(Path(scene).resolve())
     load_scene(scene)  # fail early, before any task, on a bad base scene
     grid = paper_grid() if grid is None else grid
@@ -225,22 +404,49 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
         raise ConfigError("the study grid is empty", file=scene)
     rule = scan_overrides(hit_rule, footprint)
     grid = [rule + list(g) for g in grid]
+    version = code_version()
+    tables = [scene_table(load_scene(scene, o)) for o in grid]
+    keys = [_key(t, readings, version) for t in tables]
     out = Path(out_dir)
     rows_dir = out / "rows"
+    if rows_dir.is_dir():
+        reasons, n_other = _stale(rows_dir, grid, keys, tables, readings, version)
+        if reasons:
+            what = "; ".join(f"orchards {_ranges(ix)} of the grid were scanned from {why}"
+                             for why, ix in reasons.items())
+            n = sum(map(len, reasons.values()))
+            if on_mismatch == "refuse":
+                raise ConfigError(f"holds rows for {n} of this study's {len(grid)} orchards that were "
+                                  f"computed from something else: {what}; rescan them with "
+                                  "--on-mismatch recompute, or choose another --out", file=rows_dir)
+            log.warning("study: %s: recomputing %d of %d orchards (the old rows stay there, unused): %s",
+                        rows_dir, n, len(grid), what)
+        if n_other:
+            log.warning("study: %s also holds %d rows of other grids or options, unused", rows_dir, n_other)
     rows_dir.mkdir(parents=True, exist_ok=True)
-    todo = [o for o in grid if not (rows_dir / f"{_key(o, readings)}.json").exists()]
+    todo = [(o, k) for o, k in zip(grid, keys) if not (rows_dir / f"{k}.json").exists()]
     if todo:
         import dask  # noqa: PLC0415
         from dask.diagnostics import ProgressBar  # noqa: PLC0415
-        tasks = [dask.delayed(run_one)(scene, o, str(rows_dir), readings) for o in todo]
-        scheduler = "processes" if workers > 1 else "synchronous"
+        tasks = [dask.delayed(run_one)(scene, o, str(rows_dir), readings, version) for o, _ in todo]
+        opts: dict[str, Any] = {"scheduler": "synchronous"}
+        if workers > 1:
+            # Workers die with this process (SIGKILL included) instead of scanning on as orphans.
+            opts = {"scheduler": "processes", "num_workers": workers,
+                    "initializer": functools.partial(_die_with_parent, os.getpid())}
         if progress:
             with ProgressBar():
-                dask.compute(*tasks, scheduler=scheduler, num_workers=workers)
+                dask.compute(*tasks, **opts)
         else:
-            dask.compute(*tasks, scheduler=scheduler, num_workers=workers)
-    rows = [json.loads((rows_dir / f"{_key(o, readings)}.json").read_text()) for o in grid]
+            dask.compute(*tasks, **opts)
+        missing = [k for _, k in todo if not (rows_dir / f"{k}.json").exists()]
+        if missing:  # a task keys its row by what it scanned: the inputs moved under us
+            raise ConfigError(f"{len(missing)} rows were written under other keys than planned: the "
+                              "scene or one of its OBJ files changed while the study ran; run it again",
+                              file=scene)
+    rows = [json.loads((rows_dir / f"{k}.json").read_text()) for k in keys]
     regression = regression_report(rows)
+    regression["code_version"] = version
     files = {"csv": out / "study.csv", "regression": out / "regression.json", "png": out / "correlations.png"}
     write_csv(files["csv"], COLUMNS, rows, extrasaction="ignore")
     with atomic_file(files["regression"]) as tmp:

@@ -173,3 +173,35 @@ def test_sigkilled_study_leaves_no_worker_running_or_writing(tmp_path):
             if _alive(p):
                 os.kill(p, signal.SIGKILL)
         proc.stderr.close()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+@pytest.mark.parametrize("platform", ["linux", "darwin"])
+def test_worker_initializer_ends_the_worker_when_its_parent_dies(platform):
+    # A parent starts a "worker" that runs the Dask initializer and then sleeps; killing the
+    # parent must end it: by PR_SET_PDEATHSIG on Linux, by the watchdog thread elsewhere.
+    worker = ("import os, sys, time\n"
+              "from simlidar_mi.lidar.study import _die_with_parent\n"
+              f"sys.platform = {platform!r}\n"
+              "_die_with_parent(os.getppid())\n"
+              "print('armed', flush=True)\n"
+              "time.sleep(120)\n")
+    parent = ("import subprocess, sys, time\n"
+              f"p = subprocess.Popen([sys.executable, '-c', {worker!r}], stdout=subprocess.PIPE)\n"
+              "assert p.stdout.readline() == b'armed\\n'\n"
+              "print(p.pid, flush=True)\n"
+              "time.sleep(120)\n")
+    proc = subprocess.Popen([sys.executable, "-c", parent], cwd=REPO, stdout=subprocess.PIPE)
+    child = None
+    try:
+        child = int(proc.stdout.readline())
+        assert _alive(child)
+        proc.kill()
+        proc.wait(30)
+        assert _wait_for(lambda: not _alive(child), 30), f"worker {child} outlived its parent"
+    finally:
+        proc.stdout.close()
+        if proc.poll() is None:
+            proc.kill()
+        if child is not None and _alive(child):
+            os.kill(child, signal.SIGKILL)

@@ -17,7 +17,8 @@ from simlidar_mi.cli import main
 from simlidar_mi.config import load_scene
 from simlidar_mi.errors import ConfigError
 from simlidar_mi.lidar import study
-from simlidar_mi.lidar.study import _key, _legacy_key, paper_grid, run_study, scan_overrides, scene_table
+from simlidar_mi.lidar.study import (_key, _legacy_key, _ranges, paper_grid, run_study, scan_overrides,
+                                    scene_table)
 from tests.conftest import REPO, SCENES
 
 GRID = [["orchard.tree.iterations=4", "orchard.n_trees=1", "scan.dtheta_deg=1.0", "scan.dy_m=0.01"]]
@@ -46,6 +47,7 @@ def test_key_follows_the_resolved_scene_not_how_it_was_written(tmp_path):
     assert a != _key(scene_table(load_scene(base)))
     assert a != _key(scene_table(load_scene(other)), version="0.0.0+other")
     assert a != _key(scene_table(load_scene(other)), readings=False)
+    assert _ranges([1, 2, 3, 7, 9, 10]) == "#1–3, #7, #9–10"
 
 
 def test_changed_scene_file_recomputes_its_rows_and_says_why(tmp_path, caplog):
@@ -53,7 +55,7 @@ def test_changed_scene_file_recomputes_its_rows_and_says_why(tmp_path, caplog):
     first = run_study(scene, out, GRID, readings=False).rows[0]
     old_rows = _rows(out)
     _scene(tmp_path, "0.5")  # the user edits the scene file and reruns into the same folder
-    with pytest.raises(ConfigError, match=r"orchards #1 of the grid were scanned from another "
+    with pytest.raises(ConfigError, match=r"orchard #1 of the grid was scanned from another "
                        r"scene \(orchard\.tree\.h0_m 0\.4 → 0\.5\)") as err:
         run_study(scene, out, GRID, readings=False, on_mismatch="refuse")
     assert "--on-mismatch recompute" in str(err.value) and _rows(out) == old_rows
@@ -80,7 +82,7 @@ def test_changed_code_version_recomputes_its_rows_and_says_why(tmp_path, caplog,
     assert first["code_version"] == study.code_version()
     assert json.loads((out / "regression.json").read_text())["code_version"] == study.code_version()
     monkeypatch.setattr(study, "code_version", lambda: "9.9.9+feedfacecafe mitsuba 9 drjit 9")
-    with pytest.raises(ConfigError, match=r"orchards #1 of the grid were scanned from other code"):
+    with pytest.raises(ConfigError, match=r"orchard #1 of the grid was scanned from other code"):
         run_study(scene, out, GRID, readings=False, on_mismatch="refuse")
     with caplog.at_level(logging.WARNING, logger="simlidar_mi.lidar.study"):
         second = run_study(scene, out, GRID, readings=False).rows[0]
@@ -107,7 +109,7 @@ def test_rows_of_the_old_format_are_not_reused_and_cli_refuses_in_one_line(tmp_p
                "--on-mismatch", "refuse"])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1 and err.startswith("simlidar-mi study: error: ")
-    assert "orchards #1 of the grid were scanned from an earlier row format" in err
+    assert "orchard #1 of the grid was scanned from an earlier row format" in err
     assert not (out / "study.csv").exists()
 
 

@@ -355,7 +355,7 @@ def _stale(rows_dir: Path, grid: list[list[str]], keys: list[str], tables: list[
     wanted = set(keys)
     by_overrides: dict[tuple, list[dict]] = {}
     n_other = 0
-    for f in sorted(rows_dir.glob("*.json")):
+    for f in sorted(rows_dir.glob("*.json"), key=lambda f: -f.stat().st_mtime_ns):  # newest first
         if f.stem in wanted:
             continue
         try:
@@ -412,7 +412,8 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
     if rows_dir.is_dir():
         reasons, n_other = _stale(rows_dir, grid, keys, tables, readings, version)
         if reasons:
-            what = "; ".join(f"orchards {_ranges(ix)} of the grid were scanned from {why}"
+            what = "; ".join(f"orchard{'s' * (len(ix) > 1)} {_ranges(ix)} of the grid "
+                             f"{'were' if len(ix) > 1 else 'was'} scanned from {why}"
                              for why, ix in reasons.items())
             n = sum(map(len, reasons.values()))
             if on_mismatch == "refuse":

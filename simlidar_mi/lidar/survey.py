@@ -37,6 +37,7 @@ class SceneGeometry:
     primitives: list[Primitive]
     seconds: float = 0.0
     instances: object = None  # mitsuba_scene.Instances for instanced forests
+    source: str | None = None  # the scene file, for messages
 
     def boxes_m(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned boxes (lo, hi), each (n, 3), of every branch (with radius), leaf
@@ -51,7 +52,7 @@ class SceneGeometry:
             v = self.leaves.vertices
             lo.append(v.min(1))
             hi.append(v.max(1))
-        for prim in self.primitives:
+        for j, prim in enumerate(self.primitives):
             p = prim.params
             if prim.kind == "cylinder":
                 ends = np.array([p["p0_m"], p["p1_m"]], float)
@@ -63,7 +64,7 @@ class SceneGeometry:
                 hi.append(np.asarray([p["max_m"]], float))
             elif prim.kind == "obj":
                 from ..scene.build import read_obj  # noqa: PLC0415
-                v, _ = read_obj(p["path"])
+                v, _ = read_obj(p["path"], self.source, j)
                 lo.append(v.min(0, keepdims=True))
                 hi.append(v.max(0, keepdims=True))
         if self.instances is not None and len(self.instances):
@@ -127,17 +128,40 @@ def generate(cfg: SceneConfig) -> SceneGeometry:
     for p in cfg.arrays["primitive"]:
         params = {k: v for k, v in p.items() if k not in ("type", "label") and v is not None}
         prims.append(Primitive(p["type"], params, p["label"]))
-    return SceneGeometry(Branches.concat(parts), leaves, prims, time.perf_counter() - t0, instances)
+    return SceneGeometry(Branches.concat(parts), leaves, prims, time.perf_counter() - t0, instances,
+                         cfg.source)
 
 
-def build(cfg: SceneConfig, geometry: SceneGeometry):
-    """Geometry → Mitsuba scene in the representation the scene file chose."""
+def build(cfg: SceneConfig, geometry: SceneGeometry, patterns: list | None = None):
+    """Geometry → Mitsuba scene in the representation the scene file chose.
+
+    The default origin covers the geometry and the scanner positions of ``patterns``
+    (by default the scene's own :func:`scan_patterns`; a scene whose scan settings are
+    invalid, which only a scan would refuse, is built around its geometry alone)."""
     from ..scene.build import build_scene  # noqa: PLC0415
     sc = cfg["scene"]
+    if patterns is None:
+        try:
+            lo, hi = geometry.bounds_m()
+            patterns = scan_patterns(cfg, lo, hi, geometry.near_x_m)
+        except ConfigError:
+            patterns = []
+    scanner = [scanner_positions_m(p) for p in patterns]
     return build_scene(geometry.branches, geometry.leaves, geometry.primitives,
                        representation=sc["representation"], facets=sc["facets"],
                        origin_m=sc["origin_m"], variant=sc["variant"], source=cfg.source,
-                       instances=geometry.instances)
+                       instances=geometry.instances,
+                       scanner_m=np.concatenate(scanner) if scanner else None)
+
+
+def scanner_positions_m(pattern) -> np.ndarray:
+    """(n, 3) real positions a pattern fires from: a platform's row origins, or the
+    tractor's first and last stop on its line (``ScanSettings``)."""
+    rows = getattr(pattern, "row_origin_m", None)
+    if rows is not None:
+        return np.asarray(rows, np.float64)
+    y = pattern.y_m
+    return np.array([[pattern.x0_m, y[0], pattern.z0_m], [pattern.x0_m, y[-1], pattern.z0_m]])
 
 
 def measure(cfg: SceneConfig, geometry: SceneGeometry | None = None) -> dict:
@@ -223,7 +247,7 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     bar(f"generated {len(geometry.branches)} branches, {len(geometry.leaves)} leaf triangles")
 
     t = time.perf_counter()
-    built = build(cfg, geometry)
+    built = build(cfg, geometry, patterns)
     seconds["build"] = time.perf_counter() - t
     bar(f"built {built.representation} scene")
 

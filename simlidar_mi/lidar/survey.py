@@ -93,7 +93,7 @@ class SceneGeometry:
         return lo.min(0), hi.max(0)
 
     def inside_wood(self, points_m, chunk: int = 4096) -> tuple[np.ndarray, np.ndarray]:
-        """Which points lie inside a branch, a cylinder primitive or a box primitive.
+        """Which points lie inside a branch or cylinder primitive (flat ends) or a box primitive.
 
         Returns (inside, element): a bool (n,) mask and, per point, the element id of a
         shape containing it (branch row, ``n_branches + j`` for primitive j; -1 if none).
@@ -127,10 +127,10 @@ class SceneGeometry:
                 c = cand[c0:c0 + step]
                 d = p1[c] - p0[c]
                 w = q[:, None, :] - p0[c][None]
-                dd = np.maximum(np.einsum("cx,cx->c", d, d), 1e-300)  # zero-length: its p0
-                t = np.clip(np.einsum("pcx,cx->pc", w, d) / dd, 0.0, 1.0)
+                dd = np.maximum(np.einsum("cx,cx->c", d, d), 1e-300)  # zero-length: never inside
+                t = np.einsum("pcx,cx->pc", w, d) / dd  # along the axis; flat ends at 0 and 1
                 dist2 = np.sum((w - t[..., None] * d[None]) ** 2, axis=2)
-                hit = dist2 < r[c][None] ** 2
+                hit = (dist2 < r[c][None] ** 2) & (t >= 0.0) & (t <= 1.0)
                 rows = np.flatnonzero(hit.any(axis=1))
                 element[a + rows] = ids[c[np.argmax(hit[rows], axis=1)]]
         for (bmin, bmax), eid in zip(boxes, box_ids):

@@ -269,8 +269,8 @@ def read_obj(path: str, source: str | None = None,
     if not stat.S_ISREG(st.st_mode):
         raise bad("not a regular file")
     if st.st_size > MAX_OBJ_BYTES:
-        raise bad(f"{st.st_size / 2**20:.0f} MiB exceeds the {MAX_OBJ_BYTES // 2**20} MiB limit "
-                  "for OBJ primitives")
+        raise bad(f"{st.st_size} bytes exceed the limit for OBJ primitives, {MAX_OBJ_BYTES} bytes "
+                  f"({MAX_OBJ_BYTES / 2**20:g} MiB)")
     verts, faces = [], []
     lineno = 0
     try:
@@ -493,7 +493,7 @@ def _check_float32(corners: np.ndarray, origin: np.ndarray, feature: tuple[float
     if spacing > FLOAT32_FEATURE_SHARE * size_m:
         warnings.warn(
             f"float32 coordinates are {spacing:.3g} m apart at {extent:.4g} m from the scene origin "
-            f"{origin.tolist()}, {100 * spacing / size_m:.2g} % of the smallest feature ({what} "
+            f"{origin.tolist()}, {100 * spacing / size_m:.1f} % of the smallest feature ({what} "
             f"{size_m:.3g} m; the limit is {100 * FLOAT32_FEATURE_SHARE:g} %): hits and ranges may "
             "be wrong; scan a smaller area or split the scene", SimlidarWarning, stacklevel=3)
 

@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from typing import Callable
 
-from .errors import SimlidarError
+from .errors import SimlidarError, SimlidarWarning
 
 Command = tuple[str, str, Callable[[argparse.ArgumentParser], None],
                 Callable[[argparse.Namespace], int | None]]
@@ -379,11 +380,26 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        rc = args._run(args)
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", SimlidarWarning)
+            warnings.showwarning = _one_line_warning(args.command)
+            rc = args._run(args)
     except SimlidarError as exc:
         print(f"simlidar-mi {args.command}: error: {exc}", file=sys.stderr)
         return 2
     return int(rc or 0)
+
+
+def _one_line_warning(command: str):
+    """``warnings.showwarning`` printing our warnings as ``simlidar-mi CMD: warning: ...``."""
+    default = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, SimlidarWarning):
+            print(f"simlidar-mi {command}: warning: {message}", file=sys.stderr)
+        else:
+            default(message, category, filename, lineno, file, line)
+    return show
 
 
 if __name__ == "__main__":

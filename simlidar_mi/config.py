@@ -334,6 +334,7 @@ class SceneConfig:
     arrays: dict[str, list[dict[str, Any]]]
     present: set[str] = field(default_factory=set)
     sha256: str = ""
+    overridden: dict[str, str] = field(default_factory=dict)  # dotted key → "--set key=value"
 
     @property
     def source(self) -> str:
@@ -349,6 +350,16 @@ class SceneConfig:
     @property
     def seed(self) -> int:
         return int(self.sections["scene"]["seed"])
+
+    def source_of(self, key: str | None) -> str:
+        """Where ``key``'s value came from: its ``--set`` argument, else the scene file."""
+        return self.overridden.get(key or "", self.source)
+
+    def relabel(self, exc: ConfigError) -> ConfigError:
+        """``exc`` blaming the ``--set`` argument that gave its key, if one did."""
+        if exc.key in self.overridden and exc.file in (None, self.source):
+            return ConfigError(exc.reason, file=self.overridden[exc.key], key=exc.key, value=exc.value)
+        return exc
 
 
 def _check_value(spec: Key, value: Any, src: str, dotted: str) -> Any:
@@ -433,13 +444,16 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
 
     arrays_raw = {name: data.pop(name) for name in list(data) if name in ARRAY_SECTIONS}
     flat = _flatten(data)
+    overridden: dict[str, str] = {}  # errors in an override name the --set argument
     for item in overrides:
         key, value = parse_override(item)
         section, _, leaf = key.rpartition(".")
+        label = f"--set {item}"
         if section not in SECTIONS:
             raise ConfigError(f"unknown section '{section}'; valid: {', '.join(SECTIONS)}",
-                              file=src, key=key, value=value)
+                              file=label, key=key, value=value)
         flat.setdefault(section, {})[leaf] = value
+        overridden[f"{section}.{leaf}"] = label
 
     sections: dict[str, dict[str, Any]] = {}
     present: set[str] = set()
@@ -454,10 +468,11 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
         table = flat.get(name, {})
         values = {}
         for key, value in table.items():
+            where = overridden.get(f"{name}.{key}", src)
             if key not in spec:
                 raise ConfigError(f"unknown key in [{name}]; valid: {', '.join(spec)}",
-                                  file=src, key=f"{name}.{key}", value=value)
-            values[key] = _check_value(spec[key], value, src, f"{name}.{key}")
+                                  file=where, key=f"{name}.{key}", value=value)
+            values[key] = _check_value(spec[key], value, where, f"{name}.{key}")
         for key, ks in spec.items():
             values.setdefault(key, copy.deepcopy(ks.default))
         sections[name] = values
@@ -485,6 +500,10 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
             if prim[need] is None:
                 raise ConfigError(f"a {prim['type']} primitive needs '{need}'", file=src,
                                   key=f"primitive[{j}].{need}")
+        if prim["type"] == "obj" and not prim["path"].lower().endswith(".obj"):
+            raise ConfigError("an obj primitive's file name must end in .obj (a Wavefront OBJ mesh)",
+                              file=src, key=f"primitive[{j}].path", value=prim["path"])
         if prim["type"] == "obj" and path is not None:
             prim["path"] = str((Path(path).parent / prim["path"]).resolve())
-    return SceneConfig(Path(path) if path else None, sections, arrays, present, digest.hexdigest())
+    return SceneConfig(Path(path) if path else None, sections, arrays, present, digest.hexdigest(),
+                       overridden)

@@ -13,6 +13,11 @@ class SimlidarError(Exception):
     """Base class of every error raised on purpose by simlidar_mi."""
 
 
+class SimlidarWarning(UserWarning):
+    """Something that probably makes a result wrong, without stopping the run; the CLI
+    prints it as one line ``simlidar-mi CMD: warning: ...``."""
+
+
 class ConfigError(SimlidarError, ValueError):
     """A scene file or parameter holds a value we cannot use.
 
@@ -26,6 +31,7 @@ class ConfigError(SimlidarError, ValueError):
 
     def __init__(self, message: str, *, file: str | Path | None = None,
                  key: str | None = None, value: Any = None) -> None:
+        self.reason = message  # the message without the file/key/value prefix
         self.file = str(file) if file is not None else None
         self.key = key
         self.value = value

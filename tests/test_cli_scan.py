@@ -31,7 +31,8 @@ def test_scan_command_bad_override_names_key(tmp_path, capsys):
                "--set", "scan.dtheta_deg=-1"])
     assert rc == 2
     err = capsys.readouterr().err
-    assert "scan.dtheta_deg" in err and "-1" in err and "apple_orchard.toml" in err
+    # The error names the --set argument that holds the bad value, not the scene file.
+    assert "--set scan.dtheta_deg=-1, key 'scan.dtheta_deg'" in err and "apple_orchard.toml" not in err
     assert not (tmp_path / "o").exists()
 
 

@@ -305,3 +305,41 @@ def test_pickle_round_trip():
     e2 = pickle.loads(pickle.dumps(e))
     assert e2.text == e.text and e2.names == e.names and e2.source == "x"
     assert e2.evaluate({"l": 1, "w": 1.5}) is True
+
+
+# --- input too large for float64 or for the parser ------------------------------------
+
+@pytest.mark.parametrize("text", ["1" + "0" * 400, "1e400", "2 * 1.5e309"])
+def test_numbers_beyond_float64_are_refused(text):
+    """'1' and 400 zeros used to parse as inf and evaluate to inf."""
+    with pytest.raises(GrammarError, match="too large") as exc:
+        parse_expression(text)
+    assert exc.value.position == text.index("1")
+
+
+def test_overflowing_arithmetic_raises_at_evaluation():
+    e = parse_expression("x * 1e308", {"x"})
+    assert e.evaluate({"x": 1.0}) == 1e308
+    with pytest.raises(ExpressionError, match="non-finite"):
+        e.evaluate({"x": 10.0})
+
+
+def test_huge_expressions_are_refused_before_parsing(monkeypatch):
+    """A 500 k-term sum took 88 s to reach the operation limit; now its length decides."""
+    import simlidar_mi.lsystem.expr_parser as parser_mod
+    from simlidar_mi.lsystem.expr_tokens import MAX_CHARS, MAX_TOKENS
+
+    def no_parse(*args, **kwargs):
+        raise AssertionError("the parser ran")
+    with monkeypatch.context() as m:  # the length check comes before any tokenizing/parsing
+        m.setattr(parser_mod._Parser, "or_expr", no_parse)
+        with pytest.raises(GrammarError, match=f"1000003 characters long; the limit is {MAX_CHARS}"):
+            parse_expression("+".join(["x"] * 500_000) + "+1+1")
+    # Within the length limit but over the token limit (x+x+…: 2 tokens per term).
+    text = "+".join(["x"] * (MAX_TOKENS // 2 + 1))
+    assert len(text) < MAX_CHARS
+    with pytest.raises(GrammarError, match=f"more than {MAX_TOKENS} tokens"):
+        parse_expression(text)
+    # Long but legal expressions still parse: a call with 300 arguments (1201 tokens).
+    e = parse_expression("max(" + ", ".join(f"x*{j}" for j in range(300)) + ")", {"x"})
+    assert e.evaluate({"x": 2.0}) == 598.0

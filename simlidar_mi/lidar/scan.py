@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .._mitsuba import mitsuba
+from ..config import SECTIONS
 from ..errors import ConfigError
 from ..geometry import CLASS_CODES
 from ..io.exr import read_exr
@@ -124,7 +125,7 @@ def resolve_settings(scan: dict, ground: dict, bbox_min_m, bbox_max_m,
         raise ConfigError(f"y_end_m must be beyond y_start_m ({y0} m)", file=source,
                           key="scan.y_end_m", value=y1)
     # Eqs. 6 and 7: N = Int(span/Δy), M = Int(span/Δθ); the 1e-9 guards 0.3/0.1 = 2.9999.
-    n_pos = int(math.floor((y1 - y0) / ((gap + 1) * dy) + 1e-9))
+    n_pos = _count((y1 - y0) / ((gap + 1) * dy))
     if n_pos < 1:
         raise ConfigError(f"y span {y1 - y0:.4g} m is shorter than one step {(gap + 1) * dy:.4g} m",
                           file=source, key="scan.dy_m", value=dy)
@@ -153,18 +154,43 @@ def resolve_settings(scan: dict, ground: dict, bbox_min_m, bbox_max_m,
     if th_min >= th_max:
         raise ConfigError(f"theta_min_deg must be below theta_max_deg ({th_max:.4f}°)",
                           file=source, key="scan.theta_min_deg", value=th_min)
-    n_ang = int(math.floor((th_max - th_min) / dtheta + 1e-9))
+    n_ang = _count((th_max - th_min) / dtheta)
     if n_ang < 1:
         raise ConfigError(f"θ span {th_max - th_min:.4g}° is shorter than one step", file=source,
                           key="scan.dtheta_deg", value=dtheta)
     n_sub = (int(scan["footprint"]) + 1) ** 2
     if n_pos * n_ang * n_sub > int(scan["max_beams"]):
-        raise ConfigError(f"{n_pos}×{n_ang} beams × {n_sub} sub-beams exceeds scan.max_beams "
-                          f"= {scan['max_beams']}; coarsen dy_m/dtheta_deg or raise max_beams",
-                          file=source, key="scan.dy_m", value=dy)
+        # Blame the key that grew the count most over what its default would give.
+        growth = {"scan.dy_m": n_pos / max(1, _count((y1 - y0) / ((gap + 1) * _DEFAULT["dy_m"]))),
+                  "scan.dtheta_deg": n_ang / max(1, _count((th_max - th_min) / _DEFAULT["dtheta_deg"])),
+                  "scan.footprint": n_sub / (_DEFAULT["footprint"] + 1) ** 2}
+        key = max(growth, key=growth.get)
+        if growth[key] <= 1:
+            key = "scan.max_beams"
+        value = {"scan.dy_m": dy, "scan.dtheta_deg": dtheta, "scan.footprint": int(scan["footprint"]),
+                 "scan.max_beams": int(scan["max_beams"])}[key]
+        raise ConfigError(f"{_n(n_pos)}×{_n(n_ang)} beams × {n_sub} sub-beams = {n_pos * n_ang * n_sub:.3g} "
+                          f"exceeds scan.max_beams = {scan['max_beams']} ({_n(n_pos)} positions at dy_m = "
+                          f"{dy:g} over {y1 - y0:g} m, {_n(n_ang)} angles at dtheta_deg = {dtheta:g} over "
+                          f"{th_max - th_min:.4g}°, footprint {scan['footprint']}); coarsen "
+                          f"{key if key != 'scan.max_beams' else 'dy_m/dtheta_deg'} or raise max_beams",
+                          file=source, key=key, value=value)
     return ScanSettings(x0, z0, float(y0), dy, gap, n_pos, float(th_min), dtheta, n_ang,
                         int(scan["footprint"]), float(scan["escape_m"]), bool(ground["enabled"]),
                         ground_z, hit_rule, side)
+
+
+_DEFAULT = {k: SECTIONS["scan"][k].default for k in ("dy_m", "dtheta_deg", "footprint")}
+
+
+def _count(ratio: float) -> int:
+    """Int(ratio) of eqs. 6-7 (the 1e-9 guards 0.3/0.1 = 2.9999), capped so a tiny step
+    gives a huge count for the max_beams check rather than an overflow."""
+    return int(math.floor(min(ratio, 1e18) + 1e-9))
+
+
+def _n(count: int) -> str:
+    return str(count) if count < 10**9 else f"{count:.3g}"
 
 
 @dataclass

@@ -12,13 +12,14 @@ from __future__ import annotations
 import json
 import logging
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from ..config import SceneConfig, load_scene
-from ..errors import ConfigError
+from ..errors import ConfigError, SimlidarWarning
 from ..geometry import Branches, Leaves, Primitive
 from ..io.atomic import atomic_file, staged_dir
 
@@ -37,6 +38,7 @@ class SceneGeometry:
     primitives: list[Primitive]
     seconds: float = 0.0
     instances: object = None  # mitsuba_scene.Instances for instanced forests
+    source: str | None = None  # the scene file, for messages
 
     def boxes_m(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned boxes (lo, hi), each (n, 3), of every branch (with radius), leaf
@@ -51,7 +53,7 @@ class SceneGeometry:
             v = self.leaves.vertices
             lo.append(v.min(1))
             hi.append(v.max(1))
-        for prim in self.primitives:
+        for j, prim in enumerate(self.primitives):
             p = prim.params
             if prim.kind == "cylinder":
                 ends = np.array([p["p0_m"], p["p1_m"]], float)
@@ -63,7 +65,7 @@ class SceneGeometry:
                 hi.append(np.asarray([p["max_m"]], float))
             elif prim.kind == "obj":
                 from ..scene.build import read_obj  # noqa: PLC0415
-                v, _ = read_obj(p["path"])
+                v, _ = read_obj(p["path"], self.source, j)
                 lo.append(v.min(0, keepdims=True))
                 hi.append(v.max(0, keepdims=True))
         if self.instances is not None and len(self.instances):
@@ -89,6 +91,52 @@ class SceneGeometry:
         """Axis-aligned bounds of branches (with radius), leaves and primitives."""
         lo, hi = self.boxes_m()
         return lo.min(0), hi.max(0)
+
+    def inside_wood(self, points_m, chunk: int = 4096) -> tuple[np.ndarray, np.ndarray]:
+        """Which points lie inside a branch or cylinder primitive (flat ends) or a box primitive.
+
+        Returns (inside, element): a bool (n,) mask and, per point, the element id of a
+        shape containing it (branch row, ``n_branches + j`` for primitive j; -1 if none).
+        Only elements whose box meets the points' box are tested, in chunks of points,
+        so a scanner line beside a large scene costs little.  Instanced trees are not
+        tested."""
+        q_all = np.asarray(points_m, np.float64).reshape(-1, 3)
+        b, n_b = self.branches, len(self.branches)
+        p0, p1, r = [b.p0], [b.p1], [0.5 * b.diameter]
+        ids = [np.arange(n_b)]
+        boxes, box_ids = [], []
+        for j, prim in enumerate(self.primitives):
+            p = prim.params
+            if prim.kind == "cylinder":
+                p0.append(np.asarray([p["p0_m"]], float))
+                p1.append(np.asarray([p["p1_m"]], float))
+                r.append(np.array([0.5 * p["diameter_m"]]))
+                ids.append(np.array([n_b + j]))
+            elif prim.kind == "box":
+                boxes.append([p["min_m"], p["max_m"]])
+                box_ids.append(n_b + j)
+        p0, p1, r, ids = np.concatenate(p0), np.concatenate(p1), np.concatenate(r), np.concatenate(ids)
+        lo, hi = np.minimum(p0, p1) - r[:, None], np.maximum(p0, p1) + r[:, None]
+        element = np.full(len(q_all), -1, np.int64)
+        for a in range(0, len(q_all), chunk):
+            q = q_all[a:a + chunk]
+            qlo, qhi = q.min(0), q.max(0)
+            cand = np.flatnonzero(np.all((hi >= qlo) & (lo <= qhi), axis=1))
+            step = max(1, 2_000_000 // len(q))  # bounds the (points × segments) arrays
+            for c0 in range(0, len(cand), step):
+                c = cand[c0:c0 + step]
+                d = p1[c] - p0[c]
+                w = q[:, None, :] - p0[c][None]
+                dd = np.maximum(np.einsum("cx,cx->c", d, d), 1e-300)  # zero-length: never inside
+                t = np.einsum("pcx,cx->pc", w, d) / dd  # along the axis; flat ends at 0 and 1
+                dist2 = np.sum((w - t[..., None] * d[None]) ** 2, axis=2)
+                hit = (dist2 < r[c][None] ** 2) & (t >= 0.0) & (t <= 1.0)
+                rows = np.flatnonzero(hit.any(axis=1))
+                element[a + rows] = ids[c[np.argmax(hit[rows], axis=1)]]
+        for (bmin, bmax), eid in zip(boxes, box_ids):
+            inside = np.all((q_all > np.asarray(bmin)) & (q_all < np.asarray(bmax)), axis=1)
+            element[inside] = eid
+        return element >= 0, element
 
     def near_x_m(self, y_min_m: float, y_max_m: float) -> float | None:
         """Smallest x of the geometry whose y extent meets [y_min_m, y_max_m]: the side of the
@@ -127,17 +175,62 @@ def generate(cfg: SceneConfig) -> SceneGeometry:
     for p in cfg.arrays["primitive"]:
         params = {k: v for k, v in p.items() if k not in ("type", "label") and v is not None}
         prims.append(Primitive(p["type"], params, p["label"]))
-    return SceneGeometry(Branches.concat(parts), leaves, prims, time.perf_counter() - t0, instances)
+    return SceneGeometry(Branches.concat(parts), leaves, prims, time.perf_counter() - t0, instances,
+                         cfg.source)
 
 
-def build(cfg: SceneConfig, geometry: SceneGeometry):
-    """Geometry → Mitsuba scene in the representation the scene file chose."""
+def build(cfg: SceneConfig, geometry: SceneGeometry, patterns: list | None = None):
+    """Geometry → Mitsuba scene in the representation the scene file chose.
+
+    The default origin covers the geometry and the scanner positions of ``patterns``
+    (by default the scene's own :func:`scan_patterns`; a scene whose scan settings are
+    invalid, which only a scan would refuse, is built around its geometry alone)."""
     from ..scene.build import build_scene  # noqa: PLC0415
     sc = cfg["scene"]
+    if patterns is None:
+        try:
+            lo, hi = geometry.bounds_m()
+            patterns = scan_patterns(cfg, lo, hi, geometry.near_x_m)
+        except ConfigError:
+            patterns = []
+    scanner = [scanner_positions_m(p) for p in patterns]
     return build_scene(geometry.branches, geometry.leaves, geometry.primitives,
                        representation=sc["representation"], facets=sc["facets"],
                        origin_m=sc["origin_m"], variant=sc["variant"], source=cfg.source,
-                       instances=geometry.instances)
+                       instances=geometry.instances,
+                       scanner_m=np.concatenate(scanner) if scanner else None)
+
+
+def scanner_positions_m(pattern) -> np.ndarray:
+    """(n, 3) real positions a pattern fires from: a platform's row origins, or the
+    tractor's first and last stop on its line (``ScanSettings``)."""
+    rows = getattr(pattern, "row_origin_m", None)
+    if rows is not None:
+        return np.asarray(rows, np.float64)
+    y = pattern.y_m
+    return np.array([[pattern.x0_m, y[0], pattern.z0_m], [pattern.x0_m, y[-1], pattern.z0_m]])
+
+
+def warn_scanner_inside_wood(geometry: SceneGeometry, patterns: list) -> int:
+    """Warn (SimlidarWarning) when scanner positions lie inside wood: their beams start
+    inside a branch and report its inner wall.  Returns the number of such positions."""
+    rows = [getattr(p, "row_origin_m", None) for p in patterns]
+    rows = [r if r is not None else p.pattern().row_origin_m for r, p in zip(rows, patterns)]
+    pts = np.concatenate(rows) if rows else np.zeros((0, 3))
+    if not len(pts):
+        return 0
+    inside, element = geometry.inside_wood(pts)
+    n = int(inside.sum())
+    if n:
+        i = int(np.argmax(inside))
+        e = int(element[i])
+        what = (f"branch {e} (diameter {geometry.branches.diameter[e]:.4g} m)"
+                if e < len(geometry.branches) else f"primitive {e - len(geometry.branches)}")
+        warnings.warn(f"{n} of {len(pts)} scanner positions lie inside wood, the first at "
+                      f"{np.round(pts[i], 4).tolist()} m in {what}: their beams start inside it and "
+                      "report its inner wall; move the scanner (scan.x0_m/z0_m or the platform)",
+                      SimlidarWarning, stacklevel=3)
+    return n
 
 
 def measure(cfg: SceneConfig, geometry: SceneGeometry | None = None) -> dict:
@@ -161,7 +254,10 @@ def scan_patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m=None) -> list:
 
     ``near_x_m``: the tractor's nearest wood, see :func:`simlidar_mi.lidar.scan.resolve_settings`
     (:meth:`SceneGeometry.near_x_m` in :func:`run_scan`)."""
-    patterns = _patterns(cfg, lo_m, hi_m, near_x_m)
+    try:
+        patterns = _patterns(cfg, lo_m, hi_m, near_x_m)
+    except ConfigError as exc:
+        raise cfg.relabel(exc) from None
     rule = cfg["scan"]["hit_rule"]
     return [p if p.hit_rule == rule else replace(p, hit_rule=rule) for p in patterns]
 
@@ -218,12 +314,14 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     n_beams = sum(p.n_beams for p in patterns)
     if n_beams * (cfg["scan"]["footprint"] + 1) ** 2 > cfg["scan"]["max_beams"]:
         raise ConfigError(f"{n_beams} beams exceed scan.max_beams = {cfg['scan']['max_beams']}",
-                          file=cfg.source, key="scan.max_beams", value=cfg["scan"]["max_beams"])
+                          file=cfg.source_of("scan.max_beams"), key="scan.max_beams",
+                          value=cfg["scan"]["max_beams"])
+    warn_scanner_inside_wood(geometry, patterns)
     seconds["generate"] = time.perf_counter() - t
     bar(f"generated {len(geometry.branches)} branches, {len(geometry.leaves)} leaf triangles")
 
     t = time.perf_counter()
-    built = build(cfg, geometry)
+    built = build(cfg, geometry, patterns)
     seconds["build"] = time.perf_counter() - t
     bar(f"built {built.representation} scene")
 

@@ -11,6 +11,10 @@ _OPERATORS = ("&&", "||", "<=", ">=", "==", "!=", "**", "<", ">", "!", "+", "-",
               "/", "^", "(", ")", ",")
 _NUMBER = re.compile(r"(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 _NAME = re.compile(r"[A-Za-z_][A-Za-z_0-9]*")
+# Expressions are a production's arguments or condition: far shorter than these.  The
+# limits are checked before the parser runs, so huge input fails in milliseconds.
+MAX_CHARS = 10_000
+MAX_TOKENS = 2_000
 
 
 class _Token(NamedTuple):
@@ -25,9 +29,14 @@ def _tokenize(text: str, start: int, end: int, source: str | None) -> list[_Toke
     def fail(msg: str, pos: int) -> GrammarError:
         return GrammarError(msg, text=text, position=pos, source=source)
 
+    if end - start > MAX_CHARS:
+        raise fail(f"expression is {end - start} characters long; the limit is {MAX_CHARS}", start)
     toks: list[_Token] = []
     i = start
     while i < end:
+        if len(toks) >= MAX_TOKENS:
+            raise fail(f"expression has more than {MAX_TOKENS} tokens (numbers, names, operators)",
+                       toks[-1].pos)
         c = text[i]
         if c.isspace():
             i += 1
@@ -44,7 +53,11 @@ def _tokenize(text: str, start: int, end: int, source: str | None) -> list[_Toke
                 while k < end and (text[k].isalnum() or text[k] in "_."):
                     k += 1
                 raise fail(f"malformed number {text[i:k]!r}", i)
-            toks.append(_Token("num", float(m.group()), i, j, m.group()))
+            value = float(m.group())
+            if value == float("inf"):  # '1e400', or 1 and 400 zeros: not a float64
+                raise fail(f"number {m.group()[:20]}{'…' if j - i > 20 else ''} is too large "
+                           "(float64 holds at most 1.8e308)", i)
+            toks.append(_Token("num", value, i, j, m.group()))
             i = j
             continue
         if c.isalpha() or c == "_":

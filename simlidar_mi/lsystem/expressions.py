@@ -270,7 +270,11 @@ def parse_expression(text: str, names: Iterable[str] | None = None,
         With the position (into ``text``) of an unknown name or function, a
         name starting with ``__``, attribute access, indexing, a string,
         unbalanced parentheses, a wrong number of function arguments, a
-        chained comparison, trailing input, or an empty expression.
+        chained comparison, trailing input, or an empty expression; a number
+        beyond float64 (``1e400``); more than
+        :data:`~.expr_tokens.MAX_CHARS` characters or
+        :data:`~.expr_tokens.MAX_TOKENS` tokens (checked before parsing, so
+        huge input fails at once).
 
     Examples
     --------

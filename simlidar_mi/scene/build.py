@@ -15,20 +15,26 @@ Branch representations (see BENCHMARKS.md for what each costs and how exact it i
     One ``linearcurve`` shape, each branch a 2-point segment; rounded ends.
 
 All coordinates are taken relative to a float64 scene origin before they become
-float32, so a scene 1e5 m from the origin scans like one at the origin.  Zero-length
-segments are dropped (they would make the scene bounding box NaN) and counted.
+float32, so a scene 1e6 m from the origin scans like one at the origin.  The default
+origin is the centre of the bounding box of every shape (branches, leaves, primitives,
+instances) and of the scanner path, rounded to metres; when the float32 spacing at the
+scene's extent from the origin exceeds :data:`FLOAT32_FEATURE_SHARE` of its smallest
+feature, a :class:`~simlidar_mi.errors.SimlidarWarning` says so.  Zero-length segments
+are dropped (they would make the scene bounding box NaN) and counted.
 """
 from __future__ import annotations
 
 import logging
 import os
+import stat
 import tempfile
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .._mitsuba import mitsuba
-from ..errors import ConfigError
+from ..errors import ConfigError, SimlidarWarning
 from ..geometry import CLASS_CODES, Branches, Leaves, Primitive
 
 log = logging.getLogger(__name__)
@@ -36,6 +42,10 @@ log = logging.getLogger(__name__)
 REPRESENTATIONS = ("mesh", "cylinder", "linearcurve")
 CAP_SIDES = 32
 MIN_LENGTH_M = 1e-9
+# Warn when float32 rounding at the scene's extent exceeds this share of its smallest feature.
+FLOAT32_FEATURE_SHARE = 0.01
+OBJ_SUFFIXES = (".obj",)
+MAX_OBJ_BYTES = 256 * 2**20  # parsed in Python: ~10 M lines; larger meshes belong in PLY/instances
 
 
 @dataclass(frozen=True)
@@ -202,33 +212,67 @@ def default_origin(points_m: np.ndarray) -> np.ndarray:
     """Centre of the bounding box, rounded to whole metres (keeps round numbers round)."""
     if len(points_m) == 0:
         return np.zeros(3)
-    return np.round(0.5 * (points_m.min(0) + points_m.max(0)))
+    return np.round(0.5 * (points_m.min(0) + points_m.max(0))) + 0.0  # + 0.0: no -0
 
 
-def _primitive_mesh(prim: Primitive, k: int, origin: np.ndarray, source: str | None):
-    """Triangles of an explicit primitive, already relative to the origin."""
+def _primitive_mesh(prim: Primitive, k: int, source: str | None, index: int | None = None):
+    """Triangles of an explicit primitive, in real (float64) coordinates."""
     p = prim.params
     if prim.kind == "cylinder":
         p0, p1 = np.asarray([p["p0_m"]], float), np.asarray([p["p1_m"]], float)
         r = np.array([0.5 * float(p["diameter_m"])]) * np.pi / (k * np.sin(np.pi / k))
-        v, f, _ = prism_mesh(p0 - origin, p1 - origin, r, k)
+        v, f, _ = prism_mesh(p0, p1, r, k)
         return v, f
     if prim.kind == "box":
-        lo, hi = np.asarray(p["min_m"], float) - origin, np.asarray(p["max_m"], float) - origin
+        lo, hi = np.asarray(p["min_m"], float), np.asarray(p["max_m"], float)
         c = np.array([[x, y, z] for z in (lo[2], hi[2]) for y in (lo[1], hi[1]) for x in (lo[0], hi[0])])
         f = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
                       [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])
         return c, f
     if prim.kind == "obj":
-        v, f = read_obj(p["path"], source)
-        return v - origin, f
+        return read_obj(p["path"], source, index)
     raise ConfigError("unknown primitive type; valid: cylinder, box, obj", file=source,
-                      key="primitive.type", value=prim.kind)
+                      key="primitive.type" if index is None else f"primitive[{index}].type",
+                      value=prim.kind)
 
 
-def read_obj(path: str, source: str | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and triangulated faces of a Wavefront OBJ file (v and f records only)."""
+def _primitive_feature_m(prim: Primitive) -> float:
+    """Smallest size of a cylinder (diameter) or box (side) primitive; inf for meshes."""
+    p = prim.params
+    if prim.kind == "cylinder":
+        return float(p["diameter_m"])
+    if prim.kind == "box":
+        side = np.abs(np.asarray(p["max_m"], float) - np.asarray(p["min_m"], float))
+        return float(side.min())
+    return float("inf")
+
+
+def read_obj(path: str, source: str | None = None,
+             index: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and triangulated faces of a Wavefront OBJ file (v and f records only).
+
+    ``index`` is the primitive's position in the scene file, for messages.  The name
+    must end in ``.obj`` and the file must be a regular file of at most
+    :data:`MAX_OBJ_BYTES`; both are checked before a byte is read.
+    """
+    key = "primitive.path" if index is None else f"primitive[{index}].path"
+
+    def bad(why: str, exc: Exception | None = None) -> ConfigError:
+        what = "OBJ mesh" if index is None else f"OBJ mesh of primitive {index}"
+        return ConfigError(f"{what}: {why}", file=source, key=key, value=str(path))
+    if not str(path).lower().endswith(OBJ_SUFFIXES):
+        raise bad("the file name must end in .obj (a Wavefront OBJ mesh)")
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise bad(f"cannot read it: {exc.strerror or exc}") from exc
+    if not stat.S_ISREG(st.st_mode):
+        raise bad("not a regular file")
+    if st.st_size > MAX_OBJ_BYTES:
+        raise bad(f"{st.st_size} bytes exceed the limit for OBJ primitives, {MAX_OBJ_BYTES} bytes "
+                  f"({MAX_OBJ_BYTES / 2**20:g} MiB)")
     verts, faces = [], []
+    lineno = 0
     try:
         with open(path, encoding="utf-8") as fh:
             for lineno, line in enumerate(fh, 1):
@@ -236,25 +280,33 @@ def read_obj(path: str, source: str | None = None) -> tuple[np.ndarray, np.ndarr
                 if not parts:
                     continue
                 if parts[0] == "v":
+                    if len(parts) < 4:
+                        raise ValueError("a vertex needs three coordinates")
                     verts.append([float(x) for x in parts[1:4]])
                 elif parts[0] == "f":
                     idx = [int(x.split("/")[0]) for x in parts[1:]]
                     idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
                     faces += [[idx[0], idx[j], idx[j + 1]] for j in range(1, len(idx) - 1)]
-    except (OSError, UnicodeDecodeError, ValueError, IndexError) as exc:
-        raise ConfigError(f"cannot read OBJ mesh: {exc}", file=source, key="primitive.path",
-                          value=str(path)) from exc
-    v, f = np.asarray(verts, float).reshape(-1, 3), np.asarray(faces, np.int64).reshape(-1, 3)
-    if len(f) == 0 or f.max() >= len(v) or f.min() < 0 or not np.isfinite(v).all():
-        raise ConfigError("OBJ mesh has no faces, a face index out of range or a non-finite vertex",
-                          file=source, key="primitive.path", value=str(path))
+    except OSError as exc:
+        raise bad(f"cannot read it: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise bad("not UTF-8 text") from exc
+    except (ValueError, IndexError) as exc:
+        raise bad(f"line {lineno}: {exc}") from exc
+    v, f = np.asarray(verts, float).reshape(-1, 3), np.asarray(faces, np.int64)
+    if len(f) == 0:
+        raise bad("no faces")
+    f = f.reshape(-1, 3)
+    if f.max() >= len(v) or f.min() < 0 or not np.isfinite(v).all():
+        raise bad("a face index out of range or a non-finite vertex")
     return v, f
 
 
 def build_scene(branches: Branches, leaves: Leaves | None = None,
                 primitives: list[Primitive] = (), *, representation: str = "mesh",
                 facets: int = 12, origin_m=None, variant: str | None = None,
-                source: str | None = None, instances: Instances | None = None) -> BuiltScene:
+                source: str | None = None, instances: Instances | None = None,
+                scanner_m=None) -> BuiltScene:
     """Turn plain geometry into a Mitsuba scene for range/coverage integrators.
 
     Parameters
@@ -264,8 +316,11 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     primitives : explicit calibration shapes.
     representation : 'mesh', 'cylinder' or 'linearcurve'.
     facets : k for the mesh representation (≥ 3).
-    origin_m : float64 scene origin; default the bbox centre rounded to metres.
+    origin_m : float64 scene origin; default the centre of the bounding box of every
+        shape and of ``scanner_m``, rounded to metres.
     instances : prototypes placed as Mitsuba instances (mesh representation only).
+    scanner_m : (n, 3) scanner positions (real coordinates), counted in the default
+        origin and in the float32 precision check.
     """
     if representation not in REPRESENTATIONS:
         raise ConfigError(f"unknown branch representation; valid: {', '.join(REPRESENTATIONS)}",
@@ -275,16 +330,22 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     mi = mitsuba(variant)
     leaves = leaves if leaves is not None else Leaves.empty()
     kept, n_dropped, kept_index = clean_branches(branches)
-    pts = [kept.p0, kept.p1, leaves.vertices.reshape(-1, 3)]
+    prim_meshes = [_primitive_mesh(prim, 64, source, j) for j, prim in enumerate(primitives)]
+    pts = [kept.p0, kept.p1, leaves.vertices.reshape(-1, 3)] + [v for v, _ in prim_meshes]
     if instances is not None and len(instances):
         pts.append(np.asarray(instances.translation_m, np.float64))
+    if scanner_m is not None:
+        pts.append(np.asarray(scanner_m, np.float64).reshape(-1, 3))
+    # Per-part bounds, so a large scene is not copied into one array just for its box.
+    corners = np.array([c for p in pts if len(p) for c in (p.min(0), p.max(0))]).reshape(-1, 3)
     if origin_m is None:
-        origin = default_origin(np.concatenate(pts) if any(len(p) for p in pts) else np.zeros((0, 3)))
+        origin = default_origin(corners)
     else:
         origin = np.asarray(origin_m, np.float64)
         if origin.shape != (3,) or not np.isfinite(origin).all():
             raise ConfigError("origin_m must be three finite numbers", file=source,
                               key="scene.origin_m", value=origin_m)
+    _check_float32(corners, origin, _smallest_feature(kept, leaves, primitives, instances))
 
     shapes: dict[str, object] = {}
     groups: list[tuple[str, int, np.ndarray]] = []  # (shape key, class, element id per prim)
@@ -327,8 +388,8 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
         shapes["leaf_mesh"] = _mi_mesh(mi, "leaf_mesh", v, f)
         groups.append(("leaf_mesh", CLASS_CODES["leaf"], leaves.leaf_id.astype(np.uint32)))
         n_tri += len(f)
-    for j, prim in enumerate(primitives):
-        v, f = _primitive_mesh(prim, 64, origin, source)
+    for j, (prim, (v, f)) in enumerate(zip(primitives, prim_meshes)):
+        v = v - origin
         key = f"primitive_{j:04d}"
         shapes[key] = _mi_mesh(mi, key, v, f)
         label = prim.label if prim.label in ("wood", "leaf") else "wood"
@@ -392,6 +453,49 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
         lo = hi = origin.copy()
     return BuiltScene(scene, origin, shape_class, shape_base, prim_element.astype(np.uint32),
                       len(kept), n_dropped, n_tri, representation, k, lo, hi, **inst)
+
+
+def _smallest_feature(kept: Branches, leaves: Leaves, primitives, instances) -> tuple[float, str]:
+    """The smallest size float32 rounding must resolve, and what it is: the thinnest
+    branch or cylinder, the shortest box side, or the shortest leaf-triangle edge."""
+    sizes = [(float(kept.diameter.min()) if len(kept) else np.inf, "branch diameter")]
+    sizes += [(_primitive_feature_m(p), f"primitive {j}") for j, p in enumerate(primitives)]
+    sizes.append((_shortest_edge(leaves.vertices), "leaf edge"))
+    if instances is not None and len(instances):
+        s = float(np.min(instances.scale))
+        for b, lv in instances.prototypes:
+            if len(b):
+                sizes.append((s * float(b.diameter.min()), "branch diameter"))
+            if lv is not None and len(lv):
+                sizes.append((_shortest_edge(lv.vertices), "leaf edge"))
+    return min(sizes, key=lambda t: t[0])
+
+
+def _shortest_edge(tri: np.ndarray, chunk: int = 1_000_000) -> float:
+    """Shortest edge of (n, 3, 3) triangles, in chunks (bounded memory); inf for none."""
+    best = np.inf
+    for a in range(0, len(tri), chunk):
+        t = tri[a:a + chunk]
+        e = np.linalg.norm(t - np.roll(t, 1, axis=1), axis=2)
+        e = e[e > 0]
+        if len(e):
+            best = min(best, float(e.min()))
+    return best
+
+
+def _check_float32(corners: np.ndarray, origin: np.ndarray, feature: tuple[float, str]) -> None:
+    """Warn when float32 coordinates cannot resolve the scene's smallest feature."""
+    size_m, what = feature
+    if not len(corners) or not np.isfinite(size_m):
+        return
+    extent = float(np.abs(corners - origin).max())
+    spacing = float(np.spacing(np.float32(extent)))
+    if spacing > FLOAT32_FEATURE_SHARE * size_m:
+        warnings.warn(
+            f"float32 coordinates are {spacing:.3g} m apart at {extent:.4g} m from the scene origin "
+            f"{origin.tolist()}, {100 * spacing / size_m:.1f} % of the smallest feature ({what} "
+            f"{size_m:.3g} m; the limit is {100 * FLOAT32_FEATURE_SHARE:g} %): hits and ranges may "
+            "be wrong; scan a smaller area or split the scene", SimlidarWarning, stacklevel=3)
 
 
 def _add_instances(mi, instances: Instances, origin: np.ndarray, k: int, shapes: dict,

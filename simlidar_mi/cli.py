@@ -372,12 +372,29 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; its exit status: 0, 2 on an error (one line), 130 on Ctrl-C.
+
+    With ``argv`` None (the program's own command line) an interrupted run ends the
+    process at once, after cleaning up: interpreter shutdown with Mitsuba's threads
+    stopped mid-work can abort (rc 134) instead of exiting 130."""
+    import os
+
+    from ._signals import INTERRUPTED_RC, raise_on_sigint
+
     args = build_parser().parse_args(argv)
+    raise_on_sigint()  # from here Ctrl-C unwinds, so staging folders and locks are removed
     try:
         rc = args._run(args)
     except SimlidarError as exc:
         print(f"simlidar-mi {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"simlidar-mi {args.command}: interrupted", file=sys.stderr)
+        if argv is None:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(INTERRUPTED_RC)
+        return INTERRUPTED_RC
     return int(rc or 0)
 
 

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..config import load_scene
 from ..errors import ConfigError
-from ..io.atomic import atomic_file, write_csv
+from ..io.atomic import atomic_file, write_csv, writes_output
 
 PAPER = {"A_PR": (3.6166, 0.7002), "A_L": (10.812, 0.7756)}  # slope, R² (paper eq. 15)
 COLUMNS = ["key", "iterations", "d_min_m", "n_trees", "pruning", "stochastic", "n_branches",
@@ -209,6 +209,7 @@ def scan_overrides(hit_rule: str = "any", footprint: int | None = None) -> list[
     return [f'scan.hit_rule="{hit_rule}"'] + ([f"scan.footprint={footprint}"] if footprint is not None else [])
 
 
+@writes_output("out_dir")
 def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | None = None, *,
               workers: int = 1, progress: bool = False, hit_rule: str = "any",
               footprint: int | None = None, readings: bool = True) -> StudyResult:

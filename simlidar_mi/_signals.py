@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import sys
 import threading
 from typing import Iterator
 
@@ -19,7 +20,9 @@ INTERRUPTED_RC = 130  # 128 + SIGINT, what shells report for a command ended by 
 
 
 def _exit_130(signum, frame) -> None:  # noqa: ARG001
-    os.write(2, b"simlidar-mi: interrupted\n")
+    mp = sys.modules.get("multiprocessing")
+    if mp is None or mp.parent_process() is None:  # a worker (study) leaves the line to its parent
+        os.write(2, b"simlidar-mi: interrupted\n")
     os._exit(INTERRUPTED_RC)
 
 

@@ -204,7 +204,9 @@ def _photo_gap_run(args: argparse.Namespace) -> int:
 
     from .errors import PhotoError
     from .canopy.photo import photo_gap
+    from .io.atomic import check_output_dir
 
+    check_output_dir(args.mask_dir)  # before any photo is read
     results, failed = [], 0
     for photo in args.photos:
         try:  # one bad photo should not hide the others' results

@@ -219,7 +219,7 @@ def _photo_p0s(rows: list[ManifestRow], src: str, mask_dir: Path) -> dict[int, A
             except PhotoError as exc:
                 raise ManifestError(str(exc), file=src, row=r.row, column="crop",
                                     value=r.crop_text) from exc
-            # flat names: staged_dir cannot replace a non-empty sub-folder on a re-run
+            # flat names, matched by COMPARE_OUTPUTS: a re-run removes masks of dropped rows
             mask = mask_dir / f"photo_mask_row{r.row}_{r.photo.stem}_{r.method}.png"
             try:
                 done[key] = photo_gap(r.photo, r.method, r.crop, mask_path=mask)

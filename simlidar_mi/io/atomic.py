@@ -134,7 +134,11 @@ def clean_stale_partials(out_dir: str | Path) -> list[Path]:
     folders = [out] + [p for p in out.iterdir() if p.is_dir() and not p.is_symlink()
                        and not _STAGE_RE.fullmatch(p.name)]
     for folder in folders:
-        for p in folder.iterdir():
+        try:
+            entries = list(folder.iterdir())
+        except OSError:  # an unreadable sub-folder is not ours
+            continue
+        for p in entries:
             m = _STAGE_RE.fullmatch(p.name) or _TMP_RE.fullmatch(p.name)
             if m is None or _alive(int(m.group(1))):
                 continue

@@ -36,9 +36,18 @@ gap fraction: ``sm.run_gapfraction("scenes/strawberry_plot.toml", "out/")``; for
 """
 from __future__ import annotations
 
-import importlib
+import os as _os
+import sys as _sys
 
-from . import _llvm
+if _sys.argv and _os.path.basename(_sys.argv[0]) == "simlidar-mi":
+    # The console script: Ctrl-C during the imports below (before cli.main) exits 130
+    # with one line instead of a traceback.
+    from ._signals import exit_on_sigint as _exit_on_sigint
+    _exit_on_sigint()
+
+import importlib  # noqa: E402
+
+from . import _llvm  # noqa: E402
 from .errors import (ConfigError, DerivationTooLarge, GrammarError, LLVMNotFound,
                      PhotoError, SimlidarError)
 from .geometry import Branches, Leaves, Primitive

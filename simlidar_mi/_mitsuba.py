@@ -5,6 +5,7 @@ import importlib
 from types import ModuleType
 
 from ._llvm import ensure_libllvm
+from ._signals import sigint_deferred
 from .errors import ConfigError
 
 DEFAULT_VARIANT = "llvm_ad_mono"
@@ -17,7 +18,14 @@ def mitsuba(variant: str | None = None) -> ModuleType:
 
     The first call fixes the variant for the process; a later call asking for a
     different one switches it (Mitsuba allows that) and re-registers the plugins.
+    Ctrl-C is held back until this is done: an interrupt inside the extension modules'
+    initialisation leaves them broken (ImportError, SystemError, or an abort at exit).
     """
+    with sigint_deferred():
+        return _mitsuba(variant)
+
+
+def _mitsuba(variant: str | None) -> ModuleType:
     variant = variant or _state.get("variant") or DEFAULT_VARIANT
     if variant.startswith("llvm"):
         ensure_libllvm()

@@ -210,7 +210,9 @@ def _photo_gap_run(args: argparse.Namespace) -> int:
 
     from .errors import PhotoError
     from .canopy.photo import photo_gap
+    from .io.atomic import check_output_dir
 
+    check_output_dir(args.mask_dir)  # before any photo is read
     results, failed = [], 0
     for photo in args.photos:
         try:  # one bad photo should not hide the others' results
@@ -378,7 +380,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; its exit status: 0, 2 on an error (one line), 130 on Ctrl-C.
+
+    With ``argv`` None (the program's own command line) an interrupted run ends the
+    process at once, after cleaning up: interpreter shutdown with Mitsuba's threads
+    stopped mid-work can abort (rc 134) instead of exiting 130."""
+    import os
+
+    from ._signals import INTERRUPTED_RC, raise_on_sigint
+
     args = build_parser().parse_args(argv)
+    raise_on_sigint()  # from here Ctrl-C unwinds, so staging folders and locks are removed
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", SimlidarWarning)
@@ -387,6 +399,13 @@ def main(argv: list[str] | None = None) -> int:
     except SimlidarError as exc:
         print(f"simlidar-mi {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"simlidar-mi {args.command}: interrupted", file=sys.stderr)
+        if argv is None:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(INTERRUPTED_RC)
+        return INTERRUPTED_RC
     return int(rc or 0)
 
 

@@ -77,3 +77,7 @@ class LLVMNotFound(SimlidarError, RuntimeError):
 
 class PhotoError(SimlidarError, ValueError):
     """A photograph cannot be read or classified."""
+
+
+class OutputError(SimlidarError, OSError):
+    """An output location cannot be used: not a folder, not writable, or in use by another run."""

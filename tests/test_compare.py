@@ -220,7 +220,7 @@ def test_manifest_with_values(scenes: Path) -> None:
         assert im.format == "PNG" and im.size[0] > 400
     assert (out / "virtual_rl_gap_orthographic_z0_s0.png").is_file()
     assert (out / "comparison.json").is_file()
-    assert not [p for p in scenes.iterdir() if p.name.startswith(".out.partial")]
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no staging folder, no lock
 
 
 def test_step_mean_is_mean_over_steps(scenes: Path) -> None:

@@ -316,7 +316,7 @@ def test_run_writes_csv_png_exr(tmp_path):
         assert meta["p0"] == pytest.approx(im.p0) and header["camera"] == im.camera.kind
         png = np.asarray(Image.open(out / f"{im.stem()}.png"))
         assert png.shape == (im.height, im.width, 3)
-    assert not list(tmp_path.glob(".out.partial-*"))
+    assert not list(tmp_path.glob(".out.partial-*")) and not list(out.glob(".partial-*"))
 
 
 def test_failed_run_leaves_nothing(tmp_path):

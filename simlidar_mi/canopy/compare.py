@@ -48,6 +48,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import ConfigError, PhotoError, SimlidarError
+from ..io.atomic import writes_output
 from .gapfraction import replicate_sd
 from .manifest import ManifestError, ManifestRow, read_manifest
 
@@ -61,6 +62,10 @@ COMPARISON_COLUMNS = ("zenith_deg", "n", "r", "rmse", "rmse_r", "bias", "bias_r"
 PAIRS_COLUMNS = ("row", "scene", "camera", "zenith_deg", "step", "p0_measured", "p0_virtual",
                  "p0_virtual_sd", "p0_virtual_sd_plot", "replicates", "difference", "measured_from",
                  "photo", "method", "crop", "lai_virtual", "note")
+# The files a comparison owns in its folder (whole-name regular expressions): a re-run
+# removes the masks of rows, photos and scenes the manifest no longer has.
+COMPARE_OUTPUTS = (r"comparison\.(csv|json|png)", r"pairs\.csv", r"virtual_.+\.png",
+                   r"photo_mask_row\d+_.+\.png")
 
 #: The paper's Table 5 per view zenith: (RMSE, Bias) over its 4 densities.  Its error
 #: scatter √(RMSE² − Bias²) is 0.0209, 0.0145 and 0.0089.
@@ -214,7 +219,7 @@ def _photo_p0s(rows: list[ManifestRow], src: str, mask_dir: Path) -> dict[int, A
             except PhotoError as exc:
                 raise ManifestError(str(exc), file=src, row=r.row, column="crop",
                                     value=r.crop_text) from exc
-            # flat names: staged_dir cannot replace a non-empty sub-folder on a re-run
+            # flat names, matched by COMPARE_OUTPUTS: a re-run removes masks of dropped rows
             mask = mask_dir / f"photo_mask_row{r.row}_{r.photo.stem}_{r.method}.png"
             try:
                 done[key] = photo_gap(r.photo, r.method, r.crop, mask_path=mask)
@@ -358,6 +363,7 @@ def plot_comparison(pairs: Sequence[Pair], stats: Sequence[dict[str, Any]], path
 
 
 # ----------------------------------------------------------------------- the API
+@writes_output("out_dir")
 def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[str]) -> ComparisonResult:
     """Pair measured and virtual P0 as a manifest says; write the Table 5 statistics.
 
@@ -386,7 +392,7 @@ def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[st
     src = str(mpath)
     rows = read_manifest(mpath)
     out = Path(out_dir)
-    with staged_dir(out) as stage:
+    with staged_dir(out, COMPARE_OUTPUTS) as stage:
         photos = _photo_p0s(rows, src, stage)  # cheap, fails before any rendering
         runs = _render_scenes(rows, src)
         pairs, used = [], {}

@@ -35,7 +35,7 @@ import numpy as np
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError, SimlidarError
 from ..geometry import Branches, Leaves
-from ..io.atomic import atomic_file, staged_dir, write_csv
+from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
 from ..io.exr import header_value
 from .cameras import CAMERAS, Camera, make_camera
 from .canopy import Canopy, canopies_from_config
@@ -54,6 +54,10 @@ CSV_COLUMNS = ("camera", "zenith_deg", "step", "p0", "p0_sd", "p0_sd_plot", "rep
                "leaf_area_m2", "lai", "spp", "width", "height", "seconds")
 REPLICATE_COLUMNS = ("replicate", "camera", "zenith_deg", "step", "p0", "leaf_area_m2", "lai",
                      "seconds")
+# The files a gap-fraction run owns in its folder (whole-name regular expressions): a
+# re-run removes those it does not write again (images after --no-images, other views).
+GAPFRACTION_OUTPUTS = (r"gap_fraction(_replicates)?\.csv", r"gap_fraction\.json",
+                       rf"gap_({'|'.join(CAMERAS)})_z[^_]+_s[^_.]+\.(png|exr)")
 
 
 def _tiled_leaves(leaves: Leaves, offsets: np.ndarray) -> Leaves:
@@ -406,6 +410,7 @@ def _render_replicate(cfg: SceneConfig, g: dict[str, Any], replicate: int,
     return canopies, images
 
 
+@writes_output("out_dir")
 def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None = None,
                     overrides: Sequence[str] = (), *, write_images: bool = True,
                     replicates: int | None = None) -> GapFractionRun:
@@ -447,7 +452,7 @@ def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None 
     from ..io.png import write_mask_png  # noqa: PLC0415
     out = Path(out_dir)
     t0 = time.perf_counter()
-    with staged_dir(out) as stage:
+    with staged_dir(out, GAPFRACTION_OUTPUTS) as stage:
         write_csv(stage / "gap_fraction.csv", CSV_COLUMNS, (s.row() for s in run.summary))
         run.files["csv"] = out / "gap_fraction.csv"
         write_csv(stage / "gap_fraction_replicates.csv", REPLICATE_COLUMNS, (

@@ -94,6 +94,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import ConfigError, SimlidarError
+from ..io.atomic import writes_output
+from .cameras import CAMERAS
 
 __all__ = [
     "PhotoSettings", "PhotoJob", "SyntheticPhotoCheck", "DEFAULTS", "CSV_COLUMNS",
@@ -116,6 +118,10 @@ DEFAULTS: dict[str, Any] = {
 }
 CSV_COLUMNS = ("camera", "zenith_deg", "step", "p0_coverage", "p0_canopeo", "difference",
                "coverage_spp", "photo_spp", "width", "height", "seconds_photo")
+# The files a synthetic-photo run owns in its folder (whole-name regular expressions);
+# the camera names keep compare's photo_mask_row*.png out of the set.
+SYNTHETIC_PHOTO_OUTPUTS = (r"synthetic_photo\.(csv|json)",
+                           rf"photo_({'|'.join(CAMERAS)})_z[^_]+_s[^_.]+(_canopeo)?\.png")
 _SOIL_HALF_SIZE_M = 100.0  # soil plane half size: fills any view of a plot-sized scene
 _SOIL_BELOW_M = 1e-3  # soil this far below the lowest leaf, so no leaf is buried
 _WORKER_FLAG = "--photo-worker"
@@ -559,6 +565,7 @@ def check_photo(canopy, kind: str = "orthographic", zenith_deg: float = 0.0, *,
     return check_images([img], [canopy], settings, seed=seed, isolate=isolate)[0]
 
 
+@writes_output("out_dir")
 def run_synthetic_photos(scene, out_dir: str | Path | None = None, overrides: Sequence[str] = (),
                          *, isolate: bool | None = None) -> list[SyntheticPhotoCheck]:
     """Every gap-fraction view of a scene file, also as a synthetic photo checked by Canopeo.
@@ -587,7 +594,7 @@ def run_synthetic_photos(scene, out_dir: str | Path | None = None, overrides: Se
         return checks
     from ..io.atomic import atomic_file, staged_dir, write_csv  # noqa: PLC0415
     from ..io.png import write_mask_png  # noqa: PLC0415
-    with staged_dir(out_dir) as stage:
+    with staged_dir(out_dir, SYNTHETIC_PHOTO_OUTPUTS) as stage:
         write_csv(stage / "synthetic_photo.csv", CSV_COLUMNS, (chk.row() for chk in checks))
         for chk in checks:
             stem = chk.image.stem().replace("gap_", "photo_", 1)

@@ -48,13 +48,19 @@ from typing import Any, Iterable, Sequence
 
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
-from ..io.atomic import staged_dir
+from ..io.atomic import staged_dir, writes_output
 from ..plants.tree_leaves import LeafTable
 from .outputs import (_have_pyarrow, _leaf_tables_csv, _leaf_tables_parquet, _write_prototype_meshes,
                       _write_trees_csv, plot_layout, plot_preview, write_stand)
 from .stand import Forest, _bar, make_forest
 
-__all__ = ["ForestRun", "run_forest"]
+__all__ = ["ForestRun", "run_forest", "FOREST_OUTPUTS"]
+
+# The files a forest run owns in its folder (whole-name regular expressions): a re-run
+# removes those it does not write again (the stand mesh after switching to prototypes,
+# the leaf table after leaf_table = "none", the other format's files).
+FOREST_OUTPUTS = (r"trees\.csv", r"(prototype_)?leaves\.(csv|parquet)", r"layout\.png",
+                  r"preview\.png", r"stand\.(ply|obj)", r"prototypes", r"forest\.json")
 
 
 # --- the command -----------------------------------------------------------------------
@@ -88,6 +94,7 @@ def _resolve_modes(forest: Forest, f: dict, src: str) -> tuple[str, str]:
     return leaf_mode, export
 
 
+@writes_output("out_dir")
 def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Sequence[str] = (),
                *, progress: bool = False) -> ForestRun:
     """Make the forest of a scene file and write its files (see the module docstring).
@@ -106,7 +113,7 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
     seconds = dict(forest.seconds)
     files: dict[str, Path] = {}
     out = Path(out_dir)
-    with staged_dir(out) as stage:
+    with staged_dir(out, FOREST_OUTPUTS) as stage:
         t0 = time.perf_counter()
         _write_trees_csv(stage / "trees.csv", forest)
         files["trees"] = out / "trees.csv"

@@ -1,40 +1,278 @@
-"""Outputs appear complete or not at all.
+"""Outputs appear complete or not at all, one run at a time per folder.
 
-Files are written into a hidden staging folder beside the destination and moved
-into place (``os.replace``, atomic on one file system) only when every writer has
-finished; an exception removes the staging folder and leaves earlier outputs intact.
+Files are written into a hidden staging folder inside the destination
+(``.partial-<pid>-*``) and moved into place (``os.replace``) only when every writer has
+finished; an exception or Ctrl-C removes the staging folder and leaves earlier outputs
+intact.  A run owns its output set: files of the set (by name pattern) that it does not
+write this time are removed, and logged, so an earlier run's ``points.las`` never sits
+next to a new ``scan.exr``; other files are never touched.
+
+A run *claims* its folder (:func:`claim_output`, or the :func:`writes_output` decorator
+on a run function, before any work): the location is checked (a folder, or creatable,
+and writable: :class:`~simlidar_mi.errors.OutputError` otherwise), a lock file
+``.simlidar-mi.lock`` naming the process is taken (``flock``: released by the kernel
+when the process dies, even by SIGKILL), so a second run into the same folder is
+refused rather than interleaved, and staging folders and temporary files left by a
+killed run (their pid is in the name, and dead) are removed.
 """
 from __future__ import annotations
 
 import contextlib
+import errno
+import fcntl
+import functools
+import inspect
+import json
+import logging
 import os
+import re
 import shutil
+import socket
+import sys
 import tempfile
+import threading
+import time
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterable, Iterator
+
+from .._signals import sigint_deferred
+from ..errors import OutputError
+
+log = logging.getLogger(__name__)
+
+LOCK_NAME = ".simlidar-mi.lock"
+_STAGE_RE = re.compile(r"\.partial-(\d+)-[^/]*")       # staged_dir's folders
+_TMP_RE = re.compile(r"\..+\.(\d+)-[^./]*\.partial")  # atomic_file's temporary files
+_claims: dict[Path, list] = {}  # resolved folder -> [lock fd, depth, created]: reentrant per process
+_claims_lock = threading.Lock()
+
+
+# --- checking and claiming a folder ------------------------------------------------------
+
+
+def check_output_dir(out_dir: str | Path) -> None:
+    """Raise :class:`OutputError` unless ``out_dir`` is a writable folder or can be made one."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"output folder {out} exists and is not a folder")
+    probe = out
+    while not probe.exists():  # nearest existing ancestor: it must be a writable folder
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputError(f"cannot make output folder {out}: {probe} is a file, not a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise OutputError(f"output folder {out} is not writable" if probe == out else
+                          f"cannot make output folder {out}: {probe} is not writable")
+
+
+def check_output_file(path: str | Path) -> None:
+    """Raise :class:`OutputError` unless ``path`` can be written as a file."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"output file {path} is a folder")
+    check_output_dir(path.parent)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # exists, another user's
+    return True
+
+
+def _owner_text(lock_path: Path) -> str:
+    try:
+        info = json.loads(lock_path.read_text(encoding="utf-8"))
+        return (f"process {info['pid']} on {info['host']} ({info['command']}, "
+                f"since {info['started']})")
+    except (OSError, ValueError, KeyError, TypeError):
+        return "another process"
+
+
+def _take_lock(out: Path) -> int:
+    """flock ``out/LOCK_NAME`` for this process; its fd.  Refuses when another holds it."""
+    path = out / LOCK_NAME
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise OutputError(f"output folder {out} is not writable ({exc.strerror})") from exc
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            os.close(fd)
+            if exc.errno not in (errno.EAGAIN, errno.EACCES):
+                raise OutputError(f"cannot lock output folder {out} ({exc.strerror})") from exc
+            raise OutputError(f"output folder {out} is in use by {_owner_text(path)}; wait for "
+                              f"it to finish or use another folder (lock file {path})") from None
+        try:  # the holder before us may have removed the file as we opened it: retry
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    info = {"pid": os.getpid(), "host": socket.gethostname(),
+            "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])[:300] if sys.argv else "python",
+            "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    os.ftruncate(fd, 0)
+    os.write(fd, (json.dumps(info) + "\n").encode())
+    return fd
+
+
+def clean_stale_partials(out_dir: str | Path) -> list[Path]:
+    """Remove staging folders and temporary files of dead runs in ``out_dir`` (and its
+    sub-folders one level down); returns what was removed.  Only names carrying a pid
+    (``.partial-<pid>-*``, ``.<name>.<pid>-*.partial``) whose process is gone."""
+    out = Path(out_dir)
+    removed = []
+    folders = [out] + [p for p in out.iterdir() if p.is_dir() and not p.is_symlink()
+                       and not _STAGE_RE.fullmatch(p.name)]
+    for folder in folders:
+        try:
+            entries = list(folder.iterdir())
+        except OSError:  # an unreadable sub-folder is not ours
+            continue
+        for p in entries:
+            m = _STAGE_RE.fullmatch(p.name) or _TMP_RE.fullmatch(p.name)
+            if m is None or _alive(int(m.group(1))):
+                continue
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p, ignore_errors=True)
+            else:
+                with contextlib.suppress(FileNotFoundError):
+                    p.unlink()
+            removed.append(p)
+            log.warning("removed %s, left by a run that was killed (process %s)", p, m.group(1))
+    return removed
 
 
 @contextlib.contextmanager
-def staged_dir(out_dir: str | Path) -> Iterator[Path]:
-    """Yield a staging folder; on success move its files into ``out_dir``."""
+def claim_output(out_dir: str | Path) -> Iterator[Path]:
+    """Check, lock and tidy ``out_dir`` for this run (see the module docstring).
+
+    Reentrant within a process (a run calling another run, or :func:`staged_dir`, on the
+    same folder).  On exit the lock file goes; a folder this claim created is removed
+    again if it is still empty."""
     out = Path(out_dir)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    check_output_dir(out)
+    key = out.resolve()
+    with _claims_lock:
+        held = _claims.get(key)
+        if held is not None:
+            held[1] += 1
+        else:
+            created = not out.exists()
+            try:
+                out.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise OutputError(f"cannot make output folder {out} ({exc.strerror})") from exc
+            try:
+                fd = _take_lock(out)
+            except BaseException:
+                if created:
+                    with contextlib.suppress(OSError):
+                        out.rmdir()
+                raise
+            _claims[key] = held = [fd, 1, created]
     try:
-        yield stage
-        out.mkdir(parents=True, exist_ok=True)
-        for item in sorted(stage.iterdir()):
-            os.replace(item, out / item.name)
+        if held[1] == 1:
+            clean_stale_partials(out)
+        yield out
     finally:
-        shutil.rmtree(stage, ignore_errors=True)
+        with _claims_lock:
+            held[1] -= 1
+            if held[1] == 0:
+                del _claims[key]
+                with contextlib.suppress(OSError):
+                    (out / LOCK_NAME).unlink()  # while still locked: see _take_lock's retry
+                os.close(held[0])
+                if held[2]:
+                    with contextlib.suppress(OSError):
+                        out.rmdir()  # only if empty: a run that failed before writing
+
+
+def writes_output(arg: str = "out_dir", *, file: bool = False) -> Callable:
+    """Decorator: claim the folder given as argument ``arg`` for the whole call.
+
+    The check comes before any work, so a bad output location fails at once rather than
+    after the scan.  ``arg`` may be None (nothing written: no claim).  With ``file=True``
+    the argument is one output file: only checked (its folder must be writable)."""
+    def deco(fn: Callable) -> Callable:
+        sig = inspect.signature(fn)
+
+        @functools.wraps(fn)
+        def wrapper(*args, **kwargs):
+            target = sig.bind(*args, **kwargs).arguments.get(arg, sig.parameters[arg].default)
+            if target is None or target is inspect.Parameter.empty:
+                return fn(*args, **kwargs)
+            if file:
+                check_output_file(target)
+                return fn(*args, **kwargs)
+            with claim_output(target):
+                return fn(*args, **kwargs)
+        return wrapper
+    return deco
+
+
+# --- staged writing ----------------------------------------------------------------------
+
+
+def _owned(name: str, owns: Iterable[str]) -> bool:
+    return not name.startswith(".") and any(re.fullmatch(p, name) for p in owns)
+
+
+@contextlib.contextmanager
+def staged_dir(out_dir: str | Path, owns: Iterable[str] = ()) -> Iterator[Path]:
+    """Yield a staging folder; on success move its files into ``out_dir``.
+
+    ``owns``: regular expressions (whole names) of the files and folders this run's kind
+    writes in ``out_dir``; those it did not write this time are removed (and logged).
+    A sub-folder replaces the earlier one of its name as a whole."""
+    owns = tuple(owns)
+    with claim_output(out_dir) as out:
+        stage = Path(tempfile.mkdtemp(prefix=f".partial-{os.getpid()}-", dir=out))
+        try:
+            yield stage
+            with sigint_deferred():  # Ctrl-C here would leave half old, half new files
+                _commit(stage, out, owns)
+        finally:
+            shutil.rmtree(stage, ignore_errors=True)
+
+
+def _commit(stage: Path, out: Path, owns: tuple[str, ...]) -> None:
+    written = set()
+    for item in sorted(stage.iterdir()):
+        dest = out / item.name
+        if dest.is_dir() and not dest.is_symlink():  # os.replace cannot replace a folder
+            os.replace(dest, stage / f".old-{item.name}")
+        os.replace(item, dest)
+        written.add(item.name)
+    for p in sorted(out.iterdir()):
+        if p.name in written or not _owned(p.name, owns):
+            continue
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        else:
+            p.unlink()
+        log.warning("removed %s: an earlier run's output that this run does not write", p)
 
 
 @contextlib.contextmanager
 def atomic_file(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it to ``path`` on success."""
+    """Yield a temporary path beside ``path``; rename it to ``path`` on success.
+
+    The temporary name carries the pid (``.<name>.<pid>-*.partial``), so that a claimed
+    folder's next run can tell one left by a killed process."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}-", suffix=".partial",
+                               dir=path.parent)
     os.close(fd)
     umask = os.umask(0)
     os.umask(umask)

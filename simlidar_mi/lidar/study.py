@@ -49,7 +49,7 @@ import numpy as np
 from .._version import __version__
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
-from ..io.atomic import atomic_file, write_csv
+from ..io.atomic import atomic_file, write_csv, writes_output
 
 log = logging.getLogger(__name__)
 
@@ -379,6 +379,7 @@ def _stale(rows_dir: Path, grid: list[list[str]], keys: list[str], tables: list[
     return reasons, max(n_other, 0)
 
 
+@writes_output("out_dir")
 def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | None = None, *,
               workers: int = 1, progress: bool = False, hit_rule: str = "any",
               footprint: int | None = None, readings: bool = True,

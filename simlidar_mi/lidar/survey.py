@@ -21,12 +21,17 @@ import numpy as np
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError, SimlidarWarning
 from ..geometry import Branches, Leaves, Primitive
-from ..io.atomic import atomic_file, staged_dir
+from ..io.atomic import atomic_file, staged_dir, writes_output
 
 log = logging.getLogger(__name__)
 
 __all__ = ["SceneGeometry", "ScanRun", "load_scene", "generate", "build", "run_scan",
-           "measure", "preview"]
+           "measure", "preview", "SCAN_OUTPUTS"]
+
+# The files a scan owns in its folder (regular expressions of whole names): a re-run
+# removes those it does not write again (points.las after --no-las, a leg's EXR when
+# the path has fewer legs), so no file of an earlier scan sits beside the new ones.
+SCAN_OUTPUTS = (r"scan\.(exr|png)", r"scan_leg\d+\.(exr|png)", r"points\.las", r"measures\.json")
 
 
 @dataclass
@@ -290,6 +295,7 @@ def _patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m) -> list:
                              escape_m=escape, **common)]
 
 
+@writes_output("out_dir")
 def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
              overrides: list[str] | tuple = (), *, write_las: bool = True,
              write_png: bool = True, progress: bool = False) -> ScanRun:
@@ -335,7 +341,7 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     t = time.perf_counter()
     if out_dir is not None:
         from ..io.exr import write_scan_exr  # noqa: PLC0415
-        with staged_dir(out_dir) as stage:
+        with staged_dir(out_dir, SCAN_OUTPUTS) as stage:
             for j, res in enumerate(results):
                 stem = "scan" if len(results) == 1 else f"scan_leg{j}"
                 write_scan_exr(res, stage / f"{stem}.exr", seed=cfg.seed, scene_sha256=cfg.sha256,
@@ -411,6 +417,7 @@ def _progress(total: int, enabled: bool):
     return step
 
 
+@writes_output("path", file=True)
 def preview(cfg: SceneConfig | str | Path, path: str | Path, *, width: int = 1024,
             spp: int = 16, overrides: list[str] | tuple = ()) -> Path:
     """A shaded side view of the scene (looking along +x, like the scanner) as PNG."""

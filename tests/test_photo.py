@@ -21,8 +21,8 @@ from simlidar_mi import PhotoError, SimlidarError
 from simlidar_mi.cli import main
 from simlidar_mi.io.png import (BACKGROUND_RGB, FOREGROUND_RGB, WINDOW_RGB, render_mask_rgb,
                                 write_mask_png)
-from simlidar_mi.canopy.photo import (PhotoGapResult, classify_rgb, crop_box, parse_crop, photo_gap,
-                               read_rgb)
+from simlidar_mi.canopy.photo import (METHODS, PhotoGapResult, classify_rgb, crop_box, parse_crop,
+                                      photo_gap, read_rgb)
 
 PHOTOS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "photos"
 needs_photos = pytest.mark.skipif(
@@ -366,8 +366,9 @@ def test_rgba_alpha_is_a_mask_and_palette_is_expanded(tmp_path: Path) -> None:
     assert mask[5, 5].tolist() == [0, 0, 0]  # transparent pixels are black in the mask
     rgba[..., 3] = 0  # nothing opaque left: refused, not P0 = 1
     Image.fromarray(rgba).save(f)
-    with pytest.raises(PhotoError, match=r"a\.png: 0 pixels to analyse once the 1600 transparent"):
-        photo_gap(f, "canopeo", mask_dir=tmp_path)
+    for method in METHODS:
+        with pytest.raises(PhotoError, match=r"a\.png: 0 pixels to analyse once the 1600 transparent"):
+            photo_gap(f, method, mask_dir=tmp_path)
     g = tmp_path / "p.png"
     Image.fromarray(rgba[..., :3]).convert("P", palette=Image.Palette.ADAPTIVE).save(g)
     assert read_rgb(g)[0, 0].tolist() == [120, 100, 80]

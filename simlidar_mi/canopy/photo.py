@@ -329,19 +329,28 @@ def _otsu_threshold(photo: UprightPhoto, method: str, box: Box, file: Path, tick
             tick(rgb.shape[0] * rgb.shape[1])
             yield v if opaque is None else v[opaque[:, x0:x1]]
 
+    def enough(n: int) -> None:
+        if n < MIN_PIXELS:
+            raise PhotoError(f"{file}: {n} pixels to analyse once the {area - n} transparent "
+                             f"ones are left out; at least {MIN_PIXELS} are needed to classify "
+                             "a photo")
+
+    area = (x1 - x0) * (y1 - y0)
     if method == "blue-otsu":
         counts = np.zeros(256, np.int64)
         for v in values():
             counts += np.bincount(v.ravel(), minlength=256)
+        enough(int(counts.sum()))
         levels = np.flatnonzero(counts)
         if len(levels) < 2:
             raise uniform
         lo, hi = int(levels[0]), int(levels[-1])
         return _otsu_from_hist(counts[lo:hi + 1], np.arange(lo, hi + 1))
-    lo, hi = np.float64(np.inf), np.float64(-np.inf)
+    lo, hi, n = np.float64(np.inf), np.float64(-np.inf), 0
     for v in values():
         if v.size:
-            lo, hi = min(lo, v.min()), max(hi, v.max())
+            lo, hi, n = min(lo, v.min()), max(hi, v.max()), n + v.size
+    enough(n)
     if not lo < hi:
         raise uniform
     counts = np.zeros(256, np.int64)

@@ -137,7 +137,10 @@ def open_photo(path: str | os.PathLike[str], downscale: int = 1) -> Iterator[Upr
             # load() decodes everything, so a truncated file fails here, not later
             im.load()
             want = (-(-full[0] // downscale), -(-full[1] // downscale))
-            if im.size != want:  # not a JPEG (or the decoder could not scale): average blocks
+            if im.size not in (want, full):  # the decoder scaled, but not by 1/downscale
+                raise PhotoError(f"{p}: cannot decode this {full[0]}x{full[1]} image at "
+                                 f"1/{downscale} of its size; try a smaller downscale")
+            if im.size != want:  # not a JPEG: decoded in full, now averaged over blocks
                 if im.mode in ("P", "PA"):
                     im = im.convert("RGBA" if im.mode == "PA" or "transparency" in im.info else "RGB")
                 im = im.reduce(downscale)

@@ -201,6 +201,10 @@ def _photo_gap_args(p: argparse.ArgumentParser) -> None:
                    help="print a JSON list of {file, method, threshold, cover, p0, ...}")
     p.add_argument("--mask-dir", default="photo_masks", metavar="DIR",
                    help="where to write <stem>_<method>_mask.png (default ./photo_masks/)")
+    p.add_argument("--downscale", type=int, default=1, choices=[1, 2, 4, 8], metavar="F",
+                   help="analyse at 1/F of the size (1, 2, 4, 8; JPEGs decode at that size): "
+                        "less memory and time, but P0 moves (fine grass at 512 px: 0.03 at 2, "
+                        "0.14 at 8; see BENCHMARKS.md)")
 
 
 @command("photo-gap", "Gap fraction and vegetation cover of real photos (mask PNGs saved)",
@@ -216,12 +220,14 @@ def _photo_gap_run(args: argparse.Namespace) -> int:
     results, failed = [], 0
     for photo in args.photos:
         try:  # one bad photo should not hide the others' results
-            results.append(photo_gap(photo, args.method, args.crop, mask_dir=args.mask_dir))
+            results.append(photo_gap(photo, args.method, args.crop, mask_dir=args.mask_dir,
+                                     downscale=args.downscale, progress=sys.stderr.isatty()))
         except PhotoError as exc:
             failed += 1
             print(f"simlidar-mi photo-gap: error: {exc}", file=sys.stderr)
     if args.json:
-        keys = ("file", "method", "threshold", "cover", "p0", "n_pixels", "crop", "mask_file")
+        keys = ("file", "method", "threshold", "cover", "p0", "n_pixels", "n_transparent", "crop",
+                "downscale", "mask_file")
         print(json.dumps([{k: r.to_dict()[k] for k in keys} for r in results], indent=2))
     elif results:
         w = max(len(str(r.file)) for r in results)

@@ -27,6 +27,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -94,6 +95,23 @@ def azimuth(v):
     return None if math.isfinite(v) else "must be a finite number"
 
 
+def _epsg(v):
+    """'EPSG:<code>' naming a CRS whose horizontal axes are in metres (the scene's units)."""
+    m = re.fullmatch(r"EPSG:(\d{1,6})", v.strip(), flags=re.IGNORECASE)
+    if m is None:
+        return 'must look like "EPSG:<code>", e.g. "EPSG:25832"'
+    import pyproj  # noqa: PLC0415 - only scenes that declare a CRS pay for it
+    try:
+        crs = pyproj.CRS.from_epsg(int(m.group(1)))
+    except pyproj.exceptions.CRSError:
+        return "is not an EPSG code that PROJ knows"
+    units = {a.unit_name for a in crs.axis_info[:2]}
+    if not crs.is_projected or units != {"metre"}:
+        return (f"is {crs.name}, not a projected CRS in metres; scene coordinates are metres "
+                "(use e.g. the UTM zone's EPSG code)")
+    return None
+
+
 def waypoints(v):
     ok = isinstance(v, list) and len(v) >= 2 and all(_numbers(p, 3) for p in v)
     return None if ok else "must be a list of at least two [x, y, z] points"
@@ -113,6 +131,8 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "facets": Key(INT, 12, at_least(3), "prism facets k of the mesh representation"),
         "origin_m": Key(LIST, None, vec3, "float64 scene origin; default bbox centre"),
         "variant": Key(STR, "llvm_ad_mono"),
+        "crs": Key(STR, None, _epsg, '"EPSG:<code>" of a projected CRS in metres that the scene '
+                   "coordinates are in; written to points.las as an OGC WKT record"),
     },
     "orchard": {
         "n_trees": Key(INT, 1, at_least(1)),

@@ -21,8 +21,8 @@ from simlidar_mi import PhotoError, SimlidarError
 from simlidar_mi.cli import main
 from simlidar_mi.io.png import (BACKGROUND_RGB, FOREGROUND_RGB, WINDOW_RGB, render_mask_rgb,
                                 write_mask_png)
-from simlidar_mi.canopy.photo import (PhotoGapResult, classify_rgb, crop_box, parse_crop, photo_gap,
-                               read_rgb)
+from simlidar_mi.canopy.photo import (METHODS, PhotoGapResult, classify_rgb, crop_box, parse_crop,
+                                      photo_gap, read_rgb)
 
 PHOTOS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "photos"
 needs_photos = pytest.mark.skipif(
@@ -244,7 +244,7 @@ def test_blue_otsu_matches_imagej_oracle_on_random_images(seed: int) -> None:
 
 @pytest.mark.parametrize("method", ["exg-otsu", "blue-otsu"])
 def test_otsu_on_uniform_crop_is_an_error(tmp_path: Path, method: str) -> None:
-    f = _save_rgb(tmp_path / "flat.png", np.full((10, 10, 3), 90))
+    f = _save_rgb(tmp_path / "flat.png", np.full((40, 40, 3), 90))
     with pytest.raises(PhotoError, match=r"flat\.png.*uniform"):
         photo_gap(f, method, mask_dir=tmp_path)
 
@@ -281,14 +281,14 @@ def test_bad_crop_names_file_and_crop(tmp_path: Path, crop) -> None:
 
 
 def test_cover_counts_only_the_crop(tmp_path: Path) -> None:
-    img = np.full((20, 40, 3), (120, 100, 80), dtype=np.uint8)  # soil
-    img[:, :10] = (40, 150, 40)  # a green strip on the left quarter
+    img = np.full((64, 128, 3), (120, 100, 80), dtype=np.uint8)  # soil
+    img[:, :32] = (40, 150, 40)  # a green strip on the left quarter
     f = _save_rgb(tmp_path / "strip.png", img)
     assert photo_gap(f, "canopeo", mask_dir=tmp_path).cover == pytest.approx(0.25)
-    r = photo_gap(f, "canopeo", "0,0,20,20", mask_dir=tmp_path)
-    assert (r.cover, r.n_pixels, r.n_vegetation) == (0.5, 400, 200)
-    r = photo_gap(f, "canopeo", 0.5, mask_dir=tmp_path)  # columns 10..30: no green
-    assert r.crop == (10, 5, 30, 15) and r.cover == 0.0 and r.p0 == 1.0
+    r = photo_gap(f, "canopeo", "0,0,64,64", mask_dir=tmp_path)
+    assert (r.cover, r.n_pixels, r.n_vegetation) == (0.5, 4096, 2048)
+    r = photo_gap(f, "canopeo", 0.5, mask_dir=tmp_path)  # columns 32..96: no green
+    assert r.crop == (32, 16, 96, 48) and r.cover == 0.0 and r.p0 == 1.0
 
 
 # --- unreadable and non-RGB files ---------------------------------------------------
@@ -349,17 +349,30 @@ def test_cmyk_is_refused(tmp_path: Path) -> None:
         read_rgb(f)
 
 
-def test_rgba_drops_alpha_and_palette_is_expanded(tmp_path: Path) -> None:
-    rgba = np.zeros((6, 6, 4), dtype=np.uint8)
-    rgba[..., :3] = (40, 150, 40)
-    rgba[..., 3] = 0  # fully transparent: alpha is ignored, colour kept
+def test_rgba_alpha_is_a_mask_and_palette_is_expanded(tmp_path: Path) -> None:
+    rgba = np.zeros((40, 40, 4), dtype=np.uint8)
+    rgba[..., :3] = (40, 150, 40)   # green everywhere ...
+    rgba[:, :20, :3] = (120, 100, 80)  # ... but soil on the left half
+    rgba[..., 3] = 255
+    rgba[:10, :20, 3] = 0           # a transparent quarter of the soil: not analysed
+    rgba[10:20, :20, 3] = 1         # barely opaque still counts
     f = tmp_path / "a.png"
     Image.fromarray(rgba).save(f)
-    assert read_rgb(f).shape == (6, 6, 3)
-    assert photo_gap(f, "canopeo", mask_dir=tmp_path).cover == 1.0
+    assert read_rgb(f).shape == (40, 40, 3)
+    r = photo_gap(f, "canopeo", mask_dir=tmp_path)
+    assert (r.n_pixels, r.n_transparent, r.n_vegetation) == (1400, 200, 800)
+    assert r.cover == pytest.approx(800 / 1400)
+    mask = np.asarray(Image.open(r.mask_file).convert("RGB"))
+    assert mask[5, 5].tolist() == [0, 0, 0]  # transparent pixels are black in the mask
+    rgba[..., 3] = 0  # nothing opaque left: refused, not P0 = 1
+    Image.fromarray(rgba).save(f)
+    for method in METHODS:
+        with pytest.raises(PhotoError, match=r"a\.png: 0 pixels to analyse once the 1600 transparent"):
+            photo_gap(f, method, mask_dir=tmp_path)
     g = tmp_path / "p.png"
     Image.fromarray(rgba[..., :3]).convert("P", palette=Image.Palette.ADAPTIVE).save(g)
-    assert read_rgb(g)[0, 0].tolist() == [40, 150, 40]
+    assert read_rgb(g)[0, 0].tolist() == [120, 100, 80]
+    assert read_rgb(g)[0, 39].tolist() == [40, 150, 40]
 
 
 def test_exif_orientation_is_applied(tmp_path: Path) -> None:
@@ -427,7 +440,7 @@ def test_mask_png_unwritable_destination(tmp_path: Path) -> None:
 
 
 def test_photo_gap_mask_path_and_unwritable_mask(tmp_path: Path) -> None:
-    img = np.full((10, 10, 3), (40, 150, 40), dtype=np.uint8)
+    img = np.full((40, 40, 3), (40, 150, 40), dtype=np.uint8)
     f = _save_rgb(tmp_path / "leaf.png", img)
     r = photo_gap(f, "canopeo", mask_path=tmp_path / "out" / "leaf_mask.png")
     assert r.mask_file == tmp_path / "out" / "leaf_mask.png" and r.mask_file.is_file()
@@ -438,30 +451,30 @@ def test_photo_gap_mask_path_and_unwritable_mask(tmp_path: Path) -> None:
 
 
 def test_mask_matches_counts(tmp_path: Path) -> None:
-    img = np.full((20, 40, 3), (120, 100, 80), dtype=np.uint8)
-    img[5:15, 5:25] = (40, 150, 40)
+    img = np.full((40, 80, 3), (120, 100, 80), dtype=np.uint8)
+    img[10:30, 10:50] = (40, 150, 40)
     f = _save_rgb(tmp_path / "patch.png", img)
-    r = photo_gap(f, "canopeo", (0, 0, 30, 20), mask_dir=tmp_path / "m")
-    a = np.asarray(Image.open(r.mask_file))
-    assert r.n_vegetation == 200
+    r = photo_gap(f, "canopeo", (0, 0, 60, 40), mask_dir=tmp_path / "m")
+    a = np.asarray(Image.open(r.mask_file).convert("RGB"))
+    assert r.n_vegetation == 800
     assert (a == FOREGROUND_RGB).all(axis=2).sum() == r.n_vegetation
 
 
 # --- result object and CLI errors ---------------------------------------------------
 
 def test_result_is_frozen_and_json_ready(tmp_path: Path) -> None:
-    f = _save_rgb(tmp_path / "x.png", np.full((4, 4, 3), (40, 150, 40)))
+    f = _save_rgb(tmp_path / "x.png", np.full((32, 32, 3), (40, 150, 40)))
     r = photo_gap(f, "canopeo", mask_dir=tmp_path)
     assert isinstance(r, PhotoGapResult)
     with pytest.raises(AttributeError):
         r.cover = 0.0  # type: ignore[misc]
     d = json.loads(json.dumps(r.to_dict()))
-    assert d["file"] == str(f) and d["crop"] == [0, 0, 4, 4] and d["cover"] == 1.0
+    assert d["file"] == str(f) and d["crop"] == [0, 0, 32, 32] and d["cover"] == 1.0
 
 
 def test_cli_reports_bad_files_and_continues(tmp_path: Path,
                                              capsys: pytest.CaptureFixture[str]) -> None:
-    good = _save_rgb(tmp_path / "good.png", np.full((4, 4, 3), (40, 150, 40)))
+    good = _save_rgb(tmp_path / "good.png", np.full((32, 32, 3), (40, 150, 40)))
     bad = tmp_path / "bad.jpg"
     bad.write_text("text")
     rc = main(["photo-gap", str(bad), str(good), "--method", "canopeo", "--json",
@@ -476,7 +489,7 @@ def test_cli_default_mask_dir_is_cwd(tmp_path: Path, monkeypatch: pytest.MonkeyP
                                      capsys: pytest.CaptureFixture[str]) -> None:
     photos = tmp_path / "photos"
     photos.mkdir()
-    good = _save_rgb(photos / "g.png", np.full((4, 4, 3), (40, 150, 40)))
+    good = _save_rgb(photos / "g.png", np.full((32, 32, 3), (40, 150, 40)))
     work = tmp_path / "work"
     work.mkdir()
     monkeypatch.chdir(work)
@@ -484,3 +497,124 @@ def test_cli_default_mask_dir_is_cwd(tmp_path: Path, monkeypatch: pytest.MonkeyP
     assert (work / "photo_masks" / "g_canopeo_mask.png").is_file()
     assert os.listdir(photos) == ["g.png"]
     assert "g_canopeo_mask.png" in capsys.readouterr().out
+
+
+# --- large photos: strips, orientation, downscale, size limits ----------------------
+
+def _field(h: int, w: int, seed: int = 5) -> np.ndarray:
+    """Green blobs on soil with pixel noise: both classes, many distinct levels."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w]
+    green = (np.sin(xx / 7.0) + np.cos(yy / 5.0) + rng.normal(0, 0.3, (h, w))) > 0.4
+    img = np.where(green[..., None], (60, 140, 45), (120, 95, 70)).astype(np.int16)
+    return np.clip(img + rng.integers(-25, 26, (h, w, 3)), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("method", ["canopeo", "exg-otsu", "blue-otsu"])
+@pytest.mark.parametrize("crop", [None, (13, 7, 140, 101)])
+def test_strips_give_the_whole_array_result(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                            method: str, crop) -> None:
+    import simlidar_mi.canopy.photo as photo
+    f = _save_rgb(tmp_path / "field.png", _field(120, 150))
+    rgb = read_rgb(f)
+    box = crop_box(crop, 150, 120)
+    mask, t = classify_rgb(rgb, method, box)
+    x0, y0, x1, y1 = box
+    seen = []
+    real = photo._exg if method == "exg-otsu" else photo._canopeo
+    monkeypatch.setattr(photo, "_exg" if method == "exg-otsu" else "_canopeo",
+                        lambda a, *k: seen.append(a.shape[0] * a.shape[1]) or real(a, *k))
+    monkeypatch.setattr(photo, "TILE_PIXELS", 7 * 150 + 3)  # strips of 7 rows
+    r = photo_gap(f, method, crop, mask_dir=tmp_path)
+    assert r.threshold == t  # the strip-accumulated histogram gives Otsu's exact threshold
+    assert r.n_vegetation == int(mask[y0:y1, x0:x1].sum()) and r.n_pixels == (x1 - x0) * (y1 - y0)
+    if method != "blue-otsu":  # never the whole photo at once
+        assert seen and max(seen) <= 7 * 150
+    labels = np.asarray(Image.open(r.mask_file).convert("RGB"))
+    inner = labels[y0 + 1:y1 - 1, x0 + 1:x1 - 1]  # inside the outline
+    assert ((inner == FOREGROUND_RGB).all(axis=2) == mask[y0 + 1:y1 - 1, x0 + 1:x1 - 1]).all()
+
+
+@needs_photos
+@pytest.mark.parametrize("name, method", [("coveR2/IMG1.JPG", "blue-otsu"),
+                                          ("canopeo/corn_tillage.jpg", "exg-otsu"),
+                                          ("canopeo/grassland.jpg", "canopeo")])
+def test_strips_on_real_photos(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, name: str,
+                               method: str) -> None:
+    import simlidar_mi.canopy.photo as photo
+    whole = photo_gap(PHOTOS / name, method, 0.8, mask_dir=tmp_path / "a")
+    monkeypatch.setattr(photo, "TILE_PIXELS", 5000)
+    strips = photo_gap(PHOTOS / name, method, 0.8, mask_dir=tmp_path / "b")
+    assert (strips.threshold, strips.n_vegetation) == (whole.threshold, whole.n_vegetation)
+    rgb = read_rgb(PHOTOS / name)
+    mask, t = classify_rgb(rgb, method, whole.crop)
+    x0, y0, x1, y1 = whole.crop
+    assert (t, int(mask[y0:y1, x0:x1].sum())) == (whole.threshold, whole.n_vegetation)
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_every_exif_orientation_matches_pillow(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                               orientation: int) -> None:
+    from PIL import ImageOps
+    import simlidar_mi.canopy.photo as photo
+    img = _field(37, 53, seed=orientation)
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    f = tmp_path / f"o{orientation}.png"
+    Image.fromarray(img).save(f, exif=exif)
+    with Image.open(f) as im:
+        want = np.asarray(ImageOps.exif_transpose(im).convert("RGB"))
+    np.testing.assert_array_equal(read_rgb(f), want)
+    monkeypatch.setattr(photo, "TILE_PIXELS", 1)  # one upright row per strip
+    mask, _ = classify_rgb(want, "canopeo")
+    r = photo_gap(f, "canopeo", mask_dir=tmp_path)
+    assert r.image_size == (want.shape[1], want.shape[0]) and r.n_vegetation == int(mask.sum())
+
+
+def test_too_small_photos_and_crops_are_refused(tmp_path: Path) -> None:
+    f = _save_rgb(tmp_path / "thumb.png", _field(31, 33))  # 1023 pixels
+    with pytest.raises(PhotoError, match=r"thumb\.png: 33x31 pixels to analyse.*at least 1024"):
+        photo_gap(f, "canopeo", mask_dir=tmp_path)
+    g = _save_rgb(tmp_path / "ok.png", _field(32, 32))
+    assert photo_gap(g, "exg-otsu", mask_dir=tmp_path).n_pixels == 1024
+    with pytest.raises(PhotoError, match=r"ok\.png: 16x16 pixels to analyse"):
+        photo_gap(g, "canopeo", 0.5, mask_dir=tmp_path)
+
+
+def test_downscale_decodes_jpeg_smaller_and_scales_pixel_boxes(tmp_path: Path) -> None:
+    img = np.full((160, 240, 3), (120, 95, 70), dtype=np.uint8)
+    img[:, :80] = (60, 140, 45)  # green third, on 8-pixel block edges
+    f = _save_rgb(tmp_path / "big.jpg", img, quality=95)
+    full = photo_gap(f, "canopeo", mask_dir=tmp_path / "1")
+    for ds in (2, 4):
+        r = photo_gap(f, "canopeo", (0, 0, 240, 160), mask_dir=tmp_path / str(ds), downscale=ds)
+        assert r.downscale == ds and r.image_size == (240 // ds, 160 // ds)
+        assert r.crop == (0, 0, 240 // ds, 160 // ds)
+        assert r.cover == pytest.approx(full.cover, abs=0.01)
+    png = _save_rgb(tmp_path / "big.png", img)  # not a JPEG: decoded, then block-averaged
+    r = photo_gap(png, "canopeo", (1, 1, 239, 159), mask_dir=tmp_path, downscale=4)
+    assert r.image_size == (60, 40) and r.crop == (0, 0, 60, 40)
+    assert r.cover == pytest.approx(1 / 3)
+    with pytest.raises(PhotoError, match=r"big\.png: downscale 3 must be one of 1, 2, 4, 8"):
+        photo_gap(png, "canopeo", mask_dir=tmp_path, downscale=3)
+    with pytest.raises(PhotoError, match=r"pixels to analyse at downscale 8"):
+        photo_gap(png, "canopeo", mask_dir=tmp_path, downscale=8)  # 30 x 20
+
+
+def test_progress_bar_on_request(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                 capsys: pytest.CaptureFixture[str]) -> None:
+    import simlidar_mi.canopy.photo as photo
+    monkeypatch.setattr(photo, "PROGRESS_DELAY_S", 0.0)
+    f = _save_rgb(tmp_path / "p.png", _field(40, 40))
+    photo_gap(f, "canopeo", mask_dir=tmp_path)
+    assert capsys.readouterr().err == ""
+    photo_gap(f, "canopeo", mask_dir=tmp_path, progress=True)
+    assert "p.png" in capsys.readouterr().err
+
+
+def test_cli_downscale_in_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    f = _save_rgb(tmp_path / "f.jpg", _field(128, 128), quality=95)
+    assert main(["photo-gap", str(f), "--method", "canopeo", "--downscale", "2", "--json",
+                 "--mask-dir", str(tmp_path / "m")]) == 0
+    (d,) = json.loads(capsys.readouterr().out)
+    assert (d["downscale"], d["n_pixels"], d["n_transparent"]) == (2, 64 * 64, 0)

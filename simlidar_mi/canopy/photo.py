@@ -15,9 +15,16 @@ Three classifiers, each turning an 8-bit RGB photo into a vegetation mask:
     2022): Otsu threshold of the blue channel; gap (sky) = blue > threshold.
 
 Every call also writes a mask PNG (vegetation dark green, background white,
-analysed crop outlined in magenta) so a person can see what was counted.
-Cover is the vegetation fraction of the analysed pixels and P0 = 1 − cover
-is the gap fraction.
+analysed crop outlined in magenta, transparent pixels black) so a person can see
+what was counted. Cover is the vegetation fraction of the analysed pixels and
+P0 = 1 − cover is the gap fraction.
+
+Large photos are classified in strips (:data:`TILE_PIXELS`), with the same result
+as the whole array: the Otsu methods first accumulate the crop's histogram over the
+strips. Fully transparent pixels (alpha 0) are not analysed; photos or crops with
+fewer than :data:`MIN_PIXELS` pixels to analyse are refused. ``downscale`` trades
+exactness for memory (see :func:`photo_gap`); reading is in
+:mod:`simlidar_mi.canopy.photo_read`.
 
 Examples
 --------
@@ -34,13 +41,14 @@ from pathlib import Path
 from typing import Any, Literal, Sequence, Union
 
 import numpy as np
-from PIL import Image, ImageFile, ImageOps, UnidentifiedImageError
 
 from ..errors import PhotoError, SimlidarError
-from ..io.png import write_mask_png
+from ..io.png import (BACKGROUND_RGB, FOREGROUND_RGB, WINDOW_RGB, dimmed, write_label_png,
+                      write_mask_png)
+from .photo_read import DOWNSCALES, UprightPhoto, open_photo, read_rgb
 
-__all__ = ["METHODS", "PhotoGapResult", "photo_gap", "classify_rgb", "read_rgb",
-           "parse_crop", "crop_box", "default_mask_path", "write_mask_png"]
+__all__ = ["METHODS", "MIN_PIXELS", "DOWNSCALES", "PhotoGapResult", "photo_gap", "classify_rgb",
+           "read_rgb", "parse_crop", "crop_box", "default_mask_path", "write_mask_png"]
 
 Method = Literal["canopeo", "exg-otsu", "blue-otsu"]
 METHODS: tuple[str, ...] = ("canopeo", "exg-otsu", "blue-otsu")
@@ -52,6 +60,17 @@ Box = tuple[int, int, int, int]
 #: Default directory for mask PNGs, relative to the current directory (the
 #: photos themselves may sit in a read-only folder).
 DEFAULT_MASK_DIR = Path("photo_masks")
+#: Fewest pixels a photo (or its crop) may offer to be classified: 4 a histogram bin on
+#: average for the Otsu methods, and a cover quantised in steps of at most 0.001.
+MIN_PIXELS = 1024
+#: Pixels per strip a photo is worked on in (bounds the float64 working memory to ~100 MB).
+TILE_PIXELS = 1 << 20
+#: A photo's progress bar appears only once it has taken this long (small photos stay quiet).
+PROGRESS_DELAY_S = 1.0
+#: Mask PNG colours by label: background, vegetation, both dimmed outside the crop,
+#: the crop's outline, and transparent (not analysed) pixels in black.
+MASK_COLOURS = (BACKGROUND_RGB, FOREGROUND_RGB, dimmed(BACKGROUND_RGB), dimmed(FOREGROUND_RGB),
+                WINDOW_RGB, (0, 0, 0))
 
 
 @dataclass(frozen=True)
@@ -73,17 +92,21 @@ class PhotoGapResult:
     p0 : float
         Gap fraction, ``1 - cover``.
     n_pixels : int
-        Pixels analysed (inside ``crop``).
+        Pixels analysed (inside ``crop``, not fully transparent).
     n_vegetation : int
         Of those, pixels classified as vegetation.
     crop : (x0, y0, x1, y1)
-        Half-open pixel box analysed, in the (EXIF-upright) image.
+        Half-open pixel box analysed, in the (EXIF-upright, downscaled) image.
     image_size : (width, height)
-        Size of the whole (upright) image in pixels.
+        Size of the whole analysed (upright, downscaled) image in pixels.
     mask_file : pathlib.Path or None
         The mask PNG written.
     params : tuple of (name, value)
         Method parameters (the Canopeo thresholds).
+    n_transparent : int
+        Pixels inside ``crop`` left out because their alpha is 0.
+    downscale : int
+        The photo was analysed at 1/downscale of its size in each dimension.
     """
 
     file: Path
@@ -97,6 +120,8 @@ class PhotoGapResult:
     image_size: tuple[int, int]
     mask_file: Path | None = None
     params: tuple[tuple[str, float], ...] = field(default=())
+    n_transparent: int = 0
+    downscale: int = 1
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-ready dict (paths as strings, tuples as lists)."""
@@ -107,87 +132,6 @@ class PhotoGapResult:
         d["image_size"] = list(self.image_size)
         d["params"] = dict(self.params)
         return d
-
-
-# --- reading -----------------------------------------------------------------
-
-def _rawmodes(im: Image.Image) -> list[str]:
-    out = []
-    for tile in getattr(im, "tile", None) or []:
-        args = tile[3] if isinstance(tile, tuple) and len(tile) > 3 else getattr(tile, "args", None)
-        if isinstance(args, str):
-            out.append(args)
-        elif isinstance(args, tuple) and args and isinstance(args[0], str):
-            out.append(args[0])
-    return out
-
-
-def read_rgb(path: str | os.PathLike[str]) -> np.ndarray:
-    """Read a photo as an 8-bit RGB array, refusing anything doubtful.
-
-    The image is turned upright from its EXIF orientation (so pixel boxes and
-    mask PNGs match what image viewers show). RGBA/RGBX/palette images are
-    converted to RGB (alpha dropped); greyscale, CMYK, 16-bit and float images
-    are refused.
-
-    Parameters
-    ----------
-    path : path-like
-        The photo.
-
-    Returns
-    -------
-    numpy.ndarray of uint8, shape (height, width, 3)
-
-    Raises
-    ------
-    PhotoError
-        Missing, unreadable, truncated or non-RGB files; the message names the
-        file and what is wrong.
-    """
-    p = Path(path)
-    if not p.exists():
-        raise PhotoError(f"{p}: no such file")
-    if p.is_dir():
-        raise PhotoError(f"{p}: is a directory, not a photo")
-    if ImageFile.LOAD_TRUNCATED_IMAGES:
-        # someone enabled Pillow's silent grey fill: truncation would go unnoticed
-        raise PhotoError(f"{p}: PIL.ImageFile.LOAD_TRUNCATED_IMAGES is True, so truncated "
-                         "photos cannot be detected; set it back to False")
-    try:
-        with Image.open(p) as im:
-            mode, raw = im.mode, _rawmodes(im)
-            if mode in ("1", "L", "LA", "La", "I", "I;16", "I;16B", "I;16L", "I;16N", "F"):
-                raise PhotoError(f"{p}: greyscale image (mode {mode}); the classifiers need "
-                                 "colour (8-bit RGB)")
-            if mode == "CMYK":
-                raise PhotoError(f"{p}: CMYK image; convert it to 8-bit RGB with a colour "
-                                 "managed tool first")
-            if any(";16" in r or ";32" in r or r.startswith("F") for r in raw):
-                # Pillow would keep only the high byte; say so rather than do it silently
-                raise PhotoError(f"{p}: more than 8 bits per channel ({', '.join(raw)}); "
-                                 "thresholds are defined on 0-255 values, convert to 8-bit RGB")
-            if mode not in ("RGB", "RGBA", "RGBX", "RGBa", "P", "PA", "YCbCr"):
-                raise PhotoError(f"{p}: unsupported image mode {mode}; need 8-bit RGB")
-            # load() decodes everything, so a truncated file fails here, not later
-            im.load()
-            up = ImageOps.exif_transpose(im)
-            if up.mode == "P" and "transparency" in up.info:
-                up = up.convert("RGBA")
-            rgb = np.asarray(up.convert("RGB"), dtype=np.uint8)
-    except PhotoError:
-        raise
-    except UnidentifiedImageError:
-        raise PhotoError(f"{p}: not an image Pillow can read (unknown or corrupt format)") from None
-    except Image.DecompressionBombError as exc:
-        raise PhotoError(f"{p}: image too large to decode safely ({exc})") from None
-    except (OSError, SyntaxError, ValueError, EOFError) as exc:
-        # Pillow reports truncation as OSError("image file is truncated ...")
-        raise PhotoError(f"{p}: cannot decode image ({exc}); the file may be truncated or "
-                         "corrupt") from None
-    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.size == 0:
-        raise PhotoError(f"{p}: decoded to shape {rgb.shape}, expected (height, width, 3)")
-    return rgb
 
 
 # --- crops -------------------------------------------------------------------
@@ -354,17 +298,144 @@ def default_mask_path(photo: str | os.PathLike[str], method: str,
     return Path(mask_dir) / f"{Path(photo).stem}_{method}_mask.png"
 
 
+def _strips(y0: int, y1: int, width: int) -> list[tuple[int, int]]:
+    rows = max(1, TILE_PIXELS // max(1, width))
+    return [(y, min(y1, y + rows)) for y in range(y0, y1, rows)]
+
+
+def _otsu_from_hist(counts: np.ndarray, centres: np.ndarray) -> float:
+    """Otsu's threshold of a histogram accumulated over strips.
+
+    The histogram is the one :func:`skimage.filters.threshold_otsu` builds from the
+    whole crop (256 bins over [min, max] for ExG, one bin per level for blue), so the
+    threshold is the same as from the whole array.
+    """
+    from skimage.filters import threshold_otsu
+    return float(threshold_otsu(hist=(counts, centres)))
+
+
+def _otsu_threshold(photo: UprightPhoto, method: str, box: Box, file: Path, tick) -> float:
+    """Two passes over the crop's strips for ExG (range, then histogram), one for blue."""
+    x0, y0, x1, y1 = box
+    what = "ExG" if method == "exg-otsu" else "the blue channel"
+    uniform = PhotoError(f"{file}: {what} is uniform inside the crop; Otsu's threshold is "
+                         "undefined (nothing to separate)")
+
+    def values():
+        for a, b in _strips(y0, y1, photo.size[0]):
+            rgb, opaque = photo.strip(a, b)
+            rgb = rgb[:, x0:x1]
+            v = _exg(rgb) if method == "exg-otsu" else rgb[..., 2]
+            tick(rgb.shape[0] * rgb.shape[1])
+            yield v if opaque is None else v[opaque[:, x0:x1]]
+
+    def enough(n: int) -> None:
+        if n < MIN_PIXELS:
+            raise PhotoError(f"{file}: {n} pixels to analyse once the {area - n} transparent "
+                             f"ones are left out; at least {MIN_PIXELS} are needed to classify "
+                             "a photo")
+
+    area = (x1 - x0) * (y1 - y0)
+    if method == "blue-otsu":
+        counts = np.zeros(256, np.int64)
+        for v in values():
+            counts += np.bincount(v.ravel(), minlength=256)
+        enough(int(counts.sum()))
+        levels = np.flatnonzero(counts)
+        if len(levels) < 2:
+            raise uniform
+        lo, hi = int(levels[0]), int(levels[-1])
+        return _otsu_from_hist(counts[lo:hi + 1], np.arange(lo, hi + 1))
+    lo, hi, n = np.float64(np.inf), np.float64(-np.inf), 0
+    for v in values():
+        if v.size:
+            lo, hi, n = min(lo, v.min()), max(hi, v.max()), n + v.size
+    enough(n)
+    if not lo < hi:
+        raise uniform
+    counts = np.zeros(256, np.int64)
+    for v in values():
+        counts += np.histogram(v, bins=256, range=(lo, hi))[0]
+    edges = np.histogram(np.empty(0), bins=256, range=(lo, hi))[1]
+    return _otsu_from_hist(counts, (edges[:-1] + edges[1:]) / 2.0)
+
+
+def _classify_photo(photo: UprightPhoto, method: str, box: Box, rg: float, bg: float,
+                    exg: float, file: Path, tick) -> tuple[np.ndarray, float | None, int, int, int]:
+    """Classify ``photo`` strip by strip; (labels, threshold, n, n_veg, n_transparent).
+
+    ``labels`` (uint8, height × width) index :data:`MASK_COLOURS`; counts are inside ``box``.
+    """
+    w, h = photo.size
+    x0, y0, x1, y1 = box
+    t = None if method == "canopeo" else _otsu_threshold(photo, method, box, file, tick)
+    labels = np.empty((h, w), np.uint8)
+    n = n_veg = n_clear = 0
+    for a, b in _strips(0, h, w):
+        rgb, opaque = photo.strip(a, b)
+        if method == "canopeo":
+            veg = _canopeo(rgb, rg, bg, exg)
+        elif method == "exg-otsu":
+            veg = _exg(rgb) > t
+        else:
+            veg = ~(rgb[..., 2] > t)  # vegetation = not gap
+        lab = labels[a:b]
+        lab[...] = veg
+        lab[:, :x0] += 2  # outside the crop: dimmed
+        lab[:, x1:] += 2
+        if b <= y0 or a >= y1:
+            lab[:, x0:x1] += 2
+        else:
+            r0, r1 = max(a, y0) - a, min(b, y1) - a
+            lab[:r0, x0:x1] += 2
+            lab[r1:, x0:x1] += 2
+            inside = np.ones((r1 - r0, x1 - x0), bool) if opaque is None else opaque[r0:r1, x0:x1]
+            n += int(np.count_nonzero(inside))
+            n_veg += int(np.count_nonzero(veg[r0:r1, x0:x1] & inside))
+            n_clear += inside.size - int(np.count_nonzero(inside))
+        if opaque is not None:
+            lab[~opaque] = 5
+        tick(rgb.shape[0] * w)
+    # the crop's outline, drawn as io.png.render_mask_rgb draws it
+    th = max(1, round(min(h, w) / 400))
+    th = min(th, (x1 - x0 + 1) // 2, (y1 - y0 + 1) // 2) or 1
+    for sl in ((slice(y0, y0 + th), slice(x0, x1)), (slice(y1 - th, y1), slice(x0, x1)),
+               (slice(y0, y1), slice(x0, x0 + th)), (slice(y0, y1), slice(x1 - th, x1))):
+        labels[sl] = 4
+    return labels, t, n, n_veg, n_clear
+
+
+def _analysed_box(parsed: float | Box | None, photo: UprightPhoto, file: Path) -> Box:
+    """The crop in the analysed image: a pixel box is given in the photo's own (upright,
+    full-size) pixels and scaled outwards by the downscale; a fraction applies as is."""
+    w, h = photo.size
+    f = photo.downscale
+    if f == 1 or not isinstance(parsed, tuple):
+        return crop_box(parsed, w, h, file=file)
+    x0, y0, x1, y1 = crop_box(parsed, *photo.full_size, file=file)
+    return (x0 // f, y0 // f, min(w, -(-x1 // f)), min(h, -(-y1 // f)))
+
+
 def photo_gap(path: str | os.PathLike[str], method: Method = "canopeo", crop: Crop = None, *,
               canopeo_rg: float = 0.95, canopeo_bg: float = 0.95, canopeo_exg: float = 20.0,
               mask_path: str | os.PathLike[str] | None = None,
-              mask_dir: str | os.PathLike[str] | None = None) -> PhotoGapResult:
+              mask_dir: str | os.PathLike[str] | None = None, downscale: int = 1,
+              progress: bool = False) -> PhotoGapResult:
     """Gap fraction (P0) and vegetation cover of one photo.
+
+    The photo is worked on in strips of about :data:`TILE_PIXELS` pixels, so memory is
+    the decoded photo (4 bytes a pixel in Pillow), its mask (1 byte a pixel) and one
+    strip: about 0.5 GB for an 8000 × 8000 photo. The result is the same as classifying
+    the whole array at once (:func:`classify_rgb`): Canopeo is per pixel, and the Otsu
+    methods accumulate the whole crop's histogram before thresholding.
 
     Parameters
     ----------
     path : path-like
-        An 8-bit RGB photo (JPEG, PNG, TIFF, ...). RGBA is accepted (alpha
-        dropped); greyscale, CMYK and 16-bit images raise :class:`PhotoError`.
+        An 8-bit RGB photo (JPEG, PNG, TIFF, ...). With alpha (RGBA, or a palette
+        with transparency), fully transparent pixels are left out of the analysis
+        and of the Otsu histogram (``n_transparent`` counts them; black in the mask
+        PNG). Greyscale, CMYK and 16-bit images raise :class:`PhotoError`.
     method : {"canopeo", "exg-otsu", "blue-otsu"}
         Classifier; see the module docstring and :func:`classify_rgb`.
         ``"canopeo"`` and ``"exg-otsu"`` are for nadir (downward) photos,
@@ -372,8 +443,8 @@ def photo_gap(path: str | os.PathLike[str], method: Method = "canopeo", crop: Cr
     crop : float, (x0, y0, x1, y1), str or None
         Central fraction in (0, 1] kept in each dimension (0.5 keeps the
         central 50 % of the width and of the height), or a half-open pixel box
-        in the upright image, or its CLI string (``"0.5"``, ``"10,10,500,400"``).
-        None analyses the whole image.
+        in the upright, full-size photo, or its CLI string (``"0.5"``,
+        ``"10,10,500,400"``). None analyses the whole image.
     canopeo_rg, canopeo_bg, canopeo_exg : float
         Canopeo thresholds: R/G < canopeo_rg, B/G < canopeo_bg,
         2G − R − B > canopeo_exg (0–255 units). Pixels with G = 0 are never
@@ -384,6 +455,15 @@ def photo_gap(path: str | os.PathLike[str], method: Method = "canopeo", crop: Cr
         Directory for ``<photo stem>_<method>_mask.png`` when ``mask_path`` is
         not given; default ``./photo_masks/`` (never beside the photo, whose
         folder may be read-only).
+    downscale : {1, 2, 4, 8}
+        Analyse the photo at 1/downscale of its size in each dimension (JPEGs are
+        decoded at that size, so memory falls by downscale²). Averaging mixes leaf
+        and background pixels and moves P0, the more the finer the foliage is in
+        pixels: on the real test photos by up to 0.025 at 2, 0.076 at 4 and 0.136 at
+        8 (grass at 512 × 512), by under 0.01 on a 4288 × 2848 photo (BENCHMARKS.md).
+        The default 1 is exact; use a downscale only on large photos, and compare.
+    progress : bool
+        Show a progress bar (on stderr) when the photo takes more than a second.
 
     Returns
     -------
@@ -393,26 +473,38 @@ def photo_gap(path: str | os.PathLike[str], method: Method = "canopeo", crop: Cr
     ------
     PhotoError
         Missing, unreadable, truncated or non-RGB photo; a crop outside the
-        image; an unknown method; a uniform crop for the Otsu methods; a mask
+        image; fewer than :data:`MIN_PIXELS` pixels to analyse; an unknown
+        method or downscale; a uniform crop for the Otsu methods; a mask
         PNG that cannot be written. Messages name the file.
     """
     p = Path(path)
     if method not in METHODS:
         raise PhotoError(f"{p}: unknown method {method!r}; valid: {', '.join(METHODS)}")
     parsed = parse_crop(crop, file=p)  # bad crop strings fail before decoding
-    rgb = read_rgb(p)
-    h, w = rgb.shape[:2]
-    box = crop_box(parsed, w, h, file=p)
-    mask, threshold = classify_rgb(rgb, method, box, canopeo_rg=canopeo_rg,
-                                   canopeo_bg=canopeo_bg, canopeo_exg=canopeo_exg, file=p)
-    x0, y0, x1, y1 = box
-    n = (x1 - x0) * (y1 - y0)
-    n_veg = int(np.count_nonzero(mask[y0:y1, x0:x1]))
+    with open_photo(p, downscale) as photo:
+        w, h = photo.size
+        box = _analysed_box(parsed, photo, p)
+        x0, y0, x1, y1 = box
+        at = f" at downscale {downscale}" if downscale > 1 else ""
+        if (x1 - x0) * (y1 - y0) < MIN_PIXELS:
+            raise PhotoError(f"{p}: {x1 - x0}x{y1 - y0} pixels to analyse{at} (crop {x0},{y0},"
+                             f"{x1},{y1} of {w}x{h}); at least {MIN_PIXELS} are needed to "
+                             "classify a photo")
+        from tqdm import tqdm  # noqa: PLC0415
+        passes = {"canopeo": 0, "exg-otsu": 2, "blue-otsu": 1}[method]
+        with tqdm(total=w * h + passes * (x1 - x0) * (y1 - y0), desc=p.name, unit="px",
+                  unit_scale=True, leave=False, delay=PROGRESS_DELAY_S,
+                  disable=not progress) as bar:
+            labels, threshold, n, n_veg, n_clear = _classify_photo(
+                photo, method, box, canopeo_rg, canopeo_bg, canopeo_exg, p, bar.update)
+    if n < MIN_PIXELS:
+        raise PhotoError(f"{p}: {n} pixels to analyse{at} once the {n_clear} transparent ones "
+                         f"are left out; at least {MIN_PIXELS} are needed to classify a photo")
     cover = n_veg / n
     out = Path(mask_path) if mask_path is not None else default_mask_path(
         p, method, mask_dir if mask_dir is not None else DEFAULT_MASK_DIR)
     try:
-        out = write_mask_png(out, mask, box)
+        out = write_label_png(out, labels, MASK_COLOURS)
     except SimlidarError as exc:
         raise PhotoError(f"{p}: cannot save the classification mask: {exc}") from exc
     params: tuple[tuple[str, float], ...] = ()
@@ -421,4 +513,5 @@ def photo_gap(path: str | os.PathLike[str], method: Method = "canopeo", crop: Cr
                   ("exg", float(canopeo_exg)))
     return PhotoGapResult(file=p, method=method, threshold=threshold, cover=cover,
                           p0=1.0 - cover, n_pixels=n, n_vegetation=n_veg, crop=box,
-                          image_size=(w, h), mask_file=out, params=params)
+                          image_size=(w, h), mask_file=out, params=params,
+                          n_transparent=n_clear, downscale=downscale)

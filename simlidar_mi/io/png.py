@@ -19,7 +19,7 @@ from PIL import Image
 
 from ..errors import SimlidarError
 
-__all__ = ["write_mask_png", "render_mask_rgb", "FOREGROUND_RGB", "BACKGROUND_RGB", "WINDOW_RGB"]
+__all__ = ["write_mask_png", "write_label_png", "render_mask_rgb", "dimmed", "FOREGROUND_RGB", "BACKGROUND_RGB", "WINDOW_RGB"]
 
 #: Default colours: dark green foreground, white background, magenta window
 #: outline (magenta contrasts with both green and white).
@@ -129,6 +129,35 @@ def write_mask_png(path: str | os.PathLike[str], mask: ArrayLike,
     """
     rgb = render_mask_rgb(mask, window, foreground=foreground,
                           background=background, outline=outline)
+    return _save_png(path, Image.fromarray(rgb))
+
+
+def write_label_png(path: str | os.PathLike[str], labels: np.ndarray,
+                    colours: Sequence[Sequence[int]]) -> Path:
+    """Write a uint8 label image as a palette PNG (label j drawn in ``colours[j]``), atomically.
+
+    One byte per pixel, so a mask of a very large photo is written without an RGB copy;
+    viewers show it like an RGB PNG (``Image.open(path).convert("RGB")`` gives the colours).
+    Raises :class:`SimlidarError` naming the path if it cannot be written.
+    """
+    lab = np.asarray(labels)
+    if lab.ndim != 2 or lab.dtype != np.uint8 or lab.size == 0:
+        raise ValueError(f"labels must be a non-empty 2-D uint8 array, got {lab.dtype} {lab.shape}")
+    if int(lab.max()) >= len(colours):
+        raise ValueError(f"label {int(lab.max())} has no colour (only {len(colours)} given)")
+    im = Image.fromarray(lab)  # mode "L"; putpalette makes it "P"
+    im.putpalette([int(v) for c in colours for v in c])
+    return _save_png(path, im)
+
+
+def dimmed(colour: Sequence[int]) -> tuple[int, int, int]:
+    """``colour`` blended halfway to grey, as :func:`render_mask_rgb` shows pixels outside the window."""
+    c = 0.5 * np.asarray(colour, dtype=np.float64) + 0.5 * _DIM_GREY
+    return tuple(int(v) for v in np.clip(np.rint(c), 0, 255))  # type: ignore[return-value]
+
+
+def _save_png(path: str | os.PathLike[str], image: Image.Image) -> Path:
+    """Save ``image`` as PNG under a temporary name, then rename (readers never see half a file)."""
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -137,7 +166,7 @@ def write_mask_png(path: str | os.PathLike[str], mask: ArrayLike,
         raise SimlidarError(f"cannot write PNG {path}: {exc.strerror or exc}") from exc
     try:
         with os.fdopen(fd, "wb") as fh:
-            Image.fromarray(rgb).save(fh, format="PNG")
+            image.save(fh, format="PNG")
             fh.flush()
             os.fsync(fh.fileno())
         # mkstemp creates 0600; give the PNG ordinary read permissions

@@ -355,7 +355,8 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
                     files[f"png{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.png"
             if write_las:
                 from ..io.las import write_scan_las  # noqa: PLC0415
-                write_scan_las(results if len(results) > 1 else results[0], stage / "points.las")
+                write_scan_las(results if len(results) > 1 else results[0], stage / "points.las",
+                               crs=cfg["scene"]["crs"])
                 files["las"] = Path(out_dir) / "points.las"
             seconds["write"] = time.perf_counter() - t
             measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}

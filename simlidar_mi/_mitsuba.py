@@ -27,7 +27,13 @@ def mitsuba(variant: str | None = None) -> ModuleType:
         raise ConfigError(f"unknown Mitsuba variant; available: {', '.join(mi.variants())}",
                           key="variant", value=variant)
     if _state.get("variant") != variant:
-        mi.set_variant(variant)
+        if variant.startswith("cuda"):
+            _require_cuda(variant)
+        try:
+            mi.set_variant(variant)
+        except ImportError as exc:  # e.g. the backend failed to start: one line, not a traceback
+            raise ConfigError(f"Mitsuba could not load this variant: {exc}", key="variant",
+                              value=variant) from None
         for name in _PLUGIN_MODULES:
             try:
                 mod = importlib.import_module(f"simlidar_mi.plugins.{name}")
@@ -38,3 +44,13 @@ def mitsuba(variant: str | None = None) -> ModuleType:
             mod.register()
         _state["variant"] = variant
     return mi
+
+
+def _require_cuda(variant: str) -> None:
+    """Refuse a cuda_* variant in one line when Dr.Jit finds no CUDA device (else ImportError)."""
+    import drjit as dr  # noqa: PLC0415
+
+    if not dr.has_backend(dr.JitBackend.CUDA):
+        raise ConfigError("no CUDA device was found (an NVIDIA GPU with its driver is needed); "
+                          f"use the default {DEFAULT_VARIANT} on the CPU", key="variant",
+                          value=variant)

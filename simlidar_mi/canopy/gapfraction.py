@@ -32,6 +32,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .._progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError, SimlidarError
 from ..geometry import Branches, Leaves
@@ -408,7 +409,7 @@ def _render_replicate(cfg: SceneConfig, g: dict[str, Any], replicate: int,
 
 def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None = None,
                     overrides: Sequence[str] = (), *, write_images: bool = True,
-                    replicates: int | None = None) -> GapFractionRun:
+                    replicates: int | None = None, progress=False) -> GapFractionRun:
     """Scene file → canopies (one per extraction step) of each replicate plot → images → files.
 
     ``[gapfraction] replicates`` (or ``replicates=``) independent plots of the scene
@@ -429,6 +430,9 @@ def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None 
       (coverage ≥ ``mask_threshold``, display only) with the window outlined;
     - ``gap_<camera>_z<zenith>_s<step>.exr``: replicate 0's float32 coverage with the
       settings in the header.
+
+    ``progress``: see :func:`simlidar_mi._progress.make_progress` (a count of replicate
+    plots rendered, then the files written).
     """
     cfg = scene if isinstance(scene, SceneConfig) else load_scene(scene, list(overrides))
     g = _settings(cfg)
@@ -438,7 +442,9 @@ def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None 
                               value=replicates)
         g["replicates"] = replicates
     seconds: dict[str, float] = {}
-    reps = [_render_replicate(cfg, g, k, seconds) for k in range(g["replicates"])]
+    prog = make_progress(progress)
+    reps = [_render_replicate(cfg, g, k, seconds) for k in
+            prog.iter(range(g["replicates"]), "gapfraction: rendering", unit="plot")]
     canopies, images = reps[0]
     run = GapFractionRun(images, canopies, {}, seconds, [r[1] for r in reps],
                          summarise([r[1] for r in reps]))
@@ -447,7 +453,8 @@ def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None 
     from ..io.png import write_mask_png  # noqa: PLC0415
     out = Path(out_dir)
     t0 = time.perf_counter()
-    with staged_dir(out) as stage:
+    n_files = 3 + (2 * len(images) if write_images else 0)
+    with staged_dir(out) as stage, prog.stage("gapfraction: writing", n_files, "file") as st:
         write_csv(stage / "gap_fraction.csv", CSV_COLUMNS, (s.row() for s in run.summary))
         run.files["csv"] = out / "gap_fraction.csv"
         write_csv(stage / "gap_fraction_replicates.csv", REPLICATE_COLUMNS, (
@@ -467,9 +474,11 @@ def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None 
                 write_gap_exr(img, stage / f"{stem}.exr", extra=extra)
                 run.files[f"{stem}.png"] = out / f"{stem}.png"
                 run.files[f"{stem}.exr"] = out / f"{stem}.exr"
+                st.update(2)
             meta["images"].append({"stem": stem, **img.metadata()})
         with atomic_file(stage / "gap_fraction.json") as tmp:
             tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
         run.files["json"] = out / "gap_fraction.json"
+        st.update(n_files - st.n)
     seconds["write"] = time.perf_counter() - t0
     return run

@@ -131,3 +131,30 @@ def test_finder_main_exit_codes(monkeypatch, capsys):
                                                       (15, "/usr/lib/x86_64-linux-gnu/libLLVM-15.so")])
     assert _llvm.main() == 0
     assert capsys.readouterr().out.strip().endswith("libLLVM.so.19.1")
+
+
+@needs_make
+def test_make_install_prints_one_line_per_stage_when_piped(tmp_path):
+    """The venv install (minutes on a fresh machine) says what it is doing, stage by stage;
+    piped, pip runs quietly. A fake python3 stands in for venv and pip."""
+    (tmp_path / "Makefile").write_text((REPO / "Makefile").read_text())
+    (tmp_path / "pyproject.toml").write_text("")
+    fake = tmp_path / "python3"
+    fake.write_text(
+        '#!/bin/sh\n'
+        'if [ "$1" = "-m" ] && [ "$2" = "venv" ]; then\n'
+        '  mkdir -p "$3/bin"\n'
+        '  printf \'#!/bin/sh\\necho "$@" >> "$(dirname "$0")/../calls.log"\\n'
+        '[ "$1" = "-c" ] && echo 9.9.9\\nexit 0\\n\' > "$3/bin/python"\n'
+        '  chmod +x "$3/bin/python"; exit 0\n'
+        'fi\nexit 1\n')
+    fake.chmod(0o755)
+    proc = subprocess.run([MAKE, "-s", ".venv/.installed", f"PY={fake}"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    lines = proc.stdout.splitlines()
+    assert [x.split(" ", 1)[0] for x in lines] == ["[1/3]", "[2/3]", "[3/3]", "installed:"]
+    assert lines[-1] == "installed: 9.9.9 in .venv"
+    calls = (tmp_path / ".venv" / "calls.log").read_text().splitlines()
+    assert "-m pip install -q -e .[test]" in calls            # quiet when piped
+    assert (tmp_path / ".venv" / ".installed").exists()

@@ -46,11 +46,19 @@ def mitsuba(variant: str | None = None) -> ModuleType:
     return mi
 
 
-def _require_cuda(variant: str) -> None:
+def check_variant(variant: str | None, file: str | None = None) -> None:
+    """Refuse, before any work, a variant this machine cannot run (cuda_* without a GPU).
+
+    Cheap: imports Dr.Jit only for a CUDA variant, never Mitsuba."""
+    if variant and variant.startswith("cuda"):
+        _require_cuda(variant, file, "scene.variant")
+
+
+def _require_cuda(variant: str, file: str | None = None, key: str = "variant") -> None:
     """Refuse a cuda_* variant in one line when Dr.Jit finds no CUDA device (else ImportError)."""
     import drjit as dr  # noqa: PLC0415
 
     if not dr.has_backend(dr.JitBackend.CUDA):
         raise ConfigError("no CUDA device was found (an NVIDIA GPU with its driver is needed); "
-                          f"use the default {DEFAULT_VARIANT} on the CPU", key="variant",
+                          f"use the default {DEFAULT_VARIANT} on the CPU", file=file, key=key,
                           value=variant)

@@ -32,6 +32,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .._mitsuba import check_variant
 from .._progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError, SimlidarError
@@ -435,6 +436,7 @@ def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None 
     plots rendered, then the files written).
     """
     cfg = scene if isinstance(scene, SceneConfig) else load_scene(scene, list(overrides))
+    check_variant(cfg["scene"]["variant"], cfg.source)  # before any work
     g = _settings(cfg)
     if replicates is not None:
         if isinstance(replicates, bool) or not isinstance(replicates, int) or replicates < 1:

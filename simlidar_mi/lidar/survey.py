@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._mitsuba import check_variant
 from .._progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
@@ -208,6 +209,7 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     from .scan import scan  # noqa: PLC0415
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, overrides)
+    check_variant(cfg["scene"]["variant"], cfg.source)  # before any work
     steps = ["generate", "build", "scan", "write"]
     bar = make_progress(progress).stage("scan", len(steps), "stage").step
     seconds: dict[str, float] = {}
@@ -308,6 +310,7 @@ def preview(cfg: SceneConfig | str | Path, path: str | Path, *, width: int = 102
     from .._mitsuba import mitsuba  # noqa: PLC0415
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, overrides)
+    check_variant(cfg["scene"]["variant"], cfg.source)  # before any work
     step = make_progress(progress).stage("preview", 4, "stage").step
     geometry = generate(cfg)
     step(f"generated {len(geometry.branches)} branches, {len(geometry.leaves)} leaf triangles")

@@ -8,23 +8,33 @@ OUT     ?= out
 
 .PHONY: demo test bench llvm clean
 
-# Dr.Jit needs libLLVM >= 17; Debian 12 ships libllvm19. Installed only when
-# running as root and none is found; otherwise simlidar_mi prints what to install.
+# Dr.Jit needs libLLVM >= 17; Debian 12 ships libllvm19. The package's own finder
+# (simlidar_mi/_llvm.py, standard library only, so it runs before the venv exists)
+# answers: exit 0 found, 3 none. apt-get runs only for 3, and only as root.
 llvm:
-	@if ls /usr/lib/*/libLLVM*.so.1[7-9]* /usr/lib/*/libLLVM*.so.2[0-9]* /usr/lib/llvm-1[7-9]/lib/libLLVM*.so* /usr/lib/llvm-2[0-9]/lib/libLLVM*.so* >/dev/null 2>&1; then \
-	  echo "libLLVM >= 17 found"; \
+	@$(PY) -I simlidar_mi/_llvm.py; rc=$$?; \
+	if [ $$rc = 0 ]; then :; \
+	elif [ $$rc != 3 ]; then \
+	  echo "WARNING: could not check for libLLVM >= 17 ('$(PY) simlidar_mi/_llvm.py' exited $$rc)"; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
-	  (apt-get install -y --no-install-recommends libllvm19 || (apt-get update && apt-get install -y --no-install-recommends libllvm19)); \
+	  echo "installing libllvm19 with apt-get"; \
+	  { apt-get install -y --no-install-recommends libllvm19 || \
+	    { apt-get update && apt-get install -y --no-install-recommends libllvm19; }; } && \
+	  $(PY) -I simlidar_mi/_llvm.py || \
+	  { echo "apt-get could not install libllvm19 (dpkg locked or offline?); install it and rerun"; exit 1; }; \
 	else \
 	  echo "WARNING: no libLLVM >= 17; install it with: sudo apt-get install -y libllvm19"; \
 	fi
 
+# The install shows pip's own progress on a terminal and one line per stage when piped.
 $(STAMP): pyproject.toml
 	@command -v $(PY) >/dev/null || { echo "python3 is required"; exit 1; }
-	@[ -x $(VPY) ] || $(PY) -m venv $(VENV) || { echo "venv failed: apt-get install -y python3-venv"; exit 1; }
-	$(VPY) -m pip install -q --upgrade pip
-	$(VPY) -m pip install -q -e '.[test]'
+	@[ -x $(VPY) ] || { echo "[1/3] creating $(VENV)"; $(PY) -m venv $(VENV); } || { echo "venv failed: apt-get install -y python3-venv"; exit 1; }
+	@echo "[2/3] upgrading pip"; $(VPY) -m pip install -q --upgrade pip
+	@echo "[3/3] installing simlidar-mi and its dependencies (first time: a few minutes)"; \
+	if [ -t 1 ]; then q=; else q=-q; fi; $(VPY) -m pip install $$q -e '.[test]'
 	@touch $(STAMP)
+	@echo "installed: $$($(VPY) -c 'import simlidar_mi; print(simlidar_mi.__version__)' 2>/dev/null) in $(VENV)"
 
 demo: llvm $(STAMP)
 	$(VENV)/bin/simlidar-mi scan $(SCENE) --out $(OUT)/apple_orchard

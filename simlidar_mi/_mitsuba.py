@@ -35,7 +35,13 @@ def _mitsuba(variant: str | None) -> ModuleType:
         raise ConfigError(f"unknown Mitsuba variant; available: {', '.join(mi.variants())}",
                           key="variant", value=variant)
     if _state.get("variant") != variant:
-        mi.set_variant(variant)
+        if variant.startswith("cuda"):
+            _require_cuda(variant)
+        try:
+            mi.set_variant(variant)
+        except ImportError as exc:  # e.g. the backend failed to start: one line, not a traceback
+            raise ConfigError(f"Mitsuba could not load this variant: {exc}", key="variant",
+                              value=variant) from None
         for name in _PLUGIN_MODULES:
             try:
                 mod = importlib.import_module(f"simlidar_mi.plugins.{name}")
@@ -46,3 +52,21 @@ def _mitsuba(variant: str | None) -> ModuleType:
             mod.register()
         _state["variant"] = variant
     return mi
+
+
+def check_variant(variant: str | None, file: str | None = None) -> None:
+    """Refuse, before any work, a variant this machine cannot run (cuda_* without a GPU).
+
+    Cheap: imports Dr.Jit only for a CUDA variant, never Mitsuba."""
+    if variant and variant.startswith("cuda"):
+        _require_cuda(variant, file, "scene.variant")
+
+
+def _require_cuda(variant: str, file: str | None = None, key: str = "variant") -> None:
+    """Refuse a cuda_* variant in one line when Dr.Jit finds no CUDA device (else ImportError)."""
+    import drjit as dr  # noqa: PLC0415
+
+    if not dr.has_backend(dr.JitBackend.CUDA):
+        raise ConfigError("no CUDA device was found (an NVIDIA GPU with its driver is needed); "
+                          f"use the default {DEFAULT_VARIANT} on the CPU", file=file, key=key,
+                          value=variant)

@@ -55,7 +55,7 @@ def _scan_run(args: argparse.Namespace) -> int:
     from .lidar.survey import run_scan
 
     run = run_scan(args.scene, args.out, _overrides(args), write_las=not args.no_las,
-                   write_png=not args.no_png, progress=sys.stderr.isatty())
+                   write_png=not args.no_png, progress=True)
     m = run.measures
     grids = [(m["N"], m["M"])] if "N" in m else [(leg["N"], leg["M"]) for leg in m["legs"]]
     trees = f", {m['n_instances']} instanced trees" if m.get("n_instances") else ""
@@ -187,7 +187,7 @@ def _preview_args(p: argparse.ArgumentParser) -> None:
 def _preview_run(args: argparse.Namespace) -> int:
     from .lidar.survey import preview
 
-    print(f"wrote {preview(args.scene, args.out, width=args.width, spp=args.spp, overrides=_overrides(args))}")
+    print(f"wrote {preview(args.scene, args.out, width=args.width, spp=args.spp, overrides=_overrides(args), progress=True)}")
     return 0
 
 
@@ -212,24 +212,31 @@ def _photo_gap_args(p: argparse.ArgumentParser) -> None:
 def _photo_gap_run(args: argparse.Namespace) -> int:
     import json
 
+    from ._progress import make_progress
     from .errors import PhotoError
     from .canopy.photo import photo_gap
     from .io.atomic import check_output_dir
 
     check_output_dir(args.mask_dir)  # before any photo is read
     results, failed = [], 0
-    for photo in args.photos:
-        try:  # one bad photo should not hide the others' results
-            results.append(photo_gap(photo, args.method, args.crop, mask_dir=args.mask_dir,
-                                     downscale=args.downscale, progress=sys.stderr.isatty()))
-        except PhotoError as exc:
-            failed += 1
-            print(f"simlidar-mi photo-gap: error: {exc}", file=sys.stderr)
+    prog = make_progress(len(args.photos) > 1)  # one photo: its own line is the progress
+    with prog.stage("photo-gap", len(args.photos), "photo") as st:
+        for photo in args.photos:
+            try:  # one bad photo should not hide the others' results
+                results.append(photo_gap(photo, args.method, args.crop, mask_dir=args.mask_dir,
+                                         downscale=args.downscale,
+                                         progress=len(args.photos) == 1 and sys.stderr.isatty()))
+            except PhotoError as exc:
+                failed += 1
+                prog.write(f"simlidar-mi photo-gap: error: {exc}")  # above the bar, if any
+            st.update(note=f"{failed} failed" if failed else None)
+    if not results:
+        return 2  # nothing to print: stdout stays empty (no '[]', no header)
     if args.json:
         keys = ("file", "method", "threshold", "cover", "p0", "n_pixels", "n_transparent", "crop",
                 "downscale", "mask_file")
         print(json.dumps([{k: r.to_dict()[k] for k in keys} for r in results], indent=2))
-    elif results:
+    else:
         w = max(len(str(r.file)) for r in results)
         print(f"{'file':<{w}}  {'method':<9}  {'threshold':>9}  {'cover':>6}  {'p0':>6}  "
               f"{'pixels':>9}  mask")
@@ -271,7 +278,7 @@ def _forest_args(p: argparse.ArgumentParser) -> None:
 def _forest_run(args: argparse.Namespace) -> int:
     from .forest.run import run_forest
 
-    run = run_forest(args.scene, args.out, args.overrides, progress=sys.stderr.isatty())
+    run = run_forest(args.scene, args.out, args.overrides, progress=True)
     s = run.summary
     print(f"{s['n_trees']} trees ({s['removed_by_min_distance']} removed by the "
           f"{s['min_distance_m']:g} m distance and crown_factor {s['crown_factor']:g} rules; "
@@ -301,7 +308,8 @@ def _gapfraction_args(p: argparse.ArgumentParser) -> None:
 def _gapfraction_run(args: argparse.Namespace) -> int:
     from .canopy.gapfraction import run_gapfraction
 
-    run = run_gapfraction(args.scene, args.out, _overrides(args), write_images=not args.no_images)
+    run = run_gapfraction(args.scene, args.out, _overrides(args), write_images=not args.no_images,
+                          progress=True)
     n = len(run.replicate_images)
     print(f"p0: mean over {n} replicate plot{'s' if n > 1 else ''}; p0_sd: its seed-to-seed SD "
           f"(the SD between plots / √{n})")
@@ -330,7 +338,7 @@ def _compare_run(args: argparse.Namespace) -> int:
 
     from .canopy.compare import compare
 
-    res = compare(args.manifest, args.out)
+    res = compare(args.manifest, args.out, progress=True)
     print(f"{'row':>4}  {'camera':<12}  {'zenith':>6}  {'step':>4}  {'measured':>8}  "
           f"{'virtual':>7}  {'sd':>6}  {'sd/plot':>7}  {'reps':>4}  {'diff':>7}")
     for p in res.pairs:
@@ -363,7 +371,7 @@ def _synthetic_photo_args(p: argparse.ArgumentParser) -> None:
 def _synthetic_photo_run(args: argparse.Namespace) -> int:
     from .canopy.synthetic_photo import run_synthetic_photos
 
-    checks = run_synthetic_photos(args.scene, args.out, _overrides(args))
+    checks = run_synthetic_photos(args.scene, args.out, _overrides(args), progress=True)
     print(f"{'camera':<12}  {'zenith':>6}  {'step':>4}  {'p0 coverage':>11}  {'p0 canopeo':>10}  {'diff':>7}")
     for c in checks:
         im = c.image

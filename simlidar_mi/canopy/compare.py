@@ -230,7 +230,7 @@ def _photo_p0s(rows: list[ManifestRow], src: str, mask_dir: Path) -> dict[int, A
     return out
 
 
-def _render_scenes(rows: list[ManifestRow], src: str):
+def _render_scenes(rows: list[ManifestRow], src: str, progress=False):
     """Render every distinct scene once (all its replicate plots); {scene: (run, cfg)}."""
     from ..config import load_scene  # noqa: PLC0415
     from .gapfraction import run_gapfraction  # noqa: PLC0415
@@ -245,7 +245,7 @@ def _render_scenes(rows: list[ManifestRow], src: str):
                      "gapfraction.zeniths_deg=[" + ", ".join(repr(float(z)) for z in zens) + "]"]
         try:
             cfg = load_scene(scene, overrides)
-            run = run_gapfraction(cfg, None)
+            run = run_gapfraction(cfg, None, progress=progress)
         except SimlidarError as exc:
             raise ManifestError(f"cannot render this scene: {exc}", file=src, row=rs[0].row,
                                 column="scene", value=rs[0].scene_text) from exc
@@ -364,7 +364,8 @@ def plot_comparison(pairs: Sequence[Pair], stats: Sequence[dict[str, Any]], path
 
 # ----------------------------------------------------------------------- the API
 @writes_output("out_dir")
-def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[str]) -> ComparisonResult:
+def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *,
+            progress=False) -> ComparisonResult:
     """Pair measured and virtual P0 as a manifest says; write the Table 5 statistics.
 
     Parameters
@@ -375,6 +376,7 @@ def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[st
         Output folder: ``comparison.csv``, ``pairs.csv``, ``comparison.png``,
         ``comparison.json``, ``photo_mask_*.png``, ``virtual_*.png``.  Files appear together
         when everything succeeded; a failure leaves the folder as it was.
+    progress : see :func:`simlidar_mi._progress.make_progress` (the scenes' renders).
 
     Returns
     -------
@@ -394,7 +396,7 @@ def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[st
     out = Path(out_dir)
     with staged_dir(out, COMPARE_OUTPUTS) as stage:
         photos = _photo_p0s(rows, src, stage)  # cheap, fails before any rendering
-        runs = _render_scenes(rows, src)
+        runs = _render_scenes(rows, src, progress)
         pairs, used = [], {}
         for r in rows:
             run, _cfg = runs[r.scene.resolve()]

@@ -32,6 +32,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .._mitsuba import check_variant
+from .._progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError, SimlidarError
 from ..geometry import Branches, Leaves
@@ -413,7 +415,7 @@ def _render_replicate(cfg: SceneConfig, g: dict[str, Any], replicate: int,
 @writes_output("out_dir")
 def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None = None,
                     overrides: Sequence[str] = (), *, write_images: bool = True,
-                    replicates: int | None = None) -> GapFractionRun:
+                    replicates: int | None = None, progress=False) -> GapFractionRun:
     """Scene file → canopies (one per extraction step) of each replicate plot → images → files.
 
     ``[gapfraction] replicates`` (or ``replicates=``) independent plots of the scene
@@ -434,8 +436,12 @@ def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None 
       (coverage ≥ ``mask_threshold``, display only) with the window outlined;
     - ``gap_<camera>_z<zenith>_s<step>.exr``: replicate 0's float32 coverage with the
       settings in the header.
+
+    ``progress``: see :func:`simlidar_mi._progress.make_progress` (a count of replicate
+    plots rendered, then the files written).
     """
     cfg = scene if isinstance(scene, SceneConfig) else load_scene(scene, list(overrides))
+    check_variant(cfg["scene"]["variant"], cfg.source)  # before any work
     g = _settings(cfg)
     if replicates is not None:
         if isinstance(replicates, bool) or not isinstance(replicates, int) or replicates < 1:
@@ -443,7 +449,9 @@ def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None 
                               value=replicates)
         g["replicates"] = replicates
     seconds: dict[str, float] = {}
-    reps = [_render_replicate(cfg, g, k, seconds) for k in range(g["replicates"])]
+    prog = make_progress(progress)
+    reps = [_render_replicate(cfg, g, k, seconds) for k in
+            prog.iter(range(g["replicates"]), "gapfraction: rendering", unit="plot")]
     canopies, images = reps[0]
     run = GapFractionRun(images, canopies, {}, seconds, [r[1] for r in reps],
                          summarise([r[1] for r in reps]))
@@ -452,7 +460,8 @@ def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None 
     from ..io.png import write_mask_png  # noqa: PLC0415
     out = Path(out_dir)
     t0 = time.perf_counter()
-    with staged_dir(out, GAPFRACTION_OUTPUTS) as stage:
+    n_files = 3 + (2 * len(images) if write_images else 0)
+    with staged_dir(out, GAPFRACTION_OUTPUTS) as stage, prog.stage("gapfraction: writing", n_files, "file") as st:
         write_csv(stage / "gap_fraction.csv", CSV_COLUMNS, (s.row() for s in run.summary))
         run.files["csv"] = out / "gap_fraction.csv"
         write_csv(stage / "gap_fraction_replicates.csv", REPLICATE_COLUMNS, (
@@ -472,9 +481,11 @@ def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None 
                 write_gap_exr(img, stage / f"{stem}.exr", extra=extra)
                 run.files[f"{stem}.png"] = out / f"{stem}.png"
                 run.files[f"{stem}.exr"] = out / f"{stem}.exr"
+                st.update(2)
             meta["images"].append({"stem": stem, **img.metadata()})
         with atomic_file(stage / "gap_fraction.json") as tmp:
             tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
         run.files["json"] = out / "gap_fraction.json"
+        st.update(n_files - st.n)
     seconds["write"] = time.perf_counter() - t0
     return run

@@ -42,6 +42,7 @@ from typing import Any, Literal, Sequence, Union
 
 import numpy as np
 
+from .._progress import make_progress
 from ..errors import PhotoError, SimlidarError
 from ..io.png import (BACKGROUND_RGB, FOREGROUND_RGB, WINDOW_RGB, dimmed, write_label_png,
                       write_mask_png)
@@ -490,11 +491,9 @@ def photo_gap(path: str | os.PathLike[str], method: Method = "canopeo", crop: Cr
             raise PhotoError(f"{p}: {x1 - x0}x{y1 - y0} pixels to analyse{at} (crop {x0},{y0},"
                              f"{x1},{y1} of {w}x{h}); at least {MIN_PIXELS} are needed to "
                              "classify a photo")
-        from tqdm import tqdm  # noqa: PLC0415
         passes = {"canopeo": 0, "exg-otsu": 2, "blue-otsu": 1}[method]
-        with tqdm(total=w * h + passes * (x1 - x0) * (y1 - y0), desc=p.name, unit="px",
-                  unit_scale=True, leave=False, delay=PROGRESS_DELAY_S,
-                  disable=not progress) as bar:
+        with make_progress(progress).stage(p.name, w * h + passes * (x1 - x0) * (y1 - y0),
+                                           "px", PROGRESS_DELAY_S) as bar:
             labels, threshold, n, n_veg, n_clear = _classify_photo(
                 photo, method, box, canopeo_rg, canopeo_bg, canopeo_exg, p, bar.update)
     if n < MIN_PIXELS:

@@ -93,6 +93,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .._progress import make_progress
 from ..errors import ConfigError, SimlidarError
 from ..io.atomic import writes_output
 from .cameras import CAMERAS
@@ -125,6 +126,7 @@ SYNTHETIC_PHOTO_OUTPUTS = (r"synthetic_photo\.(csv|json)",
 _SOIL_HALF_SIZE_M = 100.0  # soil plane half size: fills any view of a plot-sized scene
 _SOIL_BELOW_M = 1e-3  # soil this far below the lowest leaf, so no leaf is buried
 _WORKER_FLAG = "--photo-worker"
+_DONE_MARK = "simlidar-photo-done"  # the worker's stdout line after each photo (progress)
 
 
 # ----------------------------------------------------------------------- settings
@@ -312,8 +314,10 @@ def _sun_dict(settings: PhotoSettings, camera, origin_m: np.ndarray) -> dict[str
             "irradiance": rgb}
 
 
-def _render_jobs_here(jobs: Sequence[PhotoJob], settings: PhotoSettings, seed: int) -> list[np.ndarray]:
-    """Render in this process (which must already run, or not yet have, an RGB variant)."""
+def _render_jobs_here(jobs: Sequence[PhotoJob], settings: PhotoSettings, seed: int,
+                      done=lambda: None) -> list[np.ndarray]:
+    """Render in this process (which must already run, or not yet have, an RGB variant);
+    ``done()`` is called after each photo."""
     from .._mitsuba import mitsuba  # noqa: PLC0415
     mi = mitsuba(settings.variant)
     out = []
@@ -348,6 +352,7 @@ def _render_jobs_here(jobs: Sequence[PhotoJob], settings: PhotoSettings, seed: i
         })
         img = np.array(mi.render(scene, spp=int(settings.spp), seed=int(seed)), dtype=np.float32)
         out.append(srgb_encode(img[..., :3], settings.exposure))
+        done()
     return out
 
 
@@ -358,7 +363,8 @@ def _worker_main(in_path: str, out_path: str) -> int:
         settings = PhotoSettings(**meta["settings"])
         jobs = [PhotoJob(data[f"v{i}"], data[f"o{i}"], _camera_from_dict(j["camera"]), j["soil_z_m"])
                 for i, j in enumerate(meta["jobs"])]
-    images = _render_jobs_here(jobs, settings, int(meta["seed"]))
+    images = _render_jobs_here(jobs, settings, int(meta["seed"]),
+                               lambda: print(_DONE_MARK, flush=True))
     np.savez(out_path, **{f"img{i}": im for i, im in enumerate(images)})
     return 0
 
@@ -369,7 +375,7 @@ def _process_variant() -> str | None:
 
 
 def render_photos(jobs: Sequence[PhotoJob], settings: PhotoSettings | None = None, *,
-                  seed: int = 0, isolate: bool | None = None) -> list[np.ndarray]:
+                  seed: int = 0, isolate: bool | None = None, progress=False) -> list[np.ndarray]:
     """Render several views as 8-bit sRGB photos, in one child process if needed.
 
     Parameters
@@ -379,6 +385,7 @@ def render_photos(jobs: Sequence[PhotoJob], settings: PhotoSettings | None = Non
     seed : Mitsuba sampler seed (same seed, same bytes).
     isolate : render in a child process (True), here (False), or here only when this
         process already runs ``settings.variant`` (None, the default).
+    progress : see :func:`simlidar_mi._progress.make_progress` (photos rendered).
 
     Returns
     -------
@@ -387,8 +394,15 @@ def render_photos(jobs: Sequence[PhotoJob], settings: PhotoSettings | None = Non
     settings = settings or PhotoSettings()
     if isolate is None:
         isolate = _process_variant() != settings.variant
-    if not isolate:
-        return _render_jobs_here(jobs, settings, seed)
+    with make_progress(progress).stage("synthetic-photo: rendering", len(jobs), "photo") as st:
+        if not isolate:
+            return _render_jobs_here(jobs, settings, seed, st.update)
+        return _render_in_child(jobs, settings, seed, st.update)
+
+
+def _render_in_child(jobs: Sequence[PhotoJob], settings: PhotoSettings, seed: int,
+                     done) -> list[np.ndarray]:
+    """Render in a child process running ``settings.variant``; ``done()`` after each photo."""
     meta = {"settings": settings.to_dict(), "seed": int(seed),
             "jobs": [{"camera": j.camera.to_dict(), "soil_z_m": float(j.soil_z_m)} for j in jobs]}
     arrays = {"meta": np.array(json.dumps(meta))}
@@ -402,12 +416,24 @@ def render_photos(jobs: Sequence[PhotoJob], settings: PhotoSettings | None = Non
         # the child must import this very package, installed or not
         root = str(Path(__file__).resolve().parents[1])
         env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-        proc = subprocess.run([sys.executable, "-m", "simlidar_mi.canopy.synthetic_photo", _WORKER_FLAG,
-                               str(src), str(dst)], env=env, capture_output=True, text=True)
-        if proc.returncode != 0 or not dst.exists():
-            tail = "\n".join((proc.stderr or proc.stdout).strip().splitlines()[-15:])
+        # stdout streams one line per finished photo; stderr is kept for the error message
+        with open(Path(tmp) / "stderr.txt", "w+", encoding="utf-8") as err, subprocess.Popen(
+                [sys.executable, "-m", "simlidar_mi.canopy.synthetic_photo", _WORKER_FLAG,
+                 str(src), str(dst)], env=env, stdout=subprocess.PIPE, stderr=err,
+                text=True) as proc:
+            other = []
+            for line in proc.stdout:
+                if line.strip() == _DONE_MARK:
+                    done()
+                else:
+                    other.append(line)
+            returncode = proc.wait()
+            err.seek(0)
+            stderr = err.read()
+        if returncode != 0 or not dst.exists():
+            tail = "\n".join((stderr or "".join(other)).strip().splitlines()[-15:])
             raise SimlidarError(f"synthetic photo render failed in the {settings.variant} child "
-                                f"process (exit code {proc.returncode}):\n{tail}")
+                                f"process (exit code {returncode}):\n{tail}")
         with np.load(dst) as data:
             return [np.array(data[f"img{i}"]) for i in range(len(jobs))]
 
@@ -509,7 +535,8 @@ class SyntheticPhotoCheck:
 
 
 def check_images(images: Sequence, canopies: Sequence, settings: PhotoSettings | None = None, *,
-                 seed: int = 0, isolate: bool | None = None) -> list[SyntheticPhotoCheck]:
+                 seed: int = 0, isolate: bool | None = None,
+                 progress=False) -> list[SyntheticPhotoCheck]:
     """Photograph the views of already rendered coverage images and compare the P0s.
 
     Parameters
@@ -518,8 +545,8 @@ def check_images(images: Sequence, canopies: Sequence, settings: PhotoSettings |
         Coverage renders; each photo uses the image's camera and window.
     canopies : sequence of Canopy
         The canopy each image shows (same length as ``images``).
-    settings, seed, isolate : see :func:`render_photos`.  All photos are rendered in
-        one child process.
+    settings, seed, isolate, progress : see :func:`render_photos`.  All photos are rendered
+        in one child process.
 
     Returns
     -------
@@ -530,7 +557,7 @@ def check_images(images: Sequence, canopies: Sequence, settings: PhotoSettings |
     settings = settings or PhotoSettings()
     jobs = [_make_job(c, im.camera, im.window) for im, c in zip(images, canopies)]
     t0 = time.perf_counter()
-    photos = render_photos(jobs, settings, seed=seed, isolate=isolate)
+    photos = render_photos(jobs, settings, seed=seed, isolate=isolate, progress=progress)
     per = (time.perf_counter() - t0) / max(1, len(jobs))
     out = []
     for im, rgb in zip(images, photos):
@@ -567,7 +594,8 @@ def check_photo(canopy, kind: str = "orthographic", zenith_deg: float = 0.0, *,
 
 @writes_output("out_dir")
 def run_synthetic_photos(scene, out_dir: str | Path | None = None, overrides: Sequence[str] = (),
-                         *, isolate: bool | None = None) -> list[SyntheticPhotoCheck]:
+                         *, isolate: bool | None = None,
+                         progress=False) -> list[SyntheticPhotoCheck]:
     """Every gap-fraction view of a scene file, also as a synthetic photo checked by Canopeo.
 
     The views are those of ``[gapfraction]`` (cameras × zeniths × extraction steps) of the
@@ -580,16 +608,20 @@ def run_synthetic_photos(scene, out_dir: str | Path | None = None, overrides: Se
     - ``synthetic_photo.csv``: :data:`CSV_COLUMNS`, one line per view;
     - ``photo_<camera>_z<zenith>_s<step>.png``: the synthetic photo;
     - ``photo_<camera>_z<zenith>_s<step>_canopeo.png``: Canopeo's mask, window outlined.
+
+    ``progress``: see :func:`simlidar_mi._progress.make_progress` (the coverage renders,
+    then the photos).
     """
     from ..config import SceneConfig, load_scene  # noqa: PLC0415
     from .gapfraction import run_gapfraction  # noqa: PLC0415
     cfg = scene if isinstance(scene, SceneConfig) else load_scene(scene, list(overrides))
     settings = PhotoSettings.from_config(cfg)
     # one plot: each photo is checked against the coverage render of the same canopy
-    run = run_gapfraction(cfg, None, replicates=1)
+    run = run_gapfraction(cfg, None, replicates=1, progress=progress)
     by_step = {c.step: c for c in run.canopies}
     canopies = [by_step[im.step] for im in run.images]
-    checks = check_images(run.images, canopies, settings, seed=cfg.seed, isolate=isolate)
+    checks = check_images(run.images, canopies, settings, seed=cfg.seed, isolate=isolate,
+                          progress=progress)
     if out_dir is None:
         return checks
     from ..io.atomic import atomic_file, staged_dir, write_csv  # noqa: PLC0415

@@ -46,6 +46,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+from .._progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..io.atomic import staged_dir, writes_output
@@ -96,11 +97,11 @@ def _resolve_modes(forest: Forest, f: dict, src: str) -> tuple[str, str]:
 
 @writes_output("out_dir")
 def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Sequence[str] = (),
-               *, progress: bool = False) -> ForestRun:
+               *, progress=False) -> ForestRun:
     """Make the forest of a scene file and write its files (see the module docstring).
 
     All files appear together when complete (staged); a failure leaves ``out_dir``
-    as it was.
+    as it was.  ``progress``: see :func:`simlidar_mi._progress.make_progress`.
     """
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, list(overrides))
@@ -133,8 +134,11 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
         seconds["tables"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        plot_layout(forest, stage / "layout.png")
-        plot_preview(forest, stage / "preview.png", f["preview_max_trees"])
+        with make_progress(progress).stage("pictures", 2, "picture") as st:
+            plot_layout(forest, stage / "layout.png")
+            st.update()
+            plot_preview(forest, stage / "preview.png", f["preview_max_trees"])
+            st.update()
         files["layout"], files["preview"] = out / "layout.png", out / "preview.png"
         seconds["plots"] = time.perf_counter() - t0
 
@@ -144,7 +148,9 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
             write_stand(forest, stage / f"stand.{fmt}", fmt, k, progress)
             files["stand"] = out / f"stand.{fmt}"
         elif export == "prototypes":
-            _write_prototype_meshes(forest, stage / "prototypes", fmt, k)
+            with make_progress(progress).stage("prototype meshes", unit="mesh") as st:
+                _write_prototype_meshes(forest, stage / "prototypes", fmt, k)
+                st.update(len(forest.prototypes))
             files["prototypes"] = out / "prototypes"
         seconds["export"] = time.perf_counter() - t0
 

@@ -45,6 +45,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from .._progress import bar
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
@@ -335,12 +336,9 @@ class Forest:
                 "species": per, "seconds": dict(self.seconds)}
 
 
-def _bar(it: Iterable, enabled: bool, desc: str, total: int | None = None) -> Iterable:
-    """A tqdm bar over ``it`` when enabled (CLI on a terminal), else ``it``."""
-    if not enabled:
-        return it
-    from tqdm import tqdm  # noqa: PLC0415
-    return tqdm(it, desc=desc, total=total, unit="tree", leave=False)
+def _bar(it: Iterable, progress, desc: str, total: int | None = None) -> Iterable:
+    """Trees of ``it`` as one stage of the shared progress helper (:mod:`simlidar_mi._progress`)."""
+    return bar(it, progress, desc, total, unit="tree")
 
 
 def _with_tree_id(t: RandomTree, tid: int) -> RandomTree:
@@ -385,7 +383,7 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     config_or_params : a scene (SceneConfig or path) with ``[forest]`` and ``[[species]]``,
         or ForestParams.
     seed : master seed (default: the scene's ``scene.seed``; required with ForestParams).
-    progress : tqdm bar over the trees (or prototypes).
+    progress : see :func:`simlidar_mi._progress.make_progress` (trees, prototypes).
 
     Returns
     -------

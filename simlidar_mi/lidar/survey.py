@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._mitsuba import check_variant
+from .._progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError, SimlidarWarning
 from ..geometry import Branches, Leaves, Primitive
@@ -309,8 +311,9 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     from .scan import scan  # noqa: PLC0415
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, overrides)
+    check_variant(cfg["scene"]["variant"], cfg.source)  # before any work
     steps = ["generate", "build", "scan", "write"]
-    bar = _progress(len(steps), progress)
+    bar = make_progress(progress).stage("scan", len(steps), "stage").step
     seconds: dict[str, float] = {}
 
     t = time.perf_counter()
@@ -403,30 +406,22 @@ def scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results) -> 
     return out
 
 
-def _progress(total: int, enabled: bool):
-    """A tqdm bar over pipeline stages when ``enabled`` (CLI on a terminal)."""
-    if not enabled:
-        return lambda msg: None
-    from tqdm import tqdm  # noqa: PLC0415
-    bar = tqdm(total=total, unit="stage", leave=False)
-
-    def step(msg: str) -> None:
-        bar.set_description(msg)
-        bar.update(1)
-        if bar.n >= total:
-            bar.close()
-    return step
-
-
 @writes_output("path", file=True)
 def preview(cfg: SceneConfig | str | Path, path: str | Path, *, width: int = 1024,
-            spp: int = 16, overrides: list[str] | tuple = ()) -> Path:
-    """A shaded side view of the scene (looking along +x, like the scanner) as PNG."""
+            spp: int = 16, overrides: list[str] | tuple = (), progress=False) -> Path:
+    """A shaded side view of the scene (looking along +x, like the scanner) as PNG.
+
+    ``progress``: see :func:`simlidar_mi._progress.make_progress` (stages generate, build,
+    render, write)."""
     from .._mitsuba import mitsuba  # noqa: PLC0415
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, overrides)
+    check_variant(cfg["scene"]["variant"], cfg.source)  # before any work
+    step = make_progress(progress).stage("preview", 4, "stage").step
     geometry = generate(cfg)
+    step(f"generated {len(geometry.branches)} branches, {len(geometry.leaves)} leaf triangles")
     built = build(cfg, geometry)
+    step(f"built {built.representation} scene")
     mi = mitsuba(cfg["scene"]["variant"])
     lo, hi = built.bbox_min_m - built.origin_m, built.bbox_max_m - built.origin_m
     centre = 0.5 * (lo + hi)
@@ -450,6 +445,7 @@ def preview(cfg: SceneConfig | str | Path, path: str | Path, *, width: int = 102
                           "sun": {"type": "directional", "direction": [1.0, 0.4, -1.0], "irradiance": 2.0},
                           **shapes})
     img = np.array(mi.render(scene, sensor=sensor, spp=spp))
+    step(f"rendered {width}×{height} at {spp} spp")
     if img.ndim == 2:
         img = img[..., None]
     lum = img.mean(axis=2)
@@ -462,4 +458,5 @@ def preview(cfg: SceneConfig | str | Path, path: str | Path, *, width: int = 102
     from PIL import Image  # noqa: PLC0415
     with atomic_file(path) as tmp:
         Image.fromarray((img * 255).astype(np.uint8)).save(tmp, format="PNG")
+    step(f"wrote {path}")
     return Path(path)

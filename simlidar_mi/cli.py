@@ -100,7 +100,7 @@ def _study_run(args: argparse.Namespace) -> int:
     from .lidar.study import paper_grid, run_study
 
     grid = [list(args.overrides) + g for g in paper_grid()]
-    res = run_study(args.scene, args.out, grid, workers=args.workers, progress=sys.stderr.isatty(),
+    res = run_study(args.scene, args.out, grid, workers=args.workers, progress=True,
                     hit_rule=args.hit_rule, footprint=args.footprint, readings=args.readings,
                     on_mismatch=args.on_mismatch)
     print(f"hit rule {', '.join(res.regression['scan']['hit_rule'])}, footprint P = "

@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from .._version import __version__
+from .._progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..io.atomic import atomic_file, write_csv, writes_output
@@ -429,17 +430,16 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
     todo = [(o, k) for o, k in zip(grid, keys) if not (rows_dir / f"{k}.json").exists()]
     if todo:
         import dask  # noqa: PLC0415
-        from dask.diagnostics import ProgressBar  # noqa: PLC0415
+        from dask.callbacks import Callback  # noqa: PLC0415
         tasks = [dask.delayed(run_one)(scene, o, str(rows_dir), readings, version) for o, _ in todo]
         opts: dict[str, Any] = {"scheduler": "synchronous"}
         if workers > 1:
             # Workers die with this process (SIGKILL included) instead of scanning on as orphans.
             opts = {"scheduler": "processes", "num_workers": workers,
                     "initializer": functools.partial(_die_with_parent, os.getpid())}
-        if progress:
-            with ProgressBar():
-                dask.compute(*tasks, **opts)
-        else:
+        # one tick per finished orchard, through the package's progress (never on stdout)
+        with make_progress(progress).stage("study: scanning", len(todo), "orchard") as st, \
+                Callback(posttask=lambda *_: st.update()):
             dask.compute(*tasks, **opts)
         missing = [k for _, k in todo if not (rows_dir / f"{k}.json").exists()]
         if missing:  # a task keys its row by what it scanned: the inputs moved under us

@@ -188,3 +188,11 @@ def test_package_docstring_example_runs(monkeypatch):
     monkeypatch.chdir(REPO)
     result = doctest.testmod(simlidar_mi, verbose=False)
     assert result.attempted >= 5 and result.failed == 0
+
+
+def test_every_package_ships_in_the_wheel():
+    # pyproject lists packages by hand (plugins/ is mapped in): a new room must be listed too
+    import tomllib
+    listed = set(tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(REPO).parts) for p in (REPO / PKG).rglob("__init__.py")}
+    assert found | {f"{PKG}.plugins"} == listed

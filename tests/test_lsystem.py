@@ -345,3 +345,13 @@ def test_interpret_needs_orders():
         interpret(parse_modules("I(0)"), h0_m=1, d_min_m=0.01, n_substitutions=1)
     with pytest.raises(ConfigError, match="h0_m"):
         interpret(parse_modules("I(1)"), h0_m=0, d_min_m=0.01, n_substitutions=1)
+
+
+def test_a_word_without_internodes_draws_nothing():
+    # no I module at all: an empty tree, not an IndexError from the empty parameter table
+    for word in ("F[+F]", "[F]-F", ""):
+        for prune in (False, True):
+            br = interpret(parse_modules(word), h0_m=0.4, d_min_m=0.005, n_substitutions=2,
+                           prune=prune)
+            assert len(br) == 0
+    assert len(interpret(parse_modules("I(1)F"), h0_m=0.4, d_min_m=0.005, n_substitutions=2)) == 1

@@ -287,8 +287,8 @@ def interpret(modules: ModuleString, *, h0_m: float, d_min_m: float, n_substitut
     """
     code_i = modules.code(DRAW_SYMBOL)
     order = np.zeros(len(modules))
-    if code_i >= 0:
-        is_i = modules.codes == code_i
+    is_i = modules.codes == code_i
+    if is_i.any():  # a word without any I draws nothing (its parameter table may have no column)
         if (modules.nargs[is_i] < 1).any():
             bad = int(np.flatnonzero(is_i & (modules.nargs < 1))[0])
             raise GrammarError("'I' needs its axis order, as in I(1)", position=bad,

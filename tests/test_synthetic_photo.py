@@ -198,3 +198,12 @@ def test_synthetic_photo_cli(tmp_path, capsys):
     assert "p0 canopeo" in printed
     for line in printed.splitlines()[1:3]:
         assert abs(float(line.split()[-1])) <= 0.01
+
+
+def test_child_process_path_is_the_folder_holding_the_package():
+    # PYTHONPATH must hold the package's parent: the package folder itself would let its io/
+    # shadow the standard library's io in the child (Python 3.10 fails at start-up)
+    import simlidar_mi
+    from simlidar_mi.canopy.synthetic_photo import _package_parent
+    assert _package_parent() == Path(simlidar_mi.__file__).resolve().parents[1]
+    assert not (_package_parent() / "io").exists()

@@ -400,6 +400,12 @@ def render_photos(jobs: Sequence[PhotoJob], settings: PhotoSettings | None = Non
         return _render_in_child(jobs, settings, seed, st.update)
 
 
+def _package_parent() -> Path:
+    """The folder that holds the ``simlidar_mi`` package (never the package itself: its
+    ``io`` sub-package would shadow the standard library's ``io`` in the child)."""
+    return Path(__file__).resolve().parents[2]
+
+
 def _render_in_child(jobs: Sequence[PhotoJob], settings: PhotoSettings, seed: int,
                      done) -> list[np.ndarray]:
     """Render in a child process running ``settings.variant``; ``done()`` after each photo."""
@@ -414,7 +420,7 @@ def _render_in_child(jobs: Sequence[PhotoJob], settings: PhotoSettings, seed: in
         np.savez(src, **arrays)
         env = dict(os.environ)
         # the child must import this very package, installed or not
-        root = str(Path(__file__).resolve().parents[1])
+        root = str(_package_parent())
         env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
         # stdout streams one line per finished photo; stderr is kept for the error message
         with open(Path(tmp) / "stderr.txt", "w+", encoding="utf-8") as err, subprocess.Popen(

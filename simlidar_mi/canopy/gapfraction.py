@@ -38,7 +38,7 @@ from ..config import SceneConfig, load_scene
 from ..errors import ConfigError, SimlidarError
 from ..geometry import Branches, Leaves
 from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
-from ..io.exr import header_value
+from ..io.exr import header_value, read_exr
 from .cameras import CAMERAS, Camera, make_camera
 from .canopy import Canopy, canopies_from_config
 from .gapfraction_defaults import DEFAULTS
@@ -279,16 +279,12 @@ def write_gap_exr(image: GapImage, path: str | Path, *, extra: dict | None = Non
 
 def read_gap_exr(path: str | Path) -> tuple[np.ndarray, dict]:
     """Coverage array and header of a gap EXR; ``header['metadata']`` is the parsed JSON."""
-    import OpenEXR  # noqa: PLC0415
-    try:
-        with OpenEXR.File(str(path)) as f:
-            header = dict(f.header())  # emptied when the file closes
-            cov = np.array(f.channels()["coverage"].pixels)
-    except Exception as exc:  # OpenEXR raises plain exceptions for unreadable files
-        raise SimlidarError(f"{path}: cannot read gap-fraction EXR: {exc}") from exc
+    channels, header = read_exr(path)
+    if "coverage" not in channels:
+        raise SimlidarError(f"{path}: not a gap-fraction EXR (no 'coverage' channel)")
     if "simlidar_gap" in header:
         header["metadata"] = json.loads(header["simlidar_gap"])
-    return cov, header
+    return channels["coverage"], header
 
 
 @dataclass

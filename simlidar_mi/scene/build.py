@@ -132,9 +132,15 @@ def prism_mesh(p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, k: int,
     axis = axis / np.linalg.norm(axis, axis=1, keepdims=True)
     u, v = _orthonormal(axis)
     phi = 2 * np.pi * np.arange(k) / k
-    ring = (np.cos(phi)[None, :, None] * u[:, None, :] + np.sin(phi)[None, :, None] * v[:, None, :])
+    # In place: one (n, 2k, 3) array and no temporaries of that size (a large part of a build).
+    verts = np.empty((n, 2 * k, 3))
+    ring = verts[:, :k, :]
+    np.multiply(np.cos(phi)[None, :, None], u[:, None, :], out=ring)
+    ring += np.sin(phi)[None, :, None] * v[:, None, :]
     ring *= radius[:, None, None]
-    verts = np.concatenate([p0[:, None, :] + ring, p1[:, None, :] + ring], axis=1)  # (n, 2k, 3)
+    verts[:, k:, :] = ring
+    ring += p0[:, None, :]
+    verts[:, k:, :] += p1[:, None, :]
     j = np.arange(k)
     jn = (j + 1) % k
     if isinstance(caps, (bool, np.bool_)):
@@ -146,14 +152,17 @@ def prism_mesh(p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, k: int,
     t = np.arange(1, k - 1)
     local += [np.stack([np.zeros_like(t), t + 1, t], 1), np.stack([k + np.zeros_like(t), k + t, k + t + 1], 1)]
     which += [1] * len(t) + [2] * len(t)
-    local = np.concatenate(local).astype(np.int64)
+    local = np.concatenate(local).astype(np.uint32)  # Mitsuba's index type: no int64 copy
     which = np.asarray(which)
-    keep = np.ones((n, len(local)), bool)
-    keep[:, which == 1] = np.asarray(caps[0])[:, None]
-    keep[:, which == 2] = np.asarray(caps[1])[:, None]
-    faces = local[None, :, :] + (2 * k * np.arange(n))[:, None, None]
-    owner = np.broadcast_to(np.arange(n)[:, None], keep.shape)
-    return verts.reshape(-1, 3), faces[keep], owner[keep]
+    cap0, cap1 = np.asarray(caps[0], bool), np.asarray(caps[1], bool)
+    faces = local[None, :, :] + (2 * k * np.arange(n, dtype=np.uint32))[:, None, None]
+    if cap0.all() and cap1.all():
+        return verts.reshape(-1, 3), faces.reshape(-1, 3), np.repeat(np.arange(n), len(local))
+    keep = np.empty((n, len(local)), bool)
+    keep[:, which == 0] = True
+    keep[:, which == 1] = cap0[:, None]
+    keep[:, which == 2] = cap1[:, None]
+    return verts.reshape(-1, 3), faces[keep], np.repeat(np.arange(n), keep.sum(axis=1))
 
 
 def exposed_ends(p0: np.ndarray, p1: np.ndarray, diameter: np.ndarray,
@@ -166,8 +175,13 @@ def exposed_ends(p0: np.ndarray, p1: np.ndarray, diameter: np.ndarray,
     """
     n = len(diameter)
     keys = np.round(np.concatenate([p0, p1]) / tol_m).astype(np.int64)
-    _, inv = np.unique(keys, axis=0, return_inverse=True)
-    inv = inv.ravel()
+    # Group equal points by a lexicographic sort (3x faster than np.unique(axis=0)).
+    order = np.lexsort(keys.T[::-1])
+    ks = keys[order]
+    new = np.ones(len(ks), bool)
+    new[1:] = np.any(ks[1:] != ks[:-1], axis=1)
+    inv = np.empty(len(ks), np.int64)
+    inv[order] = np.cumsum(new) - 1
     start_d = np.zeros(inv.max() + 1 if n else 0)  # thickest segment starting at each point
     end_d = np.zeros_like(start_d)  # thickest segment ending at each point
     np.maximum.at(start_d, inv[:n], diameter)

@@ -138,10 +138,29 @@ def resolve_settings(scan: dict, ground: dict, bbox_min_m, bbox_max_m,
     :meth:`simlidar_mi.lidar.survey.SceneGeometry.near_x_m`; by default the near side of the
     bounding box.  ``"far"`` reads Max(x) as the bounding box's far side (a narrower sweep
     that misses the near, low and high wood).
+
+    Moving mode (module docstring): ``pulse_rate_hz`` > 0 (``[sensor]``) and ``speed_m_s``
+    (``[platform]``) set Δy = v/f, f = pulse_rate·Δθ/360°; a ``scan.dy_m`` the scene gave
+    (``dy_given``) must agree with it.  A speed without a pulse rate is refused (the sweep
+    rate would be unknown); a pulse rate alone times the beams of today's stop-and-go scan.
     """
     lo, hi = np.asarray(bbox_min_m, float), np.asarray(bbox_max_m, float)
     x0, z0 = float(scan["x0_m"]), float(scan["z0_m"])
     dy, gap, dtheta = float(scan["dy_m"]), int(scan["gap"]), float(scan["dtheta_deg"])
+    pulse_rate_hz = float(pulse_rate_hz or 0.0)
+    if speed_m_s is not None and pulse_rate_hz <= 0:
+        raise ConfigError("a moving tractor needs [sensor] pulse_rate_hz > 0 (its sweep rate is "
+                          "pulse_rate·dtheta/360°); without it the scan is SIMLIDAR's, one pose per "
+                          "sweep every scan.dy_m", file=source, key="platform.speed_m_s", value=speed_m_s)
+    if speed_m_s is not None:
+        f = pulse_rate_hz * dtheta / 360.0
+        dy_moving = float(speed_m_s) / f
+        if dy_given and not math.isclose(dy, dy_moving, rel_tol=1e-9):
+            raise ConfigError(f"disagrees with platform.speed_m_s = {speed_m_s:g} m/s and sensor.pulse_rate_hz = "
+                              f"{pulse_rate_hz:g} Hz, which put sweeps v/f = {dy_moving:.6g} m apart "
+                              f"(f = pulse_rate·dtheta/360° = {f:.6g} Hz); drop scan.dy_m or change "
+                              "the speed", file=source, key="scan.dy_m", value=dy)
+        dy = dy_moving
     side = scan.get("theta_limits_side", "near")
     hit_rule = scan.get("hit_rule", "fraction")
     ground_z = float(ground["z_m"])

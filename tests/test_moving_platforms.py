@@ -50,11 +50,22 @@ def _read_las(path):
             np.asarray(las.point_source_id), np.asarray(las.gps_time), las)
 
 
+def _slanted_plate(tmp_path) -> str:
+    """A plate x = 2 + y/2 (two triangles, y and z in [−1, 3]) as an OBJ primitive: the range of a
+    beam depends on the y it starts from, so hit points test where the sensor fired it from."""
+    obj = tmp_path / "slanted.obj"
+    obj.write_text("v 1.5 -1 -1\nv 3.5 3 -1\nv 3.5 3 3\nv 1.5 -1 3\nf 1 2 3\nf 1 3 4\n")
+    return PLATE.replace('type = "box"\nmin_m = [2.0, -1.0, -1.0]\nmax_m = [2.02, 3.0, 3.0]',
+                         f'type = "obj"\npath = "{obj}"')
+
+
 def test_moving_tractor_profiles_advance_by_v_over_f_and_slant_within_a_sweep(tmp_path):
-    """Hit points on the plate x = 2 (beams have no y component): beam (i, k) at
-    y = y_start + i·v/f + k·v/pulse_rate, time i/f + k/pulse_rate (gps_time in the LAS)."""
-    cfg = _plate(f"[sensor]\npulse_rate_hz = {RATE_HZ}\n[platform]\nspeed_m_s = {SPEED_M_S}\n")
-    run = run_scan(cfg, tmp_path, write_png=False)
+    """Hit points on the slanted plate x = 2 + y/2 (beams have no y component): beam (i, k)
+    starts at y = y_start + i·v/f + k·v/pulse_rate and hits the plate there, at x = 2 + y/2 and
+    z = z0 + (x − x0)·tan θ_k; its time is i/f + k/pulse_rate (gps_time in the LAS)."""
+    cfg = load_scene(text=_slanted_plate(tmp_path) + f"[sensor]\npulse_rate_hz = {RATE_HZ}\n"
+                     f"[platform]\nspeed_m_s = {SPEED_M_S}\n")
+    run = run_scan(cfg, tmp_path / "out", write_png=False)
     res = run.result
     f = RATE_HZ * 1.0 / 360.0
     assert res.settings.sweep_rate_hz == pytest.approx(100.0)
@@ -65,14 +76,16 @@ def test_moving_tractor_profiles_advance_by_v_over_f_and_slant_within_a_sweep(tm
     i, k = np.arange(n)[:, None], np.arange(m)[None, :]
     y_expected = i * SPEED_M_S / f + k * SPEED_M_S / RATE_HZ
     np.testing.assert_allclose(pts[..., 1], y_expected, atol=2e-6)
-    np.testing.assert_allclose(pts[..., 0], 2.0, atol=2e-6)
+    np.testing.assert_allclose(pts[..., 0], 2.0 + y_expected / 2, atol=2e-6)   # on the plate: fired from there
+    theta = np.deg2rad(-20.0 + np.arange(m))[None, :]
+    np.testing.assert_allclose(pts[..., 2], 1.0 + pts[..., 0] * np.tan(theta), atol=2e-6)
     np.testing.assert_allclose(np.diff(pts[..., 1], axis=0), SPEED_M_S / f, atol=4e-6)        # per sweep
     np.testing.assert_allclose(np.diff(pts[..., 1], axis=1), SPEED_M_S / RATE_HZ, atol=4e-6)  # within it
     # The slant of one profile: v·(M − 1)/pulse_rate = 1.083 mm, a tenth of the row step.
     assert pts[0, -1, 1] - pts[0, 0, 1] == pytest.approx(SPEED_M_S * (m - 1) / RATE_HZ, abs=4e-6)
     row, col, _, gps, las = _read_las(run.files["las"])
     np.testing.assert_allclose(gps, row / f + col / RATE_HZ, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(np.asarray(las.y), row * SPEED_M_S / f + col * SPEED_M_S / RATE_HZ, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(las.y), row * SPEED_M_S / f + col * SPEED_M_S / RATE_HZ, atol=2e-4)
     vlr = next(v for v in las.header.vlrs if v.user_id == "simlidar-mi")
     assert b"beam emission time" in vlr.record_data and b"tractor sweep" in vlr.record_data
 

@@ -414,7 +414,9 @@ def rotating_patterns(channels_deg=VLP16_CHANNELS_DEG, channel_offsets_us=VLP16_
             n = np.arange(max(1, int(math.floor(t1 / T + 1e-9))), dtype=np.int64)
         else:
             n = _leg_times(t0, t1, T, j == len(legs) - 1)
-        _check_count(len(n) * len(el), max_beams, f"{len(n)} blocks × {len(el)} channels", source)
+        share = 1.0 if azimuth_range_deg is None else (a1 - a0) / 360.0  # blocks the sector keeps
+        _check_count(int(len(n) * share) * len(el), max_beams,
+                     f"{int(len(n) * share)} blocks × {len(el)} channels", source)
         t = n * T
         phi = deg_per_s * t
         if azimuth_range_deg is not None:

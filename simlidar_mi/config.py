@@ -28,6 +28,7 @@ import copy
 import hashlib
 import math
 import re
+import warnings
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10: the same parser as a package
@@ -36,7 +37,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from .errors import ConfigError
+from .errors import ConfigError, SimlidarWarning
+from .sensor_presets import apply_preset
 
 Check = Callable[[Any], str | None]  # returns a complaint, or None when the value is fine
 
@@ -216,7 +218,7 @@ SECTIONS: dict[str, dict[str, Key]] = {
     },
     # --- gap fraction (simlidar_mi.canopy.gapfraction); generators validate their own laws too
     "platform": {  # where the scanner is; "tractor" uses [scan]'s x0_m/z0_m/dy_m/dtheta_deg
-        "kind": Key(STR, "tractor", one_of("tractor", "static", "path", "airborne")),
+        "kind": Key(STR, "tractor", one_of("tractor", "static", "path", "airborne", "rotating", "rosette")),
         "position_m": Key(LIST, None, vec3, "static: scanner position"),
         "elevation_deg": Key(LIST, [-30.0, 60.0, 0.25], range3, "static/path: [min, max, step]"),
         "azimuth_deg": Key((int, float, list), 0.0, azimuth, "static: one angle (2D) or [start, stop, step] (3D)"),
@@ -230,6 +232,47 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "speed_m_s": Key(FLOAT, 30.0, positive),
         "pulse_rate_hz": Key(FLOAT, 300_000.0, positive),
         "pulses_per_line": Key(INT, 400, at_least(1)),
+        # rotating (multi-channel spinning) and rosette (two-prism) scanners; the sensor presets fill these
+        "channels_deg": Key(LIST, None, lambda v: None if v and _numbers(v) and all(-90 <= x <= 90 for x in v)
+                            else "must be a non-empty list of elevations in [-90, 90] degrees",
+                            "rotating: each channel's elevation, in firing order"),
+        "channel_offsets_us": Key(LIST, None, lambda v: None if v and _numbers(v) and min(v) >= 0
+                                  else "must be a non-empty list of times ≥ 0 (µs)",
+                                  "rotating: each channel's firing time within a block"),
+        "block_period_us": Key(FLOAT, None, positive, "rotating: time between firing blocks"),
+        "rotation_hz": Key(FLOAT, None, positive, "rotating: turns per second"),
+        "rosette_hz": Key(LIST, None, lambda v: None if _numbers(v, 2) and v[0] and v[1]
+                          else "must be [f1, f2], two non-zero prism rates in Hz",
+                          "rosette: the two prisms' rotation rates (signed)"),
+        "fov_deg": Key(FLOAT, None, lambda v: _finite(v) or (None if 0 < v < 180 else "must lie in (0, 180) degrees"),
+                       "rosette: full circular field of view"),
+    },
+    # --- real scanners (simlidar_mi.lidar.sensor): every effect off by default, and a scene
+    # without [sensor] (or with every effect off) scans exactly as before
+    "sensor": {
+        "preset": Key(STR, None, lambda v: None if v.strip() else "must be a preset name or a path",
+                      "a built-in sensor name or a preset .toml; the scene's own keys win"),
+        "divergence_mrad": Key(FLOAT, 0.0, nonneg, "full-angle beam divergence γ (1/e² of a Gaussian "
+                               "beam, edge of a uniform one); 0 = one ray per beam"),
+        "beam_profile": Key(STR, "gaussian", one_of("gaussian", "uniform"),
+                            "energy profile across the beam's cross-section"),
+        "beam_samples": Key(INT, 0, nonneg, "sub-rays S per beam when divergence > 0 (0 = auto, see "
+                            "simlidar_mi.lidar.sensor.auto_beam_samples)"),
+        "max_returns": Key(INT, 1, at_least(1), "1 = first return only; > 1 = echoes from the waveform"),
+        "pulse_length_ns": Key(FLOAT, 3.0, positive, "FWHM pulse duration τ; echoes closer than "
+                               "c·τ/2 merge"),
+        "detection_threshold": Key(FLOAT, 0.02, lambda v: _finite(v) or (
+                                   None if 0 < v < 1 else "must lie in (0, 1)"),
+                                   "echoes weaker than this share of the emitted energy are dropped"),
+        "range_min_m": Key(FLOAT, 0.0, nonneg, "no return nearer than this"),
+        "range_max_m": Key(FLOAT, None, positive, "no return farther than this (default unlimited)"),
+        "range_noise_m": Key(FLOAT, 0.0, nonneg, "Gaussian range σ at 1 m and normal incidence"),
+        "range_noise_per_m": Key(FLOAT, 0.0, nonneg, "growth of σ per metre beyond 1 m"),
+        "intensity": Key(BOOL, False, None, "compute echo energies (Lambertian law, sensor.py)"),
+        "pulse_rate_hz": Key(FLOAT, 0.0, nonneg, "with a platform speed: each beam its own time and pose"),
+        "range_at_10pct_m": Key(FLOAT, 40.0, positive, "datasheet range of a 10 % Lambertian target; "
+                                "sets the energy constant R_ref"),
+        "wavelength_nm": Key(FLOAT, None, positive, "informational, written to the headers"),
     },
     "random_leaves": {
         "n_leaves": Key(INT, 1000, nonneg, "number of flat leaves N (before periodic copies)"),
@@ -358,6 +401,7 @@ class SceneConfig:
     present: set[str] = field(default_factory=set)
     sha256: str = ""
     overridden: dict[str, str] = field(default_factory=dict)  # dotted key → "--set key=value"
+    from_preset: dict[str, str] = field(default_factory=dict)  # dotted key → the sensor preset that gave it
 
     @property
     def source(self) -> str:
@@ -375,13 +419,16 @@ class SceneConfig:
         return int(self.sections["scene"]["seed"])
 
     def source_of(self, key: str | None) -> str:
-        """Where ``key``'s value came from: its ``--set`` argument, else the scene file."""
-        return self.overridden.get(key or "", self.source)
+        """Where ``key``'s value came from: its ``--set`` argument, the sensor preset that
+        filled it, else the scene file."""
+        key = key or ""
+        return self.overridden.get(key) or self.from_preset.get(key) or self.source
 
     def relabel(self, exc: ConfigError) -> ConfigError:
-        """``exc`` blaming the ``--set`` argument that gave its key, if one did."""
-        if exc.key in self.overridden and exc.file in (None, self.source):
-            return ConfigError(exc.reason, file=self.overridden[exc.key], key=exc.key, value=exc.value)
+        """``exc`` blaming the ``--set`` argument or sensor preset that gave its key, if one did."""
+        where = self.overridden.get(exc.key) or self.from_preset.get(exc.key)
+        if where and exc.file in (None, self.source):
+            return ConfigError(exc.reason, file=where, key=exc.key, value=exc.value)
         return exc
 
 
@@ -477,6 +524,18 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
                               file=label, key=key, value=value)
         flat.setdefault(section, {})[leaf] = value
         overridden[f"{section}.{leaf}"] = label
+    # [sensor] preset: fills the sensor/platform/scan keys neither the file nor --set gave
+    flat, from_preset, skipped = apply_preset(
+        flat, src, origin=overridden, base_dir=Path(path).parent if path is not None else Path.cwd(),
+        sections=SECTIONS, check=_check_value)
+    if skipped:
+        warnings.warn(SimlidarWarning(
+            f"{src}: [platform] kind {flat['platform']['kind']!r} differs from the kind of sensor preset "
+            f"{flat['sensor']['preset']!r}; its {', '.join(skipped)} were not applied"), stacklevel=2)
+    origin = {**from_preset, **overridden}  # where each key came from, when not the scene file
+    for label in sorted(set(from_preset.values())):  # a user preset file is part of the scene
+        if Path(label).is_file():
+            digest.update(b"\0preset\0" + Path(label).read_bytes())
 
     sections: dict[str, dict[str, Any]] = {}
     present: set[str] = set()
@@ -491,7 +550,7 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
         table = flat.get(name, {})
         values = {}
         for key, value in table.items():
-            where = overridden.get(f"{name}.{key}", src)
+            where = origin.get(f"{name}.{key}", src)
             if key not in spec:
                 raise ConfigError(f"unknown key in [{name}]; valid: {', '.join(spec)}",
                                   file=where, key=f"{name}.{key}", value=value)
@@ -529,4 +588,12 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
         if prim["type"] == "obj" and path is not None:
             prim["path"] = str((Path(path).parent / prim["path"]).resolve())
     return SceneConfig(Path(path) if path else None, sections, arrays, present, digest.hexdigest(),
-                       overridden)
+                       overridden, from_preset)
+
+
+def sensor_preset(ref: str, base_dir: str | Path | None = None):
+    """A built-in sensor preset (``simlidar-mi sensors`` lists them) or a user preset .toml
+    (relative to ``base_dir``, default the working folder), checked against this schema."""
+    from .sensor_presets import resolve
+    return resolve(ref, base_dir=Path(base_dir) if base_dir is not None else Path.cwd(),
+                   sections=SECTIONS, check=_check_value, key="preset")

@@ -591,9 +591,9 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
                        overridden, from_preset)
 
 
-def sensor_preset(ref: str, base_dir: str | Path | None = None):
+def sensor_preset(ref: str | Path, base_dir: str | Path | None = None):
     """A built-in sensor preset (``simlidar-mi sensors`` lists them) or a user preset .toml
     (relative to ``base_dir``, default the working folder), checked against this schema."""
     from .sensor_presets import resolve
-    return resolve(ref, base_dir=Path(base_dir) if base_dir is not None else Path.cwd(),
+    return resolve(str(ref) if isinstance(ref, Path) else ref, base_dir=Path(base_dir) if base_dir is not None else Path.cwd(),
                    sections=SECTIONS, check=_check_value, key="preset")

@@ -175,6 +175,29 @@ def _measure_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sensors_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("name", nargs="?", default=None, metavar="NAME",
+                   help="one preset in full: a built-in name or a preset .toml file")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+
+
+@command("sensors", "Named sensors ([sensor] preset = NAME): their values and the public "
+         "datasheets they come from", _sensors_args)
+def _sensors_run(args: argparse.Namespace) -> int:
+    import json
+
+    from .config import sensor_preset
+    from .sensor_presets import BUILTIN, format_preset, format_table
+
+    if args.name is not None:
+        p = sensor_preset(args.name)
+        print(json.dumps(p.to_dict(), indent=2) if args.json else format_preset(p))
+    else:
+        print(json.dumps([p.to_dict() for p in BUILTIN.values()], indent=2) if args.json
+              else format_table())
+    return 0
+
+
 def _preview_args(p: argparse.ArgumentParser) -> None:
     _scene_args(p)
     p.add_argument("--out", default="preview.png", metavar="PNG", help="output PNG (default preview.png)")

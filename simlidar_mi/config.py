@@ -28,6 +28,7 @@ import copy
 import hashlib
 import math
 import re
+import warnings
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10: the same parser as a package
@@ -36,7 +37,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from .errors import ConfigError
+from .errors import ConfigError, SimlidarWarning
+from .sensor_presets import apply_preset
 
 Check = Callable[[Any], str | None]  # returns a complaint, or None when the value is fine
 
@@ -262,9 +264,32 @@ SECTIONS: dict[str, dict[str, Key]] = {
                         else "must be [azimuth, elevation] in degrees, elevation in [-90, 90]",
                         "rosette: axis of the field of view (azimuth from the heading / +x)"),
     },
-    "sensor": {  # the scanner itself (issue #7); only pulse_rate_hz here so far
-        "pulse_rate_hz": Key(FLOAT, 0.0, nonneg, "pulses per second; with [platform] speed_m_s each "
-                             "tractor beam gets its own time and pose (0 = SIMLIDAR's untimed scan)"),
+    # --- real scanners (simlidar_mi.lidar.sensor): every effect off by default, and a scene
+    # without [sensor] (or with every effect off) scans exactly as before
+    "sensor": {
+        "preset": Key(STR, None, lambda v: None if v.strip() else "must be a preset name or a path",
+                      "a built-in sensor name or a preset .toml; the scene's own keys win"),
+        "divergence_mrad": Key(FLOAT, 0.0, nonneg, "full-angle beam divergence γ (1/e² of a Gaussian "
+                               "beam, edge of a uniform one); 0 = one ray per beam"),
+        "beam_profile": Key(STR, "gaussian", one_of("gaussian", "uniform"),
+                            "energy profile across the beam's cross-section"),
+        "beam_samples": Key(INT, 0, nonneg, "sub-rays S per beam when divergence > 0 (0 = auto, see "
+                            "simlidar_mi.lidar.sensor.auto_beam_samples)"),
+        "max_returns": Key(INT, 1, at_least(1), "1 = first return only; > 1 = echoes from the waveform"),
+        "pulse_length_ns": Key(FLOAT, 3.0, positive, "FWHM pulse duration τ; echoes closer than "
+                               "c·τ/2 merge"),
+        "detection_threshold": Key(FLOAT, 0.02, lambda v: _finite(v) or (
+                                   None if 0 < v < 1 else "must lie in (0, 1)"),
+                                   "echoes weaker than this share of the emitted energy are dropped"),
+        "range_min_m": Key(FLOAT, 0.0, nonneg, "no return nearer than this"),
+        "range_max_m": Key(FLOAT, None, positive, "no return farther than this (default unlimited)"),
+        "range_noise_m": Key(FLOAT, 0.0, nonneg, "Gaussian range σ at 1 m and normal incidence"),
+        "range_noise_per_m": Key(FLOAT, 0.0, nonneg, "growth of σ per metre beyond 1 m"),
+        "intensity": Key(BOOL, False, None, "compute echo energies (Lambertian law, sensor.py)"),
+        "pulse_rate_hz": Key(FLOAT, 0.0, nonneg, "with a platform speed: each beam its own time and pose"),
+        "range_at_10pct_m": Key(FLOAT, 40.0, positive, "datasheet range of a 10 % Lambertian target; "
+                                "sets the energy constant R_ref"),
+        "wavelength_nm": Key(FLOAT, None, positive, "informational, written to the headers"),
     },
     "random_leaves": {
         "n_leaves": Key(INT, 1000, nonneg, "number of flat leaves N (before periodic copies)"),
@@ -394,6 +419,7 @@ class SceneConfig:
     sha256: str = ""
     overridden: dict[str, str] = field(default_factory=dict)  # dotted key → "--set key=value"
     given: set[str] = field(default_factory=set)  # dotted keys the file or an override set (not defaults)
+    from_preset: dict[str, str] = field(default_factory=dict)  # dotted key → the sensor preset that gave it
 
     @property
     def source(self) -> str:
@@ -415,13 +441,16 @@ class SceneConfig:
         return key in self.given
 
     def source_of(self, key: str | None) -> str:
-        """Where ``key``'s value came from: its ``--set`` argument, else the scene file."""
-        return self.overridden.get(key or "", self.source)
+        """Where ``key``'s value came from: its ``--set`` argument, the sensor preset that
+        filled it, else the scene file."""
+        key = key or ""
+        return self.overridden.get(key) or self.from_preset.get(key) or self.source
 
     def relabel(self, exc: ConfigError) -> ConfigError:
-        """``exc`` blaming the ``--set`` argument that gave its key, if one did."""
-        if exc.key in self.overridden and exc.file in (None, self.source):
-            return ConfigError(exc.reason, file=self.overridden[exc.key], key=exc.key, value=exc.value)
+        """``exc`` blaming the ``--set`` argument or sensor preset that gave its key, if one did."""
+        where = self.overridden.get(exc.key) or self.from_preset.get(exc.key)
+        if where and exc.file in (None, self.source):
+            return ConfigError(exc.reason, file=where, key=exc.key, value=exc.value)
         return exc
 
 
@@ -517,6 +546,18 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
                               file=label, key=key, value=value)
         flat.setdefault(section, {})[leaf] = value
         overridden[f"{section}.{leaf}"] = label
+    # [sensor] preset: fills the sensor/platform/scan keys neither the file nor --set gave
+    flat, from_preset, skipped = apply_preset(
+        flat, src, origin=overridden, base_dir=Path(path).parent if path is not None else Path.cwd(),
+        sections=SECTIONS, check=_check_value)
+    if skipped:
+        warnings.warn(SimlidarWarning(
+            f"{src}: [platform] kind {flat['platform']['kind']!r} differs from the kind of sensor preset "
+            f"{flat['sensor']['preset']!r}; its {', '.join(skipped)} were not applied"), stacklevel=2)
+    origin = {**from_preset, **overridden}  # where each key came from, when not the scene file
+    for label in sorted(set(from_preset.values())):  # a user preset file is part of the scene
+        if Path(label).is_file():
+            digest.update(b"\0preset\0" + Path(label).read_bytes())
 
     sections: dict[str, dict[str, Any]] = {}
     present: set[str] = set()
@@ -532,7 +573,7 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
         table = flat.get(name, {})
         values = {}
         for key, value in table.items():
-            where = overridden.get(f"{name}.{key}", src)
+            where = origin.get(f"{name}.{key}", src)
             if key not in spec:
                 raise ConfigError(f"unknown key in [{name}]; valid: {', '.join(spec)}",
                                   file=where, key=f"{name}.{key}", value=value)
@@ -570,4 +611,12 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
         if prim["type"] == "obj" and path is not None:
             prim["path"] = str((Path(path).parent / prim["path"]).resolve())
     return SceneConfig(Path(path) if path else None, sections, arrays, present, digest.hexdigest(),
-                       overridden, given)
+                       overridden, given, from_preset)
+
+
+def sensor_preset(ref: str | Path, base_dir: str | Path | None = None):
+    """A built-in sensor preset (``simlidar-mi sensors`` lists them) or a user preset .toml
+    (relative to ``base_dir``, default the working folder), checked against this schema."""
+    from .sensor_presets import resolve
+    return resolve(str(ref) if isinstance(ref, Path) else ref, base_dir=Path(base_dir) if base_dir is not None else Path.cwd(),
+                   sections=SECTIONS, check=_check_value, key="preset")

@@ -15,12 +15,15 @@ Shared by every sweep (today :func:`simlidar_mi.lidar.study.run_study`).  A swee
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import socket
 import sys
 from typing import Any, Callable, Iterator
 
 from .errors import ConfigError
+
+log = logging.getLogger(__name__)
 
 LOCAL = "local"
 ENV = "DASK_SCHEDULER_ADDRESS"
@@ -103,6 +106,9 @@ def run_on_client(client: Any, fn: Callable, calls: list[tuple], on_result: Call
     leaves every result already handed over saved).  ``shared`` is sent to the cluster once.
     The first failed task raises its error here; the tasks not yet finished are cancelled."""
     from distributed import as_completed  # noqa: PLC0415
+    if not client.scheduler_info().get("workers"):
+        log.warning("the Dask scheduler %s has no workers yet: the tasks wait for one",
+                    client.scheduler.address)
     [shared_f] = client.scatter([shared], hash=False)
     futures = [client.submit(fn, shared_f, *args, pure=False) for args in calls]
     try:

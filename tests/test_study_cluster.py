@@ -192,8 +192,16 @@ def test_obj_files_travel_with_the_scene_as_data(tmp_path):
     assert here["key"] == there["key"]
     assert {k: v for k, v in here.items() if k not in VARYING} == \
         {k: v for k, v in there.items() if k not in VARYING}
-    with pytest.raises(ConfigError, match="runs other code"):
-        _cluster_task(bundle, o, False, "0.0.0+other mitsuba ? drjit ?")
+
+
+def test_a_worker_with_other_code_refuses_before_scanning(tmp_path):
+    o = GRID[0] + study.scan_overrides()
+    bundle = _scene_bundle(str(SCENE), [load_scene(SCENE, o)])
+    assert bundle["text"] == SCENE.read_text() and bundle["objs"] == {}
+    other = "0.0.0+other mitsuba ? drjit ?"
+    with pytest.raises(ConfigError, match=r"Dask worker local:\S+ runs other code \(.+\) than the study "
+                       r"\(0\.0\.0\+other .*\): install the same simlidar-mi"):
+        _cluster_task(bundle, o, False, other)
 
 
 def test_code_version_is_the_same_from_an_installed_wheel_layout(tmp_path):

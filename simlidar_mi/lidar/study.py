@@ -4,8 +4,10 @@ The paper scanned 42 orchards (iterations 4–7, d_m 5/6/7 mm, 1 or 4 trees, pru
 stochastic on/off) and fitted A_PR = 3.6166·A_IM (R² 0.70) and A_L = 10.812·A_IM
 (R² 0.78).  :func:`run_study` runs the full factorial grid (or any list of overrides)
 on a base scene, one orchard per task, with Dask as the engine (``workers`` > 1 runs
-tasks in separate processes).  Every finished orchard is written at once to
-``rows/<key>.json``, so an interrupted study resumes where it stopped.  Outputs:
+tasks in separate processes; ``scheduler``, ``DASK_SCHEDULER_ADDRESS`` or an active
+``distributed.Client`` runs them on a cluster, see :mod:`simlidar_mi._dask`).  Every finished
+orchard is written at once to ``rows/<key>.json``, so an interrupted study resumes where it
+stopped; each row names the ``worker`` that computed it.  Outputs:
 ``study.csv`` (one row per orchard), ``regression.json`` and ``correlations.png``.
 
 A row's key hashes what it was computed from: the resolved scene (every key of the
@@ -279,7 +281,7 @@ def _cluster_task(bundle: dict[str, Any], overrides: list[str], readings: bool, 
     if mine != version:
         raise ConfigError(f"Dask worker {worker_name()} runs other code ({mine}) than the study "
                           f"({version}): install the same simlidar-mi, mitsuba and drjit on every "
-                          "worker", key="scheduler")
+                          "worker")
     with tempfile.TemporaryDirectory(prefix="simlidar-study-") as tmp:
         local = {}
         for j, (path, data) in enumerate(sorted(bundle["objs"].items())):

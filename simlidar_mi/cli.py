@@ -75,7 +75,11 @@ def _study_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", metavar="SCENE.toml", help="base orchard scene (e.g. scenes/apple_orchard.toml)")
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output folder: study.csv, regression.json, correlations.png, rows/")
-    p.add_argument("--workers", type=int, default=1, help="Dask worker processes (default 1)")
+    p.add_argument("--workers", type=int, default=1, help="local Dask worker processes (default 1)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="scan on the Dask cluster whose scheduler is ADDRESS (e.g. tcp://host:8786; "
+                        "default: $DASK_SCHEDULER_ADDRESS if set, else the local processes of "
+                        "--workers; 'local' forces those); each worker needs this simlidar-mi")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="applied to every orchard of the grid (e.g. scan.dtheta_deg=0.5)")
     p.add_argument("--hit-rule", choices=["any", "fraction"], default="any",
@@ -102,7 +106,7 @@ def _study_run(args: argparse.Namespace) -> int:
     grid = [list(args.overrides) + g for g in paper_grid()]
     res = run_study(args.scene, args.out, grid, workers=args.workers, progress=True,
                     hit_rule=args.hit_rule, footprint=args.footprint, readings=args.readings,
-                    on_mismatch=args.on_mismatch)
+                    on_mismatch=args.on_mismatch, scheduler=args.scheduler)
     print(f"hit rule {', '.join(res.regression['scan']['hit_rule'])}, footprint P = "
           f"{', '.join(map(str, res.regression['scan']['footprint']))}")
     for key, name in (("A_PR_vs_A_IM", "A_PR"), ("A_L_vs_A_IM", "A_L")):

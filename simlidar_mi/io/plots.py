@@ -126,20 +126,33 @@ def range_rgb(range_m: np.ndarray, cls: np.ndarray, *, max_px: int = MAX_IMAGE_P
         a, b = i0 * fr, min(n, i1 * fr)
         c, r = cls[a:b], range_m[a:b]
         veg = (c == _VEG[0]) | (c == _VEG[1])
-        if fr == 1 and fc == 1:
-            near, gnd = np.where(veg, r, np.float32(np.inf)), c == _GROUND
-        else:  # pad to whole blocks with "nothing here", then reduce each block
-            near = np.full(((i1 - i0) * fr, m_out * fc), np.inf, np.float32)
-            gnd = np.zeros(near.shape, bool)
-            near[:b - a, :m] = np.where(veg, r, np.float32(np.inf))
-            gnd[:b - a, :m] = c == _GROUND
-            near = near.reshape(i1 - i0, fr, m_out, fc).min(axis=(1, 3))
-            gnd = gnd.reshape(i1 - i0, fr, m_out, fc).any(axis=(1, 3))
+        near = np.where(veg, r, np.float32(np.inf))
+        gnd = c == _GROUND
+        if fr > 1 or fc > 1:
+            near = _block_reduce(near, fr, fc, np.minimum, np.inf)
+            gnd = _block_reduce(gnd, fr, fc, np.logical_or, False)
         tile = out[i0:i1]
         tile[...] = np.where(gnd[..., None], ground, escape)
         hit = np.isfinite(near)
         tile[hit] = lut[lut_index(near[hit], vmin, vmax)]
     return np.ascontiguousarray(out.transpose(1, 0, 2)[::-1]), (fr, fc)
+
+
+def _block_reduce(a: np.ndarray, fr: int, fc: int, op, fill) -> np.ndarray:
+    """``op`` over blocks of fr × fc (partial blocks at the ends padded with ``fill``),
+    as fr + fc strided passes: much faster than a reduction over two axes of a reshape."""
+    n, m = a.shape
+    if n % fr:
+        a = np.concatenate([a, np.full((fr - n % fr, m), fill, a.dtype)])
+    if m % fc:
+        a = np.concatenate([a, np.full((a.shape[0], fc - m % fc), fill, a.dtype)], axis=1)
+    rows = a[0::fr].copy()
+    for j in range(1, fr):
+        op(rows, a[j::fr], out=rows)
+    out = rows[:, 0::fc].copy()
+    for j in range(1, fc):
+        op(out, rows[:, j::fc], out=out)
+    return out
 
 
 # --- annotation --------------------------------------------------------------------------
@@ -312,5 +325,6 @@ def plot_scan_png(result: ScanResult, path: str | Path, title: str = "", *,
              f"beams (rows × angles); scan.exr has every beam", t_tick, "lm")
 
     with atomic_file(path) as tmp:
-        canvas.save(tmp, format="PNG")
+        # zlib level 3: measured faster than both 1 and 6 on range images, files ~15 % above 6
+        canvas.save(tmp, format="PNG", compress_level=3)
     return Path(path)

@@ -28,6 +28,12 @@ Size rule
     to at least :data:`MIN_DATA_W` × :data:`MIN_DATA_H` pixels (nearest neighbour: every
     pixel still has a beam's exact colour). The reduction runs over bounded slices of rows,
     so its memory does not grow with the scan.
+
+No matplotlib option
+    The picture carries what the old matplotlib figure did (title, labelled axes with ticks,
+    a colour bar in metres) plus a key, so there is no ``--figure`` switch back to it; for a
+    publication figure, ``scan.exr`` holds every beam. The text is DejaVu Sans, found in
+    matplotlib's package data without importing matplotlib (Pillow's own font has no θ).
 """
 from __future__ import annotations
 
@@ -263,8 +269,9 @@ def plot_scan_png(result: ScanResult, path: str | Path, title: str = "", *,
     tick_len, bar_w = 5, 18
 
     probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
-    xt, xd = _nice_ticks(min(x_lo, x_hi), max(x_lo, x_hi))
-    yt, yd = _nice_ticks(min(y_lo, y_hi), max(y_lo, y_hi))
+    # about one tick per 150 px across and 80 px up, so wide scans keep readable positions
+    xt, xd = _nice_ticks(min(x_lo, x_hi), max(x_lo, x_hi), max(4, min(24, w // 150)))
+    yt, yd = _nice_ticks(min(y_lo, y_hi), max(y_lo, y_hi), max(4, min(12, h // 80)))
     bt, bd = _nice_ticks(*limits) if limits else ([], 0)
     ylab_w = max([_size(probe, _fmt(v, yd), t_tick)[0] for v in yt] or [0])
     blab_w = max([_size(probe, _fmt(v, bd), t_tick)[0] for v in bt] or [0])

@@ -27,6 +27,7 @@ from simlidar_mi.canopy.gapfraction import (CSV_COLUMNS, REPLICATE_COLUMNS, buil
                                             gap_images, read_gap_exr, render_gap, run_gapfraction)
 from simlidar_mi.canopy.gapfraction_defaults import DEFAULTS
 from simlidar_mi.canopy.windows import analysis_window
+from simlidar_mi.io.png import read_mask_png, render_mask_rgb
 from simlidar_mi.plants.random_leaves import random_leaves
 
 REPO = Path(__file__).resolve().parents[1]
@@ -314,8 +315,12 @@ def test_run_writes_csv_png_exr(tmp_path):
         meta = header["metadata"]
         assert meta["window"]["box_px"] == list(im.window.box_px)
         assert meta["p0"] == pytest.approx(im.p0) and header["camera"] == im.camera.kind
-        png = np.asarray(Image.open(out / f"{im.stem()}.png"))
-        assert png.shape == (im.height, im.width, 3)
+        # a palette PNG: the colours of render_mask_rgb, and the mask itself reads back
+        with Image.open(out / f"{im.stem()}.png") as png:
+            assert png.mode == "P"
+            rgb = np.asarray(png.convert("RGB"))
+        assert np.array_equal(rgb, render_mask_rgb(im.mask(), im.window.box_px))
+        assert np.array_equal(read_mask_png(out / f"{im.stem()}.png"), im.mask())
     assert not list(tmp_path.glob(".out.partial-*")) and not list(out.glob(".partial-*"))
 
 

@@ -393,9 +393,9 @@ def test_mask_png_colours_window_and_dimming(tmp_path: Path) -> None:
     out = write_mask_png(tmp_path / "sub" / "m.png", m, (100, 100, 500, 300))
     assert out == tmp_path / "sub" / "m.png"
     assert os.listdir(out.parent) == ["m.png"]  # no temporary file left behind
-    with Image.open(out) as im:
-        assert im.format == "PNG" and im.mode == "RGB"
-        a = np.asarray(im)
+    with Image.open(out) as im:  # a palette PNG (one byte a pixel); viewers show the colours
+        assert im.format == "PNG" and im.mode == "P"
+        a = np.asarray(im.convert("RGB"))
     assert a.shape == (400, 600, 3)
     assert a[200, 200].tolist() == list(FOREGROUND_RGB)  # inside window, vegetation
     assert a[200, 400].tolist() == list(BACKGROUND_RGB)  # inside window, background
@@ -408,7 +408,7 @@ def test_mask_png_colours_window_and_dimming(tmp_path: Path) -> None:
 
 def test_mask_png_without_window_is_two_colours(tmp_path: Path) -> None:
     m = np.eye(5, dtype=bool)
-    a = np.asarray(Image.open(write_mask_png(tmp_path / "e.png", m)))
+    a = np.asarray(Image.open(write_mask_png(tmp_path / "e.png", m)).convert("RGB"))
     assert {tuple(c) for c in a.reshape(-1, 3)} == {FOREGROUND_RGB, BACKGROUND_RGB}
 
 
@@ -416,7 +416,7 @@ def test_mask_png_overwrites_atomically(tmp_path: Path) -> None:
     p = tmp_path / "m.png"
     write_mask_png(p, np.ones((3, 3), bool))
     write_mask_png(p, np.zeros((3, 3), bool))
-    assert np.asarray(Image.open(p))[1, 1].tolist() == list(BACKGROUND_RGB)
+    assert np.asarray(Image.open(p).convert("RGB"))[1, 1].tolist() == list(BACKGROUND_RGB)
     assert os.listdir(tmp_path) == ["m.png"]
 
 

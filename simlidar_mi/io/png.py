@@ -3,8 +3,11 @@
 A mask PNG lets a person check what was classified: foreground (vegetation,
 canopy, a ray hit) and background (soil, sky, a gap) in two clear colours, the
 analysed window outlined, and pixels outside the window shown dimmed for
-context. Files are written under a temporary name and renamed when complete,
-so a reader never sees a half-written PNG.
+context. Masks are palette PNGs, one byte a pixel (a 2.5 Mpx mask is written in
+tens of milliseconds where an RGB image took ~20× longer); viewers show the
+colours, :func:`read_mask_png` gives the boolean mask back. Files are written
+under a temporary name and renamed when complete, so a reader never sees a
+half-written PNG.
 """
 from __future__ import annotations
 
@@ -19,7 +22,7 @@ from PIL import Image
 
 from ..errors import SimlidarError
 
-__all__ = ["write_mask_png", "write_label_png", "render_mask_rgb", "dimmed", "FOREGROUND_RGB", "BACKGROUND_RGB", "WINDOW_RGB"]
+__all__ = ["write_mask_png", "read_mask_png", "mask_labels", "write_label_png", "render_mask_rgb", "dimmed", "FOREGROUND_RGB", "BACKGROUND_RGB", "WINDOW_RGB"]
 
 #: Default colours: dark green foreground, white background, magenta window
 #: outline (magenta contrasts with both green and white).
@@ -40,11 +43,64 @@ def _check_window(window: Sequence[int], width: int, height: int) -> tuple[int, 
     return x0, y0, x1, y1
 
 
+def mask_labels(mask: ArrayLike, window: Sequence[int] | None = None) -> np.ndarray:
+    """Label image of a mask, one byte a pixel (what :func:`write_mask_png` stores).
+
+    Labels: 0 background, 1 foreground, 2 background outside the window (dimmed),
+    3 foreground outside the window, 4 the window's outline over background, 6 the outline
+    over foreground (drawn alike; kept apart so :func:`read_mask_png` returns the whole
+    mask). Labels 0–4 mean what they mean in a photo's mask
+    (:data:`simlidar_mi.canopy.photo.MASK_COLOURS`, whose 5 is a clear pixel).
+
+    Parameters
+    ----------
+    mask : array_like of bool, shape (height, width)
+    window : (x0, y0, x1, y1), optional
+        Half-open pixel box (columns ``x0:x1``, rows ``y0:y1``) that was analysed; None
+        means the whole mask.
+
+    Returns
+    -------
+    numpy.ndarray of uint8, shape (height, width)
+    """
+    m = np.asarray(mask)
+    if m.ndim != 2 or m.size == 0:
+        raise ValueError(f"mask must be a non-empty 2-D array, got shape {m.shape}")
+    h, w = m.shape
+    labels = m.astype(bool, copy=False).astype(np.uint8)
+    if window is not None:
+        x0, y0, x1, y1 = _check_window(window, w, h)
+        # dim, not hide: the context outside the window helps judge the crop
+        labels[:y0] += 2
+        labels[y1:] += 2
+        labels[y0:y1, :x0] += 2
+        labels[y0:y1, x1:] += 2
+        # outline drawn just inside the window so it never falls off the image;
+        # about 1 px per 400 px of the short side, so it stays visible when scaled down
+        t = max(1, round(min(h, w) / 400))
+        t = min(t, (x1 - x0 + 1) // 2, (y1 - y0 + 1) // 2) or 1
+        for sl in ((slice(y0, y0 + t), slice(x0, x1)), (slice(y1 - t, y1), slice(x0, x1)),
+                   (slice(y0, y1), slice(x0, x0 + t)), (slice(y0, y1), slice(x1 - t, x1))):
+            edge = labels[sl]  # a view; the corners are visited twice, hence 0/1 only
+            edge[edge == 0] = 4
+            edge[edge == 1] = 6  # the outline keeps what it covers: the mask reads back whole
+    return labels
+
+
+def _mask_palette(foreground, background, outline) -> list[tuple[int, int, int]]:
+    fg = tuple(int(v) for v in foreground)
+    bg = tuple(int(v) for v in background)
+    ol = tuple(int(v) for v in outline)
+    # entry 5 (a photo's clear pixel) is unused here; black keeps the palettes alike
+    return [bg, fg, dimmed(bg), dimmed(fg), ol, (0, 0, 0), ol]  # type: ignore[list-item]
+
+
 def render_mask_rgb(mask: ArrayLike, window: Sequence[int] | None = None, *,
                     foreground: Sequence[int] = FOREGROUND_RGB,
                     background: Sequence[int] = BACKGROUND_RGB,
                     outline: Sequence[int] = WINDOW_RGB) -> np.ndarray:
-    """Render a boolean mask as an RGB image (no file written).
+    """Render a boolean mask as an RGB image (no file written): the colours of the PNG
+    :func:`write_mask_png` writes.
 
     Parameters
     ----------
@@ -61,30 +117,8 @@ def render_mask_rgb(mask: ArrayLike, window: Sequence[int] | None = None, *,
     -------
     numpy.ndarray of uint8, shape (height, width, 3)
     """
-    m = np.asarray(mask)
-    if m.ndim != 2 or m.size == 0:
-        raise ValueError(f"mask must be a non-empty 2-D array, got shape {m.shape}")
-    m = m.astype(bool, copy=False)
-    h, w = m.shape
-    fg = np.asarray(foreground, dtype=np.float64)
-    bg = np.asarray(background, dtype=np.float64)
-    rgb = np.where(m[..., None], fg, bg)
-    if window is not None:
-        x0, y0, x1, y1 = _check_window(window, w, h)
-        inside = np.zeros((h, w), dtype=bool)
-        inside[y0:y1, x0:x1] = True
-        # dim, not hide: the context outside the window helps judge the crop
-        rgb[~inside] = 0.5 * rgb[~inside] + 0.5 * _DIM_GREY
-        # outline drawn just inside the window so it never falls off the image;
-        # about 1 px per 400 px of the short side, so it stays visible when scaled down
-        t = max(1, round(min(h, w) / 400))
-        t = min(t, (x1 - x0 + 1) // 2, (y1 - y0 + 1) // 2) or 1
-        col = np.asarray(outline, dtype=np.float64)
-        rgb[y0:y0 + t, x0:x1] = col
-        rgb[y1 - t:y1, x0:x1] = col
-        rgb[y0:y1, x0:x0 + t] = col
-        rgb[y0:y1, x1 - t:x1] = col
-    return np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+    palette = np.array(_mask_palette(foreground, background, outline), np.uint8)
+    return palette[mask_labels(mask, window)]
 
 
 def write_mask_png(path: str | os.PathLike[str], mask: ArrayLike,
@@ -92,7 +126,12 @@ def write_mask_png(path: str | os.PathLike[str], mask: ArrayLike,
                    foreground: Sequence[int] = FOREGROUND_RGB,
                    background: Sequence[int] = BACKGROUND_RGB,
                    outline: Sequence[int] = WINDOW_RGB) -> Path:
-    """Write a boolean mask as a two-colour PNG, atomically.
+    """Write a boolean mask as a palette PNG, atomically.
+
+    One byte a pixel (:func:`mask_labels`) and a small palette, so writing is
+    ~20× faster than an RGB image of the same colours; viewers show the colours, and
+    ``Image.open(path).convert("RGB")`` gives exactly :func:`render_mask_rgb`.
+    Read the mask back with :func:`read_mask_png`.
 
     Parameters
     ----------
@@ -127,9 +166,24 @@ def write_mask_png(path: str | os.PathLike[str], mask: ArrayLike,
     >>> out.suffix
     '.png'
     """
-    rgb = render_mask_rgb(mask, window, foreground=foreground,
-                          background=background, outline=outline)
-    return _save_png(path, Image.fromarray(rgb))
+    return write_label_png(path, mask_labels(mask, window),
+                           _mask_palette(foreground, background, outline))
+
+
+def read_mask_png(path: str | os.PathLike[str]) -> np.ndarray:
+    """The boolean mask of a PNG written by :func:`write_mask_png` (labels 1, 3 and 6 are
+    foreground), the same array that was written.
+
+    Raises :class:`SimlidarError` naming the path if it is not such a palette PNG."""
+    path = Path(path)
+    try:
+        with Image.open(path) as im:
+            if im.mode != "P":
+                raise SimlidarError(f"{path}: not a mask PNG (mode {im.mode}, expected a palette image)")
+            labels = np.asarray(im)
+    except OSError as exc:
+        raise SimlidarError(f"cannot read mask PNG {path}: {exc}") from exc
+    return (labels == 1) | (labels == 3) | (labels == 6)
 
 
 def write_label_png(path: str | os.PathLike[str], labels: np.ndarray,

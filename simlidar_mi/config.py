@@ -63,6 +63,10 @@ def nonneg(v):
     return _finite(v) or (None if v >= 0 else "must be ≥ 0")
 
 
+def unit_interval(v):
+    return _finite(v) or (None if 0 <= v <= 1 else "must lie in [0, 1]")
+
+
 def at_least(n):
     return lambda v: None if v >= n else f"must be ≥ {n}"
 
@@ -231,6 +235,37 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "pulse_rate_hz": Key(FLOAT, 300_000.0, positive),
         "pulses_per_line": Key(INT, 400, at_least(1)),
     },
+    # --- real scanners (simlidar_mi.lidar.sensor): every effect off by default, and a scene
+    # without [sensor] (or with every effect off) scans exactly as before
+    "sensor": {
+        "preset": Key(STR, None, lambda v: None if v.strip() else "must be a preset name or a path",
+                      "a built-in sensor name or a preset .toml; the scene's own keys win"),
+        "divergence_mrad": Key(FLOAT, 0.0, nonneg, "full-angle beam divergence γ (1/e² of a Gaussian "
+                               "beam, edge of a uniform one); 0 = one ray per beam"),
+        "beam_profile": Key(STR, "gaussian", one_of("gaussian", "uniform"),
+                            "energy profile across the beam's cross-section"),
+        "beam_samples": Key(INT, 0, nonneg, "sub-rays S per beam when divergence > 0 (0 = auto, see "
+                            "simlidar_mi.lidar.sensor.auto_beam_samples)"),
+        "max_returns": Key(INT, 1, at_least(1), "1 = first return only; > 1 = echoes from the waveform"),
+        "pulse_length_ns": Key(FLOAT, 3.0, positive, "FWHM pulse duration τ; echoes closer than "
+                               "c·τ/2 merge"),
+        "detection_threshold": Key(FLOAT, 0.02, lambda v: _finite(v) or (
+                                   None if 0 < v < 1 else "must lie in (0, 1)"),
+                                   "echoes weaker than this share of the emitted energy are dropped"),
+        "range_min_m": Key(FLOAT, 0.0, nonneg, "no return nearer than this"),
+        "range_max_m": Key(FLOAT, None, positive, "no return farther than this (default unlimited)"),
+        "range_noise_m": Key(FLOAT, 0.0, nonneg, "Gaussian range σ at 1 m and normal incidence"),
+        "range_noise_per_m": Key(FLOAT, 0.0, nonneg, "growth of σ per metre beyond 1 m"),
+        "intensity": Key(BOOL, False, None, "compute echo energies (Lambertian law, sensor.py)"),
+        "pulse_rate_hz": Key(FLOAT, 0.0, nonneg, "with a platform speed: each beam its own time and pose"),
+        "range_at_10pct_m": Key(FLOAT, 40.0, positive, "datasheet range of a 10 % Lambertian target; "
+                                "sets the energy constant R_ref"),
+        "wavelength_nm": Key(FLOAT, None, positive, "informational, written to the headers"),
+    },
+    "materials": {  # reflectance at the sensor's wavelength, per class
+        **{k: Key(FLOAT, d, unit_interval, f"{k} reflectance in [0, 1]")
+           for k, d in (("wood", 0.35), ("leaf", 0.45), ("ground", 0.20))},
+    },
     "random_leaves": {
         "n_leaves": Key(INT, 1000, nonneg, "number of flat leaves N (before periodic copies)"),
         "leaf_area_m2": Key(FLOAT, 0.001, positive, "one-sided area a of every leaf, m²"),
@@ -333,6 +368,8 @@ ARRAY_SECTIONS: dict[str, dict[str, Key]] = {
         "max_m": Key(LIST, None, vec3),
         "path": Key(STR, None),
         "label": Key(STR, "wood", one_of("wood", "leaf")),
+        "reflectance": Key(FLOAT, None, unit_interval, "this shape's reflectance in [0, 1] "
+                           "(default: [materials] of its label)"),
     },
     # [[species]] of a [forest]: a random-tree preset, optional overrides, an intensity
     "species": {
@@ -499,6 +536,12 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
         for key, ks in spec.items():
             values.setdefault(key, copy.deepcopy(ks.default))
         sections[name] = values
+
+    sensor = sections["sensor"]
+    if sensor["range_max_m"] is not None and not sensor["range_max_m"] > sensor["range_min_m"]:
+        raise ConfigError(f"must be greater than sensor.range_min_m ({sensor['range_min_m']} m)",
+                          file=overridden.get("sensor.range_max_m", src), key="sensor.range_max_m",
+                          value=sensor["range_max_m"])
 
     arrays: dict[str, list[dict[str, Any]]] = {name: [] for name in ARRAY_SECTIONS}
     for name, items in arrays_raw.items():

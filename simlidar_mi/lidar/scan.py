@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -433,7 +433,11 @@ def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPat
         del out
     seconds = time.perf_counter() - t0
     shape = (N, M)
-    echoes = _concat_echoes(parts) if energy else None
+    if energy:
+        from .waveform import Echoes  # noqa: PLC0415
+        echoes = Echoes.concat(parts)
+    else:
+        echoes = None
     meta = _metadata(built)
     meta.update({"sub_rays_per_beam": n_sub, "seed": int(seed), "leg": int(leg)})
     return ScanResult(s, rng.reshape(shape), cls.reshape(shape), elem.reshape(shape),
@@ -460,25 +464,11 @@ def _echoes(model: SensorModel, t, c, e, tr, cos_i, rho, weight, beam_index, *, 
                            detection_threshold=model.detection_threshold,
                            max_returns=model.max_returns, range_min_m=model.range_min_m,
                            range_max_m=model.range_max_m)
-    if model.noise and len(echoes.beam):
-        from .noise import range_noise  # noqa: PLC0415
-        echoes.range_m = echoes.range_m + range_noise(
-            echoes.range_m, echoes.cos_incidence, echoes.beam, echoes.return_number, seed=seed, leg=leg,
-            range_noise_m=model.range_noise_m, range_noise_per_m=model.range_noise_per_m)
+    if model.noise:
+        from .noise import apply_range_noise  # noqa: PLC0415
+        echoes = apply_range_noise(echoes, seed=seed, leg=leg, range_noise_m=model.range_noise_m,
+                                   range_noise_per_m=model.range_noise_per_m)
     return echoes
-
-
-def _concat_echoes(parts: list):
-    """One Echoes from the chunks' (each sorted by beam, chunks in beam order)."""
-    from .waveform import Echoes  # noqa: PLC0415
-    names = [f.name for f in fields(Echoes)]
-    if not parts:
-        raise ValueError("no beams")
-    out = {}
-    for name in names:
-        vals = [getattr(p, name) for p in parts]
-        out[name] = None if any(v is None for v in vals) else np.concatenate(vals)
-    return Echoes(**out)
 
 
 def _film(width: int, height: int) -> dict:

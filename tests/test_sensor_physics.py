@@ -153,3 +153,138 @@ def test_divergence_on_a_thin_cylinder_matches_the_float64_reference():
     thin_share = thin.hit_fraction[:, 0].astype(np.float64)
     assert set(np.unique(thin_share)) <= {0.0, 1.0}
     assert np.mean(np.abs(share - ref)) < 0.1 * np.mean(np.abs(thin_share - ref))
+
+
+def test_without_sensor_effects_outputs_are_the_first_return_scans(tmp_path, scenes_dir):
+    """No [sensor], or a [sensor] whose effects are all off (with [materials]), writes the same
+    EXR channels and LAS points as the first-return scan (checked against main's files when
+    this was written: scan.exr and points.las byte-identical)."""
+    import laspy
+    from simlidar_mi.io.exr import read_exr
+    from simlidar_mi.lidar.survey import run_scan
+    scene = scenes_dir / "calibration_cylinder.toml"
+    base = run_scan(scene, tmp_path / "base", ["scan.dy_m=0.01"])
+    off = run_scan(scene, tmp_path / "off", ["scan.dy_m=0.01", "sensor.max_returns=1",
+                                             'sensor.beam_profile="uniform"', "materials.wood=0.9"])
+    assert off.result.sensor is None and "sensor" not in off.measures
+    a, _ = read_exr(base.files["exr"])
+    b, _ = read_exr(off.files["exr"])
+    assert sorted(a) == sorted(b)
+    for name in a:
+        assert a[name].tobytes() == b[name].tobytes(), name
+    assert (laspy.read(base.files["las"]).points.array.tobytes()
+            == laspy.read(off.files["las"]).points.array.tobytes())
+
+
+# --- echoes and intensity (the waveform of simlidar_mi.lidar.waveform) ------------------------
+
+ECHO = "[sensor]\nmax_returns = 4\nintensity = true\n"
+
+
+def beam_echoes(res, beam=0):
+    e = res.echoes
+    sel = e.beam == beam
+    return e.range_m[sel], e.energy[sel].astype(np.float64), e.number_of_returns[sel]
+
+
+def test_two_plates_two_echoes_in_the_profile_and_inverse_square_ratio():
+    gamma_mrad, S, R1, R2, rho = 8.0, 256, 10.0, 14.0, 0.35
+    res, model = run(static() + plate(R1, 0.0, 5.0) + plate(R2) + ECHO
+                     + f"divergence_mrad = {gamma_mrad}\nbeam_samples = {S}\n")
+    rng, energy, n = beam_echoes(res)
+    assert len(rng) == 2 and list(n) == [2, 2] and res.n_returns[0, 0] == 2
+    # Sub-rays reach a plate at R/cos a, a ≤ ~γ: well under a millimetre beyond R.
+    assert rng == pytest.approx([R1, R2], abs=2e-3)
+    off, w = subray_offsets(model)
+    f = w[off[:, 0] > 0].sum()               # the layout's share on the near plate
+    assert f == pytest.approx(0.5, abs=layout_discrepancy(model))  # the profile integral: ½
+    unit = rho * model.r_ref_m ** 2
+    assert energy[0] == pytest.approx(f * unit / R1 ** 2, rel=1e-4)
+    assert energy[1] == pytest.approx((1 - f) * unit / R2 ** 2, rel=1e-4)
+    assert energy[0] / energy[1] == pytest.approx(f / (1 - f) * (R2 / R1) ** 2, rel=1e-4)
+    # First-return arrays hold echo 1; intensity is its energy.
+    assert res.range_m[0, 0] == pytest.approx(R1, abs=2e-3) and res.cls[0, 0] == 2
+    assert res.intensity[0, 0] == pytest.approx(energy[0], rel=1e-6)
+
+
+@pytest.mark.parametrize("gap_m, n_echoes", [(0.2, 1), (0.6, 2)])
+def test_plates_closer_than_half_the_pulse_merge(gap_m, n_echoes):
+    tau_ns = 3.0
+    merge_m = C_M_S * tau_ns * 1e-9 / 2     # 0.4497 m
+    assert (gap_m < merge_m) == (n_echoes == 1)
+    R1, R2 = 10.0, 10.0 + gap_m
+    res, model = run(static() + plate(R1, 0.0, 5.0) + plate(R2) + ECHO
+                     + f"pulse_length_ns = {tau_ns}\ndivergence_mrad = 8.0\nbeam_samples = 128\n")
+    rng, energy, _ = beam_echoes(res)
+    assert len(rng) == n_echoes
+    off, w = subray_offsets(model)
+    f = w[off[:, 0] > 0].sum()
+    unit = 0.35 * model.r_ref_m ** 2
+    total = f * unit / R1 ** 2 + (1 - f) * unit / R2 ** 2
+    assert energy.sum() == pytest.approx(total, rel=1e-4)   # every sub-ray's energy is in an echo
+    if n_echoes == 1:
+        assert R1 - 1e-3 <= rng[0] <= R2 + 1e-3
+
+
+def test_intensity_follows_the_cosine_law_with_incidence():
+    R, rho = 10.0, 0.5
+    res, model = run(static(elevation="[0.0, 60.0, 10.0]") + plate(R, z0_m=-5.0, z1_m=30.0,
+                     extra=f"reflectance = {rho}\n") + "[sensor]\nintensity = true\n")
+    theta = np.deg2rad(res.pattern.col_angle_deg)
+    r = res.range_m[0].astype(np.float64)
+    assert r == pytest.approx(R / np.cos(theta), rel=1e-5)
+    # E·r²/(ρ·R_ref²) is the cosine of the incidence angle (here θ).
+    assert res.intensity[0] * r ** 2 / (rho * model.r_ref_m ** 2) == pytest.approx(np.cos(theta), rel=1e-4)
+    assert res.echoes.cos_incidence == pytest.approx(np.cos(theta), rel=1e-5)
+
+
+def test_intensity_falls_as_inverse_square_of_range():
+    energy = []
+    for R in (5.0, 10.0, 20.0):
+        res, model = run(static() + plate(R) + "[sensor]\nintensity = true\n")
+        energy.append(res.intensity[0, 0] * R ** 2)
+    assert energy == pytest.approx([0.35 * model.r_ref_m ** 2] * 3, rel=1e-5)
+
+
+def test_intensity_is_linear_in_reflectance():
+    R = 10.0
+    rhos = [0.1, 0.3, 0.9]
+    text = static("[-10.0, 10.0, 10.0]")  # three beams: at y −1.76, 0 and +1.76 m on the plates
+    for j, rho in enumerate(rhos):
+        text += plate(R, -3.0 + 2.0 * j, -1.0 + 2.0 * j, extra=f"reflectance = {rho}\n")
+    res, model = run(text + "[sensor]\nintensity = true\n")
+    cos_yaw = np.cos(np.deg2rad(res.pattern.row_yaw_deg))
+    r = res.range_m[:, 0].astype(np.float64)
+    per_rho = res.intensity[:, 0] * r ** 2 / (cos_yaw * model.r_ref_m ** 2)
+    assert per_rho == pytest.approx(rhos, rel=1e-4)
+
+
+def test_materials_reflectance_by_label_and_the_energy_constant():
+    # A 10 % target at normal incidence filling the beam at range_at_10pct_m returns the threshold.
+    text = static() + plate(40.0, extra='label = "leaf"\n') + "[materials]\nleaf = 0.1\n[sensor]\nintensity = true\n"
+    res, model = run(text)
+    assert res.intensity[0, 0] == pytest.approx(model.detection_threshold, rel=1e-5) and res.cls[0, 0] == 3
+    res, _ = run(text.replace("40.0", "40.5"))  # farther: weaker than the threshold, no echo
+    assert res.n_returns[0, 0] == 0 and res.cls[0, 0] == 0 and len(res.echoes) == 0
+
+
+def test_range_noise_statistics_and_chunking():
+    """≥ 100 k beams on a plate: noise mean < σ/100, SD within 2 % of σ, with σ from the law
+    (range_noise_m + range_noise_per_m·(r − 1 m))/|cos i|; same seed → same bytes whatever the
+    chunk size, another seed → other ranges."""
+    sigma0, per_m = 0.02, 0.001
+    grid = "[-2.0, 2.0, 0.0125]"   # 320 × 321 beams
+    base = static(f"[-2.0, 2.0, 0.0125]", grid) + plate(10.0)
+    exact, _ = run(base + "[sensor]\nintensity = true\n")
+    noisy, _ = run(base + f"[sensor]\nrange_noise_m = {sigma0}\nrange_noise_per_m = {per_m}\n", seed=7)
+    assert noisy.echoes is not None and len(noisy.echoes) == exact.range_m.size >= 100_000
+    r0 = exact.echoes.range_m
+    sigma = (sigma0 + per_m * (r0 - 1.0)) / np.maximum(exact.echoes.cos_incidence, 0.1)
+    z = (noisy.echoes.range_m - r0) / sigma
+    assert abs(z.mean()) < 0.01 and z.std() == pytest.approx(1.0, abs=0.02)
+    small, _ = run(base + f"[sensor]\nrange_noise_m = {sigma0}\nrange_noise_per_m = {per_m}\n", seed=7,
+                   chunk_rays=997)
+    assert small.echoes.range_m.tobytes() == noisy.echoes.range_m.tobytes()
+    assert small.range_m.tobytes() == noisy.range_m.tobytes()
+    other, _ = run(base + f"[sensor]\nrange_noise_m = {sigma0}\nrange_noise_per_m = {per_m}\n", seed=8)
+    assert np.mean(other.echoes.range_m == noisy.echoes.range_m) < 0.01

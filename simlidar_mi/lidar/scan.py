@@ -21,6 +21,7 @@ from ..geometry import CLASS_CODES
 from ..io.exr import read_exr
 from ..scene.build import BuiltScene
 from .platforms import BeamPattern, elevation_dirs
+from .waveform import Echoes
 
 CLASS_NAMES = {v: k for k, v in CLASS_CODES.items()}
 NO_ID = 0xFFFFFFFF
@@ -201,6 +202,7 @@ class ScanResult:
     uint8 (0 escape, 1 ground, 2 wood, 3 leaf), ``element_id`` uint32 (branch row,
     ``n_branches + j`` for primitive j, leaf id; 0xFFFFFFFF for ground/escape),
     ``hit_fraction`` float32 share of sub-beams meeting vegetation (under either hit rule).
+    With a ``[sensor]`` section these first-return arrays hold echo 1 of ``echoes``.
     """
 
     settings: ScanSettings | None  # the tractor's settings; None for other platforms
@@ -213,6 +215,12 @@ class ScanResult:
     metadata: dict = field(default_factory=dict)
     pattern: BeamPattern | None = None
     tree_id: np.ndarray | None = None  # uint32 (N, M), scenes of several plants only
+    # A [sensor] scan (issue 7): every echo, echoes per beam, first-return intensity, and
+    # the resolved sensor for headers.  None: the first-return scan of old.
+    echoes: Echoes | None = None
+    n_returns: np.ndarray | None = None      # uint8 (N, M)
+    intensity: np.ndarray | None = None      # float32 (N, M), echo 1's energy
+    sensor: dict | None = None
 
     def __post_init__(self) -> None:
         if self.pattern is None:

@@ -22,6 +22,7 @@ from ..io.exr import read_exr
 from ..scene.build import BuiltScene
 from .platforms import BeamPattern, elevation_dirs
 from .sensor import SensorModel, subray_offsets
+from .waveform import Echoes
 
 CLASS_NAMES = {v: k for k, v in CLASS_CODES.items()}
 NO_ID = 0xFFFFFFFF
@@ -202,6 +203,7 @@ class ScanResult:
     uint8 (0 escape, 1 ground, 2 wood, 3 leaf), ``element_id`` uint32 (branch row,
     ``n_branches + j`` for primitive j, leaf id; 0xFFFFFFFF for ground/escape),
     ``hit_fraction`` float32 share of sub-beams meeting vegetation (under either hit rule).
+    With a ``[sensor]`` section these first-return arrays hold echo 1 of ``echoes``.
     """
 
     settings: ScanSettings | None  # the tractor's settings; None for other platforms
@@ -214,11 +216,11 @@ class ScanResult:
     metadata: dict = field(default_factory=dict)
     pattern: BeamPattern | None = None
     tree_id: np.ndarray | None = None  # uint32 (N, M), scenes of several plants only
-    # A real scanner ([sensor], simlidar_mi.lidar.sensor): all echoes, returns per beam (uint8
-    # N×M), first-return energy (float32 N×M, with intensity on) and the resolved sensor.
-    echoes: object | None = None       # simlidar_mi.lidar.waveform.Echoes
-    n_returns: np.ndarray | None = None
-    intensity: np.ndarray | None = None
+    # A [sensor] scan (issue 7): every echo, echoes per beam, first-return intensity, and
+    # the resolved sensor for headers.  None: the first-return scan of old.
+    echoes: Echoes | None = None
+    n_returns: np.ndarray | None = None      # uint8 (N, M)
+    intensity: np.ndarray | None = None      # float32 (N, M), echo 1's energy
     sensor: dict | None = None
 
     def __post_init__(self) -> None:
@@ -433,11 +435,7 @@ def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPat
         del out
     seconds = time.perf_counter() - t0
     shape = (N, M)
-    if energy:
-        from .waveform import Echoes  # noqa: PLC0415
-        echoes = Echoes.concat(parts)
-    else:
-        echoes = None
+    echoes = Echoes.concat(parts) if energy else None
     meta = _metadata(built)
     meta.update({"sub_rays_per_beam": n_sub, "seed": int(seed), "leg": int(leg)})
     return ScanResult(s, rng.reshape(shape), cls.reshape(shape), elem.reshape(shape),

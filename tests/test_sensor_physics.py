@@ -249,7 +249,7 @@ def test_intensity_falls_as_inverse_square_of_range():
 def test_intensity_is_linear_in_reflectance():
     R = 10.0
     rhos = [0.1, 0.3, 0.9]
-    text = static("[-10.0, 10.0, 10.0]")  # three beams: at y −1.76, 0 and +1.76 m on the plates
+    text = static("[-10.0, 15.0, 10.0]")  # three beams: at y −1.76, 0 and +1.76 m on the plates
     for j, rho in enumerate(rhos):
         text += plate(R, -3.0 + 2.0 * j, -1.0 + 2.0 * j, extra=f"reflectance = {rho}\n")
     res, model = run(text + "[sensor]\nintensity = true\n")

@@ -386,10 +386,13 @@ def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPat
     tree = inten = None
     parts = []
     t0 = time.perf_counter()
+    trace_s = echo_s = 0.0
     for b0 in range(0, n_beams, per_chunk):
         n = min(per_chunk, n_beams - b0)
+        t1 = time.perf_counter()
         out = integrator.trace_subrays(built.scene, lidar, offsets, b0, n, normals=energy)
         t = out["t"].numpy().reshape(n, n_sub).astype(np.float64)
+        trace_s += time.perf_counter() - t1
         c = out["class"].numpy().reshape(n, n_sub).astype(np.uint8)
         e = out["element_id"].numpy().reshape(n, n_sub).copy()
         tr = out["tree_id"].numpy().reshape(n, n_sub).copy() if "tree_id" in out else None
@@ -401,8 +404,10 @@ def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPat
         if energy:
             cos_i = out["cos_incidence"].numpy().reshape(n, n_sub).astype(np.float64)
             rho = out["reflectance"].numpy().reshape(n, n_sub).astype(np.float64)
+            t1 = time.perf_counter()
             echoes = _echoes(model, t, c, e, tr, cos_i, rho, weight, np.arange(b0, b0 + n, dtype=np.int64),
                              seed=seed, leg=leg)
+            echo_s += time.perf_counter() - t1
             parts.append(echoes)
             first = echoes.return_number == 1
             beams = echoes.beam[first]
@@ -437,7 +442,8 @@ def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPat
     shape = (N, M)
     echoes = Echoes.concat(parts) if energy else None
     meta = _metadata(built)
-    meta.update({"sub_rays_per_beam": n_sub, "seed": int(seed), "leg": int(leg)})
+    meta.update({"sub_rays_per_beam": n_sub, "seed": int(seed), "leg": int(leg),
+                 "trace_seconds": trace_s, "echo_seconds": echo_s})
     return ScanResult(s, rng.reshape(shape), cls.reshape(shape), elem.reshape(shape),
                       frac.reshape(shape), built.origin_m.copy(), seconds, meta, pattern,
                       None if tree is None else tree.reshape(shape), echoes=echoes,

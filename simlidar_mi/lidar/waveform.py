@@ -26,8 +26,8 @@ digitiser does:
 
 Each sub-ray's pulse is evaluated exactly on the bins within ±6σ of it (the tail beyond is
 below 1.5e-8 of its peak); sub-rays of one beam more than that apart form independent
-clusters, laid end to end in one flat array, so one ``np.bincount`` per kernel tap builds
-every waveform of a chunk at once (no loop over beams).
+clusters, laid end to end in one flat array, so ``np.bincount`` over chunks of sub-rays
+builds every waveform at once (no loop over beams).
 """
 from __future__ import annotations
 
@@ -200,15 +200,12 @@ def detect_echoes(range_m, energy, cls, element_id, tree_id, cos_incidence, beam
     nj = np.rint(pos).astype(np.int64)
     frac = pos - nj                                     # sub-bin offset of r_j, in bins
     gbin = offset[cl] + nj
-    a = h / sigma
-    wave = np.zeros(total)
-    for t in range(-kb, kb + 1):
-        wave += np.bincount(gbin + t, weights=ej * np.exp(-0.5 * ((t - frac) * a) ** 2), minlength=total)
+    wave = _waveforms(gbin, frac, ej, total, kb, h / sigma)
 
     # Slopes, flats carrying the slope before them; a cluster starts rising and ends falling.
     up = np.empty(total, np.int8)
     up[0] = 1
-    up[1:] = np.sign(np.diff(wave))
+    up[1:] = (wave[1:] > wave[:-1]).view(np.int8) - (wave[1:] < wave[:-1]).view(np.int8)
     up[offset] = 1
     idx = np.where(up != 0, np.arange(total), 0)
     up = up[np.maximum.accumulate(idx)]
@@ -243,13 +240,16 @@ def detect_echoes(range_m, energy, cls, element_id, tree_id, cos_incidence, beam
     by_height = np.lexsort((height, group))
     rep = by_height[np.r_[np.flatnonzero(np.diff(group[by_height])), len(peak) - 1]]
 
-    # Energy and attributes from the sub-rays: sub-ray → basin (= peak) → group.
+    # Energy and attributes from the sub-rays: sub-ray → basin (= peak) → group.  Sub-rays
+    # are in (beam, range) order, so each group's sub-rays are one run of this list.
     gsub = group[basin[gbin]]
     g_energy = np.bincount(gsub, weights=ej, minlength=n_groups)
-    by_e = np.lexsort((-flat, -rj, ej, gsub))          # strongest last; ties: nearest, first
-    last = by_e[np.r_[np.flatnonzero(np.diff(gsub[by_e])), len(flat) - 1]]
+    run = np.flatnonzero(np.r_[True, gsub[1:] != gsub[:-1]])
+    top = np.maximum.reduceat(ej, run)
+    hit = np.flatnonzero(ej == np.repeat(top, np.diff(np.r_[run, len(ej)])))
+    first_hit = hit[np.r_[True, gsub[hit][1:] != gsub[hit][:-1]]]  # ties: the nearest
     strongest = np.full(n_groups, -1, np.int64)        # a group can hold no sub-ray (a ripple)
-    strongest[gsub[last]] = flat[last]
+    strongest[gsub[first_hit]] = flat[first_hit]
 
     g_range = peak_r[rep]
     keep = ((g_energy >= detection_threshold) & (g_energy > 0) & (strongest >= 0)
@@ -277,6 +277,22 @@ def detect_echoes(range_m, energy, cls, element_id, tree_id, cos_incidence, beam
                   take(cls, np.uint8), take(element_id, np.uint32),
                   take(tree_id, np.uint32) if with_tree else None,
                   take(cos_incidence, np.float32))
+
+
+def _waveforms(gbin, frac, ej, total, kb, bin_sigmas, chunk=1 << 16) -> np.ndarray:
+    """W on all bins: sub-ray j adds E_j·exp(−((t − frac_j)·h/σ)²/2) to bin gbin_j + t,
+    |t| ≤ kb.  ``gbin`` never decreases, so a chunk of sub-rays touches one stretch of bins:
+    one bincount over that stretch per chunk (memory ∝ chunk·(2·kb + 1))."""
+    taps = np.arange(-kb, kb + 1)
+    wave = np.zeros(total)
+    for a in range(0, len(gbin), chunk):
+        g, f = gbin[a:a + chunk], frac[a:a + chunk]
+        base = int(g[0]) - kb
+        span = int(g[-1]) + kb + 1 - base
+        vals = ej[a:a + chunk, None] * np.exp(-0.5 * ((taps[None, :] - f[:, None]) * bin_sigmas) ** 2)
+        idx = (g - base)[:, None] + taps[None, :]
+        wave[base:base + span] += np.bincount(idx.ravel(), vals.ravel(), minlength=span)
+    return wave
 
 
 def _fwhm_bins(wave, peak, height, lo_bin, hi_bin) -> np.ndarray:

@@ -37,6 +37,11 @@ With footprint P = 0 none of that code runs and both rules agree.
 
 Which shape is wood or leaf, and which branch a triangle or curve segment belongs to,
 is given by the scene builder through :meth:`set_tables`.
+
+A real scanner (``[sensor]``, :mod:`simlidar_mi.lidar.sensor`) calls :meth:`trace_subrays`
+instead: every divergent sub-ray of a range of beams, unreduced (range, class, ids and, when
+energies are needed, |cos incidence| and reflectance), for the waveform built on the host.
+:meth:`trace` is untouched by it, so scans without a sensor keep their bytes and speed.
 """
 from __future__ import annotations
 

@@ -83,13 +83,19 @@ class RangeIntegrator(mi.SamplingIntegrator):
         Scenes with instances also give, per instance registry id, its tree id and its
         prototype's first row in ``group_class``/``group_base`` (rows: prototype ×
         shape index within the shape group).  Scenes of several plants without instances
-        give ``prim_tree``, the tree id of every primitive, laid out like ``prim_element``."""
+        give ``prim_tree``, the tree id of every primitive, laid out like ``prim_element``
+        (also when their big meshes sit in one identity instance, see scene.build)."""
         u32 = lambda a: mi.UInt32(np.ascontiguousarray(a, np.uint32))  # noqa: E731
         self._class, self._base, self._prim = u32(shape_class), u32(shape_base), u32(prim_element)
-        self._instanced = instance_tree is not None
-        self._prim_tree = u32(prim_tree) if prim_tree is not None and not self._instanced else None
+        self._instanced = instance_proto is not None
+        self._inst_has_tree = instance_tree is not None  # False: only the flat meshes' identity instance
+        # prim_tree (several plants, no placed trees) wins over instance_tree: the flat
+        # meshes' identity instance holds every tree of an orchard.
+        self._prim_tree = u32(prim_tree) if prim_tree is not None else None
         if self._instanced:
-            self._inst_tree, self._inst_proto = u32(instance_tree), u32(instance_proto)
+            self._inst_proto = u32(instance_proto)
+            if self._inst_has_tree:
+                self._inst_tree = u32(instance_tree)
             self._group_class, self._group_base = u32(group_class), u32(group_base)
 
     def trace(self, scene: mi.Scene, sensor: mi.Sensor) -> dict:
@@ -118,7 +124,8 @@ class RangeIntegrator(mi.SamplingIntegrator):
             row = dr.gather(mi.UInt32, self._inst_proto, iid, in_inst) + pi.shape_index
             cls = dr.select(in_inst, dr.gather(mi.UInt32, self._group_class, row, in_inst), cls)
             base = dr.select(in_inst, dr.gather(mi.UInt32, self._group_base, row, in_inst), base)
-            tree = dr.select(in_inst, dr.gather(mi.UInt32, self._inst_tree, iid, in_inst), NO_ID)
+            if self._inst_has_tree:
+                tree = dr.select(in_inst, dr.gather(mi.UInt32, self._inst_tree, iid, in_inst), NO_ID)
         cls = dr.select(hit, cls, ESCAPE)
         elem = dr.select(hit, dr.gather(mi.UInt32, self._prim, base + pi.prim_index, hit), NO_ID)
         if self._prim_tree is not None:

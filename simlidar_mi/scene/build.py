@@ -45,7 +45,12 @@ MIN_LENGTH_M = 1e-9
 # Warn when float32 rounding at the scene's extent exceeds this share of its smallest feature.
 FLOAT32_FEATURE_SHARE = 0.01
 OBJ_SUFFIXES = (".obj",)
-MAX_OBJ_BYTES = 256 * 2**20  # parsed in Python: ~10 M lines; larger meshes belong in PLY/instances
+MAX_OBJ_BYTES = 256 * 2**20
+# Flat wood/leaf meshes of at least this many triangles go into one shape group placed by an
+# identity instance: Embree then builds them with its instance-level quality, 2.5x faster on
+# the Table 3 orchard (2.4 M triangles) with the same coherent and incoherent trace speed
+# (BENCHMARKS.md); below it the top-level build is already fast.
+GROUP_MIN_TRIANGLES = 200_000  # parsed in Python: ~10 M lines; larger meshes belong in PLY/instances
 
 
 @dataclass(frozen=True)
@@ -105,10 +110,11 @@ class BuiltScene:
         """Keyword arguments for the range integrator's ``set_tables``."""
         tables = {"shape_class": self.shape_class, "shape_base": self.shape_base,
                   "prim_element": self.prim_element}
-        if self.n_instances:
-            tables.update(instance_tree=self.instance_tree, instance_proto=self.instance_proto,
+        if self.instance_proto is not None:  # placed trees and/or the flat meshes' group
+            tables.update(instance_tree=self.instance_tree if self.n_instances else None,
+                          instance_proto=self.instance_proto,
                           group_class=self.group_class, group_base=self.group_base)
-        elif self.prim_tree is not None:
+        if self.prim_tree is not None:
             tables["prim_tree"] = self.prim_tree
         return tables
 
@@ -134,9 +140,15 @@ def prism_mesh(p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, k: int,
     axis = axis / np.linalg.norm(axis, axis=1, keepdims=True)
     u, v = _orthonormal(axis)
     phi = 2 * np.pi * np.arange(k) / k
-    ring = (np.cos(phi)[None, :, None] * u[:, None, :] + np.sin(phi)[None, :, None] * v[:, None, :])
+    # In place: one (n, 2k, 3) array and no temporaries of that size (a large part of a build).
+    verts = np.empty((n, 2 * k, 3))
+    ring = verts[:, :k, :]
+    np.multiply(np.cos(phi)[None, :, None], u[:, None, :], out=ring)
+    ring += np.sin(phi)[None, :, None] * v[:, None, :]
     ring *= radius[:, None, None]
-    verts = np.concatenate([p0[:, None, :] + ring, p1[:, None, :] + ring], axis=1)  # (n, 2k, 3)
+    verts[:, k:, :] = ring
+    ring += p0[:, None, :]
+    verts[:, k:, :] += p1[:, None, :]
     j = np.arange(k)
     jn = (j + 1) % k
     if isinstance(caps, (bool, np.bool_)):
@@ -148,14 +160,17 @@ def prism_mesh(p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, k: int,
     t = np.arange(1, k - 1)
     local += [np.stack([np.zeros_like(t), t + 1, t], 1), np.stack([k + np.zeros_like(t), k + t, k + t + 1], 1)]
     which += [1] * len(t) + [2] * len(t)
-    local = np.concatenate(local).astype(np.int64)
+    local = np.concatenate(local).astype(np.uint32)  # Mitsuba's index type: no int64 copy
     which = np.asarray(which)
-    keep = np.ones((n, len(local)), bool)
-    keep[:, which == 1] = np.asarray(caps[0])[:, None]
-    keep[:, which == 2] = np.asarray(caps[1])[:, None]
-    faces = local[None, :, :] + (2 * k * np.arange(n))[:, None, None]
-    owner = np.broadcast_to(np.arange(n)[:, None], keep.shape)
-    return verts.reshape(-1, 3), faces[keep], owner[keep]
+    cap0, cap1 = np.asarray(caps[0], bool), np.asarray(caps[1], bool)
+    faces = local[None, :, :] + (2 * k * np.arange(n, dtype=np.uint32))[:, None, None]
+    if cap0.all() and cap1.all():
+        return verts.reshape(-1, 3), faces.reshape(-1, 3), np.repeat(np.arange(n), len(local))
+    keep = np.empty((n, len(local)), bool)
+    keep[:, which == 0] = True
+    keep[:, which == 1] = cap0[:, None]
+    keep[:, which == 2] = cap1[:, None]
+    return verts.reshape(-1, 3), faces[keep], np.repeat(np.arange(n), keep.sum(axis=1))
 
 
 def exposed_ends(p0: np.ndarray, p1: np.ndarray, diameter: np.ndarray,
@@ -168,8 +183,13 @@ def exposed_ends(p0: np.ndarray, p1: np.ndarray, diameter: np.ndarray,
     """
     n = len(diameter)
     keys = np.round(np.concatenate([p0, p1]) / tol_m).astype(np.int64)
-    _, inv = np.unique(keys, axis=0, return_inverse=True)
-    inv = inv.ravel()
+    # Group equal points by a lexicographic sort (3x faster than np.unique(axis=0)).
+    order = np.lexsort(keys.T[::-1])
+    ks = keys[order]
+    new = np.ones(len(ks), bool)
+    new[1:] = np.any(ks[1:] != ks[:-1], axis=1)
+    inv = np.empty(len(ks), np.int64)
+    inv[order] = np.cumsum(new) - 1
     start_d = np.zeros(inv.max() + 1 if n else 0)  # thickest segment starting at each point
     end_d = np.zeros_like(start_d)  # thickest segment ending at each point
     np.maximum.at(start_d, inv[:n], diameter)
@@ -400,8 +420,22 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
 
     group_rows: list[tuple[int, int, int, np.ndarray]] = []  # (prototype, shape index, class, elements)
     instance_keys: list[tuple[str, int, int]] = []
-    if instances is not None and len(instances):
+    real_instances = instances is not None and len(instances)
+    if real_instances:
         n_tri += _add_instances(mi, instances, origin, k, shapes, group_rows, instance_keys)
+    flat = [g for g in groups if g[0] in ("wood_mesh", "leaf_mesh")]
+    grouped = sum(len(e) for _, _, e in flat) >= GROUP_MIN_TRIANGLES
+    if grouped:
+        # The big meshes become the last "prototype", placed once without a transform.
+        proto = len(instances.prototypes) if real_instances else 0
+        members = {}
+        for j, (key, cls, elems) in enumerate(flat):  # names keep the shape index order
+            members[f"{chr(ord('a') + j)}_{key}"] = shapes.pop(key)
+            group_rows.append((proto, j, cls, elems))
+        groups = [g for g in groups if g not in flat]
+        shapes["flat_group"] = mi.load_dict({"type": "shapegroup", **members})
+        shapes["flat_instance"] = mi.load_dict({"type": "instance", "shapegroup": shapes["flat_group"]})
+        instance_keys.append(("flat_instance", 0xFFFFFFFF, proto))
 
     scene = mi.load_dict({"type": "scene", **shapes})
     import drjit as dr  # noqa: PLC0415
@@ -423,7 +457,7 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     inst = {}
     if instance_keys:
         n_groups = max(g[1] for g in group_rows) + 1
-        n_proto = len(instances.prototypes)
+        n_proto = max(g[0] for g in group_rows) + 1
         inst["group_class"] = np.zeros(n_proto * n_groups, np.uint32)
         inst["group_base"] = np.zeros(n_proto * n_groups, np.uint32)
         for proto, gidx, cls, elems in group_rows:
@@ -437,20 +471,15 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
         for key, tree, proto in instance_keys:
             inst["instance_tree"][by_key[key]] = tree
             inst["instance_proto"][by_key[key]] = proto * n_groups  # premultiplied row
-        inst["n_instances"] = len(instance_keys)
+        inst["n_instances"] = len(instance_keys) - grouped  # placed trees only
     prim_element = np.concatenate(prim_parts) if prim_parts else np.zeros(1, np.uint32)
     # Several plants without instancing (an orchard, a flattened forest): a tree id per
     # primitive, so hits report their tree; one plant needs no extra lookup.
     n_plants = len(np.unique(np.concatenate([branches.tree_id, leaves.plant_id])))
-    if not instance_keys and n_plants > 1:
-        trees = []
-        for key, _, elems in groups:
-            if key.startswith("wood"):
-                trees.append(branches.tree_id[elems].astype(np.uint32))
-            elif key == "leaf_mesh":
-                trees.append(leaves.plant_id.astype(np.uint32))
-            else:
-                trees.append(np.full(len(elems), 0xFFFFFFFF, np.uint32))
+    if not real_instances and n_plants > 1:
+        trees = []  # laid out like prim_element: top-level shapes, then group rows
+        for key, _, elems in groups + (flat if grouped else []):
+            trees.append(_plant_ids(key, elems, branches, leaves))
         inst["prim_tree"] = np.concatenate(trees)
     if len(shapes):
         bb = scene.bbox()
@@ -460,6 +489,15 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     return BuiltScene(scene, origin, shape_class, shape_base, prim_element.astype(np.uint32),
                       len(kept), n_dropped, n_tri, representation, k, lo, hi, **inst,
                       shape_reflectance=shape_rho)
+
+
+def _plant_ids(key: str, elems: np.ndarray, branches: Branches, leaves: Leaves) -> np.ndarray:
+    """Tree or plant id of every primitive of one shape (none for calibration primitives)."""
+    if key.startswith("wood"):
+        return branches.tree_id[elems].astype(np.uint32)
+    if key == "leaf_mesh":
+        return leaves.plant_id.astype(np.uint32)
+    return np.full(len(elems), 0xFFFFFFFF, np.uint32)
 
 
 def _smallest_feature(kept: Branches, leaves: Leaves, primitives, instances) -> tuple[float, str]:

@@ -257,7 +257,8 @@ class RangeIntegrator(mi.SamplingIntegrator):
             row = dr.gather(mi.UInt32, self._inst_proto, iid, in_inst) + pi.shape_index
             cls = dr.select(in_inst, dr.gather(mi.UInt32, self._group_class, row, in_inst), cls)
             base = dr.select(in_inst, dr.gather(mi.UInt32, self._group_base, row, in_inst), base)
-            tree = dr.select(in_inst, dr.gather(mi.UInt32, self._inst_tree, iid, in_inst), NO_ID)
+            if self._inst_has_tree:
+                tree = dr.select(in_inst, dr.gather(mi.UInt32, self._inst_tree, iid, in_inst), NO_ID)
         cls = dr.select(hit, cls, ESCAPE)
         elem = dr.select(hit, dr.gather(mi.UInt32, self._prim, base + pi.prim_index, hit), NO_ID)
         if self._prim_tree is not None:

@@ -288,3 +288,24 @@ def test_range_noise_statistics_and_chunking():
     assert small.range_m.tobytes() == noisy.range_m.tobytes()
     other, _ = run(base + f"[sensor]\nrange_noise_m = {sigma0}\nrange_noise_per_m = {per_m}\n", seed=8)
     assert np.mean(other.echoes.range_m == noisy.echoes.range_m) < 0.01
+
+
+def test_run_scan_with_a_sensor_writes_its_echoes_and_measures(tmp_path, scenes_dir):
+    import json
+    from simlidar_mi.lidar.survey import run_scan
+    out = run_scan(scenes_dir / "calibration_cylinder.toml", tmp_path / "s",
+                   ["scan.dy_m=0.02", "sensor.divergence_mrad=5.0", "sensor.beam_samples=16",
+                    "sensor.max_returns=3", "sensor.intensity=true", "sensor.range_noise_m=0.005"])
+    res = out.result
+    m = json.loads(out.files["measures"].read_text())
+    assert m["sensor"]["beam_samples"] == 16 and m["sub_rays_per_beam"] == 16
+    assert m["sensor"]["effects"] == ["divergence", "echoes", "intensity", "noise"]
+    by_n = np.bincount(res.n_returns.ravel())
+    assert m["echoes"]["beams_by_n_returns"] == {str(i): int(c) for i, c in enumerate(by_n)}
+    assert m["echoes"]["echoes"] == len(res.echoes) == int(res.n_returns.sum())
+    # A beam grazing the cylinder's edge sees it and the ground behind: two echoes.
+    assert by_n[2] > 0 and by_n[1] > by_n[2]
+    again = run_scan(scenes_dir / "calibration_cylinder.toml", None,
+                     ["scan.dy_m=0.02", "sensor.divergence_mrad=5.0", "sensor.beam_samples=16",
+                      "sensor.max_returns=3", "sensor.intensity=true", "sensor.range_noise_m=0.005"])
+    assert again.result.echoes.range_m.tobytes() == res.echoes.range_m.tobytes()  # same seed, same bytes

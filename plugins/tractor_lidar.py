@@ -33,6 +33,12 @@ from scalar properties:
      and sub-beam (a, b), 0 ≤ a, b ≤ P, sits at offsets (a/P − 1/2, b/P − 1/2) of a step.
      P = 0: one ray at the beam centre.
 
+Moving platforms (:meth:`PatternLidar.set_motion`): beam (i, k) starts at
+``origin[i] + velocity · col_time[k]``, the position the platform has when the column fires.
+Per-beam directions (:meth:`PatternLidar.set_beam_dirs`, the rosette): beam (i, k) points
+along ``dirs[i·M + k]`` instead of the row/column product.  Only patterns that set them pay
+for either.
+
 ``sample_ray`` reads the beam from ``sample2`` (snapped, so jitter never moves a beam
 into its neighbour) and the sub-beam from ``sample3``.
 """
@@ -74,6 +80,26 @@ class PatternLidar(mi.Sensor):
             raise ValueError(f"{type(self).__name__}: film must be {self.n_angles}×{self.n_positions} "
                              f"(angles × positions), got {size[0]}×{size[1]}")
         self._has_yaw = False
+        self._velocity = None
+        self._beam_dirs = None
+
+    def set_motion(self, col_time_s: np.ndarray, velocity_m_s) -> None:
+        """Column delays (M·(P+1),) in seconds and the platform velocity (3,) in m/s, float64;
+        the offset velocity·delay is computed on the host and rounded once."""
+        t = np.asarray(col_time_s, np.float64).ravel()
+        if len(t) != self.n_angles * (self.footprint + 1):
+            raise ValueError(f"{type(self).__name__}: expected {self.n_angles * (self.footprint + 1)} "
+                             f"column times, got {len(t)}")
+        v = np.asarray(velocity_m_s, np.float64).ravel()
+        self._velocity = [mi.Float(np.ascontiguousarray(t * v[j], np.float32)) for j in range(3)]
+
+    def set_beam_dirs(self, directions: np.ndarray) -> None:
+        """World directions of every beam (N·M, 3), float64, row-major (footprint 0 only)."""
+        d = np.asarray(directions, np.float64).reshape(-1, 3)
+        if self.footprint or len(d) != self.n_positions * self.n_angles:
+            raise ValueError(f"{type(self).__name__}: per-beam directions need footprint 0 and "
+                             f"{self.n_positions * self.n_angles} rows, got {len(d)}")
+        self._beam_dirs = [mi.Float(np.ascontiguousarray(d[:, j], np.float32)) for j in range(3)]
 
     def set_tables(self, origins: np.ndarray, directions: np.ndarray, yaw_rad: np.ndarray | None = None) -> None:
         """Sub-beam origins (N·(P+1), 3), platform-frame directions (M·(P+1), 3) and optional
@@ -106,6 +132,12 @@ class PatternLidar(mi.Sensor):
             a = b = mi.UInt32(0)
         row, col = i * P1 + a, k * P1 + b
         o = mi.Point3f(*(dr.gather(mi.Float, t, row, active) for t in self._o))
+        if self._velocity is not None:  # only moving platforms pay for the per-column offset
+            o += mi.Vector3f(*(dr.gather(mi.Float, t, col, active) for t in self._velocity))
+        if self._beam_dirs is not None:
+            beam = i * self.n_angles + k
+            return (mi.Ray3f(o, mi.Vector3f(*(dr.gather(mi.Float, t, beam, active) for t in self._beam_dirs)), time),
+                    mi.Spectrum(1.0))
         dx, dy, dz = (dr.gather(mi.Float, t, col, active) for t in self._d)
         if self._has_yaw:  # only platforms that turn pay for the rotation
             c = dr.gather(mi.Float, self._cos, row, active)

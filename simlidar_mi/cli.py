@@ -75,7 +75,11 @@ def _study_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", metavar="SCENE.toml", help="base orchard scene (e.g. scenes/apple_orchard.toml)")
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output folder: study.csv, regression.json, correlations.png, rows/")
-    p.add_argument("--workers", type=int, default=1, help="Dask worker processes (default 1)")
+    p.add_argument("--workers", type=int, default=1, help="local Dask worker processes (default 1)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="scan on the Dask cluster whose scheduler is ADDRESS (e.g. tcp://host:8786; "
+                        "default: $DASK_SCHEDULER_ADDRESS if set, else the local processes of "
+                        "--workers; 'local' forces those); each worker needs this simlidar-mi")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="applied to every orchard of the grid (e.g. scan.dtheta_deg=0.5)")
     p.add_argument("--hit-rule", choices=["any", "fraction"], default="any",
@@ -102,7 +106,7 @@ def _study_run(args: argparse.Namespace) -> int:
     grid = [list(args.overrides) + g for g in paper_grid()]
     res = run_study(args.scene, args.out, grid, workers=args.workers, progress=True,
                     hit_rule=args.hit_rule, footprint=args.footprint, readings=args.readings,
-                    on_mismatch=args.on_mismatch)
+                    on_mismatch=args.on_mismatch, scheduler=args.scheduler)
     print(f"hit rule {', '.join(res.regression['scan']['hit_rule'])}, footprint P = "
           f"{', '.join(map(str, res.regression['scan']['footprint']))}")
     for key, name in (("A_PR_vs_A_IM", "A_PR"), ("A_L_vs_A_IM", "A_L")):
@@ -172,6 +176,29 @@ def _measure_run(args: argparse.Namespace) -> int:
     for row in per_tree:
         print(f"{row.get('tree_id', ''):<6}  " + "  ".join(f"{row[k]:>14.6g}" for k in keys))
     print("total   " + "  ".join(f"{m[k]:>14.6g}" for k in keys))
+    return 0
+
+
+def _sensors_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("name", nargs="?", default=None, metavar="NAME",
+                   help="one preset in full: a built-in name or a preset .toml file")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+
+
+@command("sensors", "Named sensors ([sensor] preset = NAME): their values and the public "
+         "datasheets they come from", _sensors_args)
+def _sensors_run(args: argparse.Namespace) -> int:
+    import json
+
+    from .config import sensor_preset
+    from .sensor_presets import BUILTIN, format_preset, format_table
+
+    if args.name is not None:
+        p = sensor_preset(args.name)
+        print(json.dumps(p.to_dict(), indent=2) if args.json else format_preset(p))
+    else:
+        print(json.dumps([p.to_dict() for p in BUILTIN.values()], indent=2) if args.json
+              else format_table())
     return 0
 
 

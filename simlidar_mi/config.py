@@ -28,6 +28,7 @@ import copy
 import hashlib
 import math
 import re
+import warnings
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10: the same parser as a package
@@ -36,7 +37,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from .errors import ConfigError
+from .errors import ConfigError, SimlidarWarning
+from .sensor_presets import apply_preset
 
 Check = Callable[[Any], str | None]  # returns a complaint, or None when the value is fine
 
@@ -220,20 +222,51 @@ SECTIONS: dict[str, dict[str, Key]] = {
     },
     # --- gap fraction (simlidar_mi.canopy.gapfraction); generators validate their own laws too
     "platform": {  # where the scanner is; "tractor" uses [scan]'s x0_m/z0_m/dy_m/dtheta_deg
-        "kind": Key(STR, "tractor", one_of("tractor", "static", "path", "airborne")),
-        "position_m": Key(LIST, None, vec3, "static: scanner position"),
+        "kind": Key(STR, "tractor", one_of("tractor", "static", "path", "airborne", "rotating", "rosette")),
+        "position_m": Key(LIST, None, vec3, "static/rotating/rosette: scanner position (z = mount height)"),
         "elevation_deg": Key(LIST, [-30.0, 60.0, 0.25], range3, "static/path: [min, max, step]"),
         "azimuth_deg": Key((int, float, list), 0.0, azimuth, "static: one angle (2D) or [start, stop, step] (3D)"),
-        "waypoints_m": Key(LIST, None, waypoints, "path: [[x, y, z], ...] straight legs between points"),
+        "waypoints_m": Key(LIST, None, waypoints, "path/rotating/rosette: [[x, y, z], ...] straight legs "
+                           "between points (z = mount height)"),
         "step_m": Key(FLOAT, 0.01, positive, "path: distance between sweeps"),
         "side": Key(STR, "right", one_of("right", "left"), "path: side the scanner looks to"),
         "start_xy_m": Key(LIST, None, vec2, "airborne: start of the flight line"),
         "end_xy_m": Key(LIST, None, vec2, "airborne: end of the flight line"),
         "altitude_m": Key(FLOAT, 100.0, positive, "airborne: height above the ground"),
         "swath_deg": Key(FLOAT, 40.0, positive, "airborne: full scan angle across track"),
-        "speed_m_s": Key(FLOAT, 30.0, positive),
-        "pulse_rate_hz": Key(FLOAT, 300_000.0, positive),
+        "speed_m_s": Key(FLOAT, None, positive, "platform speed; airborne default 30; tractor: with "
+                         "[sensor] pulse_rate_hz, the tractor moves while it sweeps (default: it does not); "
+                         "rotating/rosette along waypoints_m: required"),
+        "pulse_rate_hz": Key(FLOAT, None, positive, "airborne (default 300000) and rosette (default "
+                             "[sensor] pulse_rate_hz, else 100000): pulses per second"),
         "pulses_per_line": Key(INT, 400, at_least(1)),
+        "channels_deg": Key(LIST, [-15.0, 1.0, -13.0, 3.0, -11.0, 5.0, -9.0, 7.0, -7.0, 9.0, -5.0, 11.0, -3.0,
+                                   13.0, -1.0, 15.0],
+                            lambda v: None if v and _numbers(v) and all(-90 <= x <= 90 for x in v)
+                            else "must be a non-empty list of elevations in [-90, 90] degrees",
+                            "rotating: channel elevations (default the VLP-16's, in firing order)"),
+        "channel_offsets_us": Key(LIST, [round(2.304 * k, 3) for k in range(16)],
+                                  lambda v: None if _numbers(v) and all(x >= 0 for x in v)
+                                  else "must be a list of firing delays ≥ 0 in microseconds",
+                                  "rotating: each channel's firing delay within a block (VLP-16: k·2.304 µs)"),
+        "block_period_us": Key(FLOAT, 55.296, positive, "rotating: time between firing blocks (VLP-16: 55.296 µs)"),
+        "rotation_hz": Key(FLOAT, 10.0, lambda v: _finite(v) or (None if v != 0 else "must not be 0"),
+                           "rotating: head turns per second (> 0 counter-clockwise seen from above)"),
+        "azimuth_range_deg": Key(LIST, None, lambda v: None if _numbers(v, 2) and v[0] < v[1] <= v[0] + 360
+                                 else "must be [start, stop] degrees with start < stop ≤ start + 360",
+                                 "rotating: keep only firing blocks in this sector of head azimuth "
+                                 "(from the heading, counter-clockwise; [-135, -45] = right-hand side)"),
+        "duration_s": Key(FLOAT, None, positive, "static rotating/rosette: scan time (default one "
+                          "revolution / one 0.1 s frame)"),
+        "rosette_hz": Key(LIST, [7294.0 / 60.0, -4664.0 / 60.0],
+                          lambda v: None if _numbers(v, 2) and v[0] != 0 and v[1] != 0 and v[0] != v[1]
+                          else "must be [f1, f2], two different non-zero prism speeds in Hz",
+                          "rosette: the two prisms' turns per second (Livox Mid-70: 7294 and −4664 rpm)"),
+        "fov_deg": Key(FLOAT, 70.4, lambda v: None if 0 < v < 180 else "must lie in (0, 180) degrees",
+                       "rosette: full angle of the circular field of view (Mid-70: 70.4°)"),
+        "look_deg": Key(LIST, [0.0, 0.0], lambda v: None if _numbers(v, 2) and -90 <= v[1] <= 90
+                        else "must be [azimuth, elevation] in degrees, elevation in [-90, 90]",
+                        "rosette: axis of the field of view (azimuth from the heading / +x)"),
     },
     # --- real scanners (simlidar_mi.lidar.sensor): every effect off by default, and a scene
     # without [sensor] (or with every effect off) scans exactly as before
@@ -395,6 +428,8 @@ class SceneConfig:
     present: set[str] = field(default_factory=set)
     sha256: str = ""
     overridden: dict[str, str] = field(default_factory=dict)  # dotted key → "--set key=value"
+    given: set[str] = field(default_factory=set)  # dotted keys the file or an override set (not defaults)
+    from_preset: dict[str, str] = field(default_factory=dict)  # dotted key → the sensor preset that gave it
 
     @property
     def source(self) -> str:
@@ -411,14 +446,21 @@ class SceneConfig:
     def seed(self) -> int:
         return int(self.sections["scene"]["seed"])
 
+    def gave(self, key: str) -> bool:
+        """True when the scene file or a ``--set`` gave ``key`` ("section.key"), not its default."""
+        return key in self.given
+
     def source_of(self, key: str | None) -> str:
-        """Where ``key``'s value came from: its ``--set`` argument, else the scene file."""
-        return self.overridden.get(key or "", self.source)
+        """Where ``key``'s value came from: its ``--set`` argument, the sensor preset that
+        filled it, else the scene file."""
+        key = key or ""
+        return self.overridden.get(key) or self.from_preset.get(key) or self.source
 
     def relabel(self, exc: ConfigError) -> ConfigError:
-        """``exc`` blaming the ``--set`` argument that gave its key, if one did."""
-        if exc.key in self.overridden and exc.file in (None, self.source):
-            return ConfigError(exc.reason, file=self.overridden[exc.key], key=exc.key, value=exc.value)
+        """``exc`` blaming the ``--set`` argument or sensor preset that gave its key, if one did."""
+        where = self.overridden.get(exc.key) or self.from_preset.get(exc.key)
+        if where and exc.file in (None, self.source):
+            return ConfigError(exc.reason, file=where, key=exc.key, value=exc.value)
         return exc
 
 
@@ -514,9 +556,22 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
                               file=label, key=key, value=value)
         flat.setdefault(section, {})[leaf] = value
         overridden[f"{section}.{leaf}"] = label
+    # [sensor] preset: fills the sensor/platform/scan keys neither the file nor --set gave
+    flat, from_preset, skipped = apply_preset(
+        flat, src, origin=overridden, base_dir=Path(path).parent if path is not None else Path.cwd(),
+        sections=SECTIONS, check=_check_value)
+    if skipped:
+        warnings.warn(SimlidarWarning(
+            f"{src}: [platform] kind {flat['platform']['kind']!r} differs from the kind of sensor preset "
+            f"{flat['sensor']['preset']!r}; its {', '.join(skipped)} were not applied"), stacklevel=2)
+    origin = {**from_preset, **overridden}  # where each key came from, when not the scene file
+    for label in sorted(set(from_preset.values())):  # a user preset file is part of the scene
+        if Path(label).is_file():
+            digest.update(b"\0preset\0" + Path(label).read_bytes())
 
     sections: dict[str, dict[str, Any]] = {}
     present: set[str] = set()
+    given = {f"{name}.{key}" for name, table in flat.items() if isinstance(table, dict) for key in table}
     for name, table in flat.items():
         if name not in SECTIONS:
             raise ConfigError(f"unknown section or key; valid sections: {', '.join(SECTIONS)}",
@@ -528,7 +583,7 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
         table = flat.get(name, {})
         values = {}
         for key, value in table.items():
-            where = overridden.get(f"{name}.{key}", src)
+            where = origin.get(f"{name}.{key}", src)
             if key not in spec:
                 raise ConfigError(f"unknown key in [{name}]; valid: {', '.join(spec)}",
                                   file=where, key=f"{name}.{key}", value=value)
@@ -572,4 +627,12 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
         if prim["type"] == "obj" and path is not None:
             prim["path"] = str((Path(path).parent / prim["path"]).resolve())
     return SceneConfig(Path(path) if path else None, sections, arrays, present, digest.hexdigest(),
-                       overridden)
+                       overridden, given, from_preset)
+
+
+def sensor_preset(ref: str | Path, base_dir: str | Path | None = None):
+    """A built-in sensor preset (``simlidar-mi sensors`` lists them) or a user preset .toml
+    (relative to ``base_dir``, default the working folder), checked against this schema."""
+    from .sensor_presets import resolve
+    return resolve(str(ref) if isinstance(ref, Path) else ref, base_dir=Path(base_dir) if base_dir is not None else Path.cwd(),
+                   sections=SECTIONS, check=_check_value, key="preset")

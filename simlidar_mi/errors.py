@@ -45,6 +45,14 @@ class ConfigError(SimlidarError, ValueError):
         prefix = ": ".join([", ".join(where)]) + ": " if where else ""
         super().__init__(prefix + message)
 
+    def __reduce__(self):
+        # Keep file/key/value when a Dask worker's error is pickled back to the study.
+        return (_config_error, (self.reason, self.file, self.key, self.value))
+
+
+def _config_error(message: str, file: str | None, key: str | None, value: Any) -> ConfigError:
+    return ConfigError(message, file=file, key=key, value=value)
+
 
 class GrammarError(SimlidarError, ValueError):
     """A grammar or L-system string is malformed; carries the position."""

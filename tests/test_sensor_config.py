@@ -89,13 +89,15 @@ def test_no_sensor_section_or_every_effect_off_resolves_to_none(tmp_path):
     off = "[sensor]\nbeam_profile = \"uniform\"\nmax_returns = 1\npulse_length_ns = 5.0\n[materials]\nwood = 0.9\n"
     assert resolve_sensor(load_scene(_scene(tmp_path, off))) is None
     assert resolve_sensor(load_scene(_scene(tmp_path, "[materials]\nwood = 0.5\n"))) is None
+    # A pulse rate alone times the pattern (lidar.platforms); the beams are the old ones.
+    assert resolve_sensor(load_scene(_scene(tmp_path, "[sensor]\npulse_rate_hz = 10000.0\n"))) is None
 
 
 @pytest.mark.parametrize("body, effect", [
     ("divergence_mrad = 2.0", "divergence"), ("max_returns = 3", "echoes"),
     ("intensity = true", "intensity"), ("range_noise_m = 0.01", "noise"),
     ("range_noise_per_m = 0.001", "noise"), ("range_max_m = 80.0", "range_limits"),
-    ("range_min_m = 0.5", "range_limits"), ("pulse_rate_hz = 10000.0", "pulse_rate"),
+    ("range_min_m = 0.5", "range_limits"),
 ])
 def test_each_effect_alone_gives_a_model(tmp_path, body, effect):
     model = resolve_sensor(load_scene(_scene(tmp_path, f"[sensor]\n{body}\n")))

@@ -59,7 +59,7 @@ ROW_PERIOD_S = 1.0
 TIME_PULSE = "pulse time: (i*M + k) / pulse_rate_hz seconds from the first pulse"
 TIME_SCAN_ORDER = ("scan-order time, not measured: i + k/M on a nominal 1 s per row "
                    "(row i, column k of M), legs following each other")
-TIME_BEAM = "beam time: each beam's emission time (s) from the platform's start"
+TIME_BEAM = "beam emission time in seconds from the first beam (BeamPattern.beam_times_s)"
 #: ASPRS code of each class code (geometry.CLASS_CODES) as a lookup table; escapes are not written.
 LAS_CLASS_LUT = np.zeros(256, np.uint8)
 LAS_CLASS_LUT[list(LAS_CLASS)] = list(LAS_CLASS.values())
@@ -73,9 +73,15 @@ INTENSITY_TEXT = ("intensity = min(65535, round(1000 * E)), E = echo energy: sum
 def scan_times_s(result: ScanResult, first_row: int = 0) -> tuple[np.ndarray, str]:
     """(N, M) float64 ``gps_time`` of every beam of ``result`` and the definition used.
 
-    ``first_row`` shifts a path leg by the rows of the legs before it.  See the module
-    docstring: the airborne pattern's pulse times, else the scan-order time.
+    ``first_row`` shifts a path leg by the rows of the legs before it.  A pattern with a
+    timing table (a tractor with a pulse rate, ``rotating``, ``rosette``) gives each beam its
+    emission time, :meth:`~simlidar_mi.lidar.platforms.BeamPattern.beam_times_s`, already
+    continuous across legs; else the airborne pattern's pulse times, else the scan-order time.
     """
+    times = result.pattern.beam_times_s()
+    if times is not None:
+        how = (result.pattern.meta or {}).get("timing")
+        return times, f"{TIME_BEAM}: {how}" if how else TIME_BEAM
     n, m = result.shape
     i = np.arange(n, dtype=np.float64)[:, None]
     k = np.arange(m, dtype=np.float64)[None, :]

@@ -25,10 +25,11 @@ def plot_scan_png(result: ScanResult, path: str | Path, title: str = "") -> Path
     """
     p = result.pattern
     img = np.ma.masked_where(~result.vegetation(), result.range_m).T  # (M, N): angle up
-    rows, ang = p.row_coord, p.col_angle_deg
+    rows, ang, span = p.row_coord, p.col_angle_deg, p.col_span_deg
+    if p.meta.get("angle_kind") == "direction":  # per-beam directions (rosette): pulse index up
+        ang, span = np.arange(p.n_cols, dtype=np.float64), 1.0
     half_row = 0.5 * (rows[1] - rows[0]) if len(rows) > 1 else 0.5
-    extent = [rows[0] - half_row, rows[-1] + half_row,
-              ang[0] - p.col_span_deg / 2, ang[-1] + p.col_span_deg / 2]
+    extent = [rows[0] - half_row, rows[-1] + half_row, ang[0] - span / 2, ang[-1] + span / 2]
     width = 10 if p.n_rows > p.n_cols else 7
     fig, ax = plt.subplots(figsize=(width, 4.8), dpi=120)
     backdrop = np.where(result.cls.T == CLASS_CODES["ground"], 0.85, 1.0)

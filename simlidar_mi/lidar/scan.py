@@ -4,6 +4,12 @@ Geometry of the scan (SIMLIDAR §2): the scanner moves along +y on the line
 x = x0, z = z0 and sweeps its beam in the XZ plane at elevation θ, direction
 (cos θ, 0, sin θ).  Beam (i, k) is centred on y_i = y_start + i·(gap+1)·Δy and
 θ_k = θ_min + k·Δθ and covers Δy × Δθ around that centre; i < N, k < M.
+
+Timing (only with ``[sensor] pulse_rate_hz`` > 0): the mirror turns a full circle per
+sweep and fires pulse_rate_hz pulses per second around it, so the sweep rate is
+f = pulse_rate·Δθ/360° and beam (i, k) fires at t = i·(gap+1)/f + k/pulse_rate.  With a
+platform speed v as well the tractor moves while it sweeps: rows are v/f apart
+(Δy = v/f) and beam (i, k) starts at y_i + v·k/pulse_rate, so a profile is slanted.
 """
 from __future__ import annotations
 
@@ -47,6 +53,13 @@ class ScanSettings:
     ground_z_m: float = 0.0
     hit_rule: str = "fraction"         # "any": the paper's §3.1 rule; "fraction": sub-beam share
     theta_limits_side: str = "given"   # how eq. 8 filled θ limits: "near", "far", or "given"
+    pulse_rate_hz: float = 0.0         # > 0: beams have times (module docstring)
+    speed_m_s: float = 0.0             # > 0 (with a pulse rate): the tractor moves while it sweeps
+
+    @property
+    def sweep_rate_hz(self) -> float:
+        """f = pulse_rate·Δθ/360°: full mirror turns per second (0 without a pulse rate)."""
+        return self.pulse_rate_hz * self.dtheta_deg / 360.0
 
     @property
     def theta_deg(self) -> np.ndarray:
@@ -63,17 +76,32 @@ class ScanSettings:
         return self.n_positions * self.n_angles
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        for key in ("pulse_rate_hz", "speed_m_s"):  # absent when off: headers stay as before
+            if not d[key]:
+                del d[key]
+        return d
 
     def pattern(self) -> BeamPattern:
         """The tractor's beams as a general :class:`~simlidar_mi.lidar.platforms.BeamPattern`."""
         y = self.y_m
         origins = np.stack([np.full_like(y, self.x0_m), y, np.full_like(y, self.z0_m)], axis=1)
+        timing = {}
+        if self.pulse_rate_hz > 0:
+            f = self.sweep_rate_hz
+            timing = {"row_time_s": np.arange(self.n_positions) * (self.gap + 1) / f,
+                      "col_time_s": np.arange(self.n_angles) / self.pulse_rate_hz,
+                      "velocity_m_s": np.array([0.0, self.speed_m_s, 0.0]) if self.speed_m_s > 0 else None}
+        meta = {"angle_kind": "elevation"}
+        if timing:
+            meta["timing"] = ("tractor sweep: i*(gap+1)/f + k/pulse_rate_hz, f = pulse_rate_hz*dtheta/360 = "
+                              f"{self.sweep_rate_hz:.9g} Hz" + (f", y moving at {self.speed_m_s:g} m/s"
+                                                                 if self.speed_m_s > 0 else ", one pose per sweep"))
         return BeamPattern("tractor", origins, np.zeros(len(y)), self.theta_deg,
                            elevation_dirs(self.theta_deg), np.array([0.0, self.dy_m, 0.0]),
                            self.dtheta_deg, self.footprint, y, "scanner position y (m)",
                            "beam elevation θ (°)", self.escape_m, self.ground, self.ground_z_m,
-                           {"angle_kind": "elevation"}, hit_rule=self.hit_rule)
+                           meta, hit_rule=self.hit_rule, **timing)
 
     def covers(self, points_m) -> np.ndarray:
         """Boolean (n,): which points lie inside the swept volume, i.e. in front of the
@@ -99,7 +127,8 @@ class ScanSettings:
 
 
 def resolve_settings(scan: dict, ground: dict, bbox_min_m, bbox_max_m,
-                     source: str | None = None, near_x_m=None) -> ScanSettings:
+                     source: str | None = None, near_x_m=None, *, pulse_rate_hz: float = 0.0,
+                     speed_m_s: float | None = None, dy_given: bool = False) -> ScanSettings:
     """Fill paper defaults (eqs. 6–8) from the scene bounds and validate.
 
     ``scan`` and ``ground`` are the validated ``[scan]`` and ``[ground]`` tables.
@@ -111,10 +140,29 @@ def resolve_settings(scan: dict, ground: dict, bbox_min_m, bbox_max_m,
     :meth:`simlidar_mi.lidar.survey.SceneGeometry.near_x_m`; by default the near side of the
     bounding box.  ``"far"`` reads Max(x) as the bounding box's far side (a narrower sweep
     that misses the near, low and high wood).
+
+    Moving mode (module docstring): ``pulse_rate_hz`` > 0 (``[sensor]``) and ``speed_m_s``
+    (``[platform]``) set Δy = v/f, f = pulse_rate·Δθ/360°; a ``scan.dy_m`` the scene gave
+    (``dy_given``) must agree with it.  A speed without a pulse rate is refused (the sweep
+    rate would be unknown); a pulse rate alone times the beams of today's stop-and-go scan.
     """
     lo, hi = np.asarray(bbox_min_m, float), np.asarray(bbox_max_m, float)
     x0, z0 = float(scan["x0_m"]), float(scan["z0_m"])
     dy, gap, dtheta = float(scan["dy_m"]), int(scan["gap"]), float(scan["dtheta_deg"])
+    pulse_rate_hz = float(pulse_rate_hz or 0.0)
+    if speed_m_s is not None and pulse_rate_hz <= 0:
+        raise ConfigError("a moving tractor needs [sensor] pulse_rate_hz > 0 (its sweep rate is "
+                          "pulse_rate·dtheta/360°); without it the scan is SIMLIDAR's, one pose per "
+                          "sweep every scan.dy_m", file=source, key="platform.speed_m_s", value=speed_m_s)
+    if speed_m_s is not None:
+        f = pulse_rate_hz * dtheta / 360.0
+        dy_moving = float(speed_m_s) / f
+        if dy_given and not math.isclose(dy, dy_moving, rel_tol=1e-9):
+            raise ConfigError(f"disagrees with platform.speed_m_s = {speed_m_s:g} m/s and sensor.pulse_rate_hz = "
+                              f"{pulse_rate_hz:g} Hz, which put sweeps v/f = {dy_moving:.6g} m apart "
+                              f"(f = pulse_rate·dtheta/360° = {f:.6g} Hz); drop scan.dy_m or change "
+                              "the speed", file=source, key="scan.dy_m", value=dy)
+        dy = dy_moving
     side = scan.get("theta_limits_side", "near")
     hit_rule = scan.get("hit_rule", "fraction")
     ground_z = float(ground["z_m"])
@@ -179,7 +227,7 @@ def resolve_settings(scan: dict, ground: dict, bbox_min_m, bbox_max_m,
                           file=source, key=key, value=value)
     return ScanSettings(x0, z0, float(y0), dy, gap, n_pos, float(th_min), dtheta, n_ang,
                         int(scan["footprint"]), float(scan["escape_m"]), bool(ground["enabled"]),
-                        ground_z, hit_rule, side)
+                        ground_z, hit_rule, side, pulse_rate_hz, float(speed_m_s or 0.0))
 
 
 _DEFAULT = {k: SECTIONS["scan"][k].default for k in ("dy_m", "dtheta_deg", "footprint")}
@@ -243,7 +291,7 @@ class ScanResult:
         """(N, M, 3) float64 first-return points in real coordinates (escapes included)."""
         p = self.pattern
         r = self.range_m.astype(np.float64)[..., None]
-        return p.row_origin_m[:, None, :] + r * p.world_dirs()
+        return p.beam_origins_m() + r * p.world_dirs()
 
     def impacted_area_m2(self) -> float:
         """A_IM, the paper's eq. 2: Σ over vegetation hits of Δy·l·(sin θ⁺ − sin θ⁻).
@@ -331,6 +379,11 @@ def _lidar(mi, built: BuiltScene, settings):
                               "n_angles": pattern.n_cols, "footprint": pattern.footprint,
                               "film": _film(pattern.n_cols, pattern.n_rows)})
         lidar.set_tables(*pattern.sub_tables(o))
+        if pattern.beam_dirs is not None:
+            lidar.set_beam_dirs(pattern.beam_dirs.reshape(-1, 3))
+    motion = pattern.motion_tables()
+    if motion is not None:  # each beam from the platform's position at its own time
+        lidar.set_motion(*motion)
     return s, pattern, lidar
 
 

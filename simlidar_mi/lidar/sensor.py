@@ -120,7 +120,8 @@ def auto_beam_samples(divergence_mrad: float, far_range_m: float | None = None,
 def resolve_sensor(cfg, *, far_range_m: float | None = None,
                    feature_m: float | None = None) -> SensorModel | None:
     """The scene's scanner model, or None when it has no ``[sensor]`` section or every effect
-    is off (then the old first-return path runs and writes the same bytes).
+    is off (then the old first-return path runs and writes the same bytes).  A pulse rate
+    alone also gives None: it times the beam pattern, which both paths fire the same way.
 
     ``cfg`` is a :class:`~simlidar_mi.config.SceneConfig`; ``far_range_m`` and ``feature_m``
     feed :func:`auto_beam_samples` when ``beam_samples = 0``."""
@@ -149,7 +150,9 @@ def resolve_sensor(cfg, *, far_range_m: float | None = None,
         range_at_10pct_m=float(s["range_at_10pct_m"]), wavelength_nm=s["wavelength_nm"],
         preset=s["preset"], reflectance_wood=float(m["wood"]), reflectance_leaf=float(m["leaf"]),
         reflectance_ground=float(m["ground"]))
-    return model if any(model.effects_on().values()) else None
+    # The pulse rate only times the pattern (lidar.platforms); alone it needs no sub-ray physics.
+    physics = {k: v for k, v in model.effects_on().items() if k != "pulse_rate"}
+    return model if any(physics.values()) else None
 
 
 def subray_offsets(model: SensorModel) -> tuple[np.ndarray, np.ndarray]:

@@ -4,8 +4,10 @@ The paper scanned 42 orchards (iterations 4–7, d_m 5/6/7 mm, 1 or 4 trees, pru
 stochastic on/off) and fitted A_PR = 3.6166·A_IM (R² 0.70) and A_L = 10.812·A_IM
 (R² 0.78).  :func:`run_study` runs the full factorial grid (or any list of overrides)
 on a base scene, one orchard per task, with Dask as the engine (``workers`` > 1 runs
-tasks in separate processes).  Every finished orchard is written at once to
-``rows/<key>.json``, so an interrupted study resumes where it stopped.  Outputs:
+tasks in separate processes; ``scheduler``, ``DASK_SCHEDULER_ADDRESS`` or an active
+``distributed.Client`` runs them on a cluster, see :mod:`simlidar_mi._dask`).  Every finished
+orchard is written at once to ``rows/<key>.json``, so an interrupted study resumes where it
+stopped; each row names the ``worker`` that computed it.  Outputs:
 ``study.csv`` (one row per orchard), ``regression.json`` and ``correlations.png``.
 
 A row's key hashes what it was computed from: the resolved scene (every key of the
@@ -75,6 +77,9 @@ READINGS = {
             "the study before the fidelity fixes: far-side limits, one ray per beam"),
 }
 COLUMNS += [f"A_IM_{name}_m2" for name in READINGS]
+# Who computed the row ("tcp://10.0.0.5:39001" on a cluster, "local:<host>:<pid>" locally):
+# like the timings, the only column that may differ between two runs of the same study.
+COLUMNS += ["worker"]
 
 
 def paper_grid(iterations=(4, 5, 6, 7), d_min_m=(0.005, 0.006, 0.007), n_trees=(1, 4),
@@ -128,14 +133,21 @@ def code_version() -> str:
     import importlib.metadata as md  # noqa: PLC0415
     import importlib.util  # noqa: PLC0415
 
-    digest = hashlib.sha256()
-    roots = [Path(__file__).resolve().parents[1]]
+    # Files are named as they sit in an installed wheel (plugins under simlidar_mi/plugins/),
+    # so a cluster worker with the wheel agrees with a study run from a source checkout,
+    # where plugins/ is a top-level folder.
+    files: dict[str, Path] = {}
+    package = Path(__file__).resolve().parents[1]
     spec = importlib.util.find_spec("simlidar_mi.plugins")
-    roots += [Path(p) for p in (spec.submodule_search_locations or [])] if spec else []
-    for root in dict.fromkeys(roots):
-        for f in sorted(root.rglob("*.py")):
+    roots = [(package, "")] + [(Path(p).resolve(), "plugins/")
+                               for p in ((spec.submodule_search_locations or []) if spec else [])]
+    for root, prefix in roots:
+        for f in root.rglob("*.py"):
             if "__pycache__" not in f.parts:
-                digest.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+                files[prefix + f.relative_to(root).as_posix()] = f
+    digest = hashlib.sha256()
+    for name in sorted(files):
+        digest.update(name.encode() + b"\0" + files[name].read_bytes() + b"\0")
     libs = []
     for dist in ("mitsuba", "drjit"):
         try:
@@ -177,19 +189,28 @@ def _die_with_parent(parent_pid: int) -> None:
         threading.Thread(target=watch, name="simlidar-parent-watch", daemon=True).start()
 
 
-def run_one(scene: str, overrides: list[str], rows_dir: str, readings: bool = True,
-            version: str | None = None) -> dict:
-    """Scan one orchard (and its other readings) and write its row; returns the row.
+def run_one(scene: str, overrides: list[str], rows_dir: str | None, readings: bool = True,
+            version: str | None = None, *, text: str | None = None,
+            obj_files: dict[str, str] | None = None) -> dict:
+    """Scan one orchard (and its other readings), write its row (unless ``rows_dir`` is
+    None) and return it.
 
     A Dask task, so module-level.  The orchard is generated and built once; each reading
     of :data:`READINGS` is one more scan of the same Mitsuba scene.  ``version`` is the
-    study's :func:`code_version` (default: this process's).
+    study's :func:`code_version` (default: this process's).  ``text`` is the scene file's
+    text (then ``scene`` only names it), ``obj_files`` maps the scene's OBJ paths to local
+    copies: how a cluster worker scans a scene it cannot read from disk.  The row records
+    the ``worker`` that computed it (:func:`simlidar_mi._dask.worker_name`).
     """
     from dataclasses import replace  # noqa: PLC0415
 
+    from .._dask import worker_name  # noqa: PLC0415
     from .scan import resolve_settings, scan  # noqa: PLC0415  (imports Mitsuba in the worker)
     from .survey import build, generate, scan_measures, scan_patterns  # noqa: PLC0415
-    cfg = load_scene(scene, overrides)
+    cfg = load_scene(scene, overrides, text=text)
+    for prim in cfg.arrays.get("primitive", []):
+        if prim.get("type") == "obj" and obj_files and prim.get("path") in obj_files:
+            prim["path"] = obj_files[prim["path"]]
     version = code_version() if version is None else version
     table = scene_table(cfg)
     if cfg["platform"]["kind"] != "tractor":
@@ -221,9 +242,53 @@ def run_one(scene: str, overrides: list[str], rows_dir: str, readings: bool = Tr
             s = replace(s, hit_rule=sc["hit_rule"], footprint=sc["footprint"])
             row[f"A_IM_{name}_m2"] = scan(built, s, cfg["scene"]["variant"]).impacted_area_m2()
     row["seconds"] = time.perf_counter() - t0
-    with atomic_file(Path(rows_dir) / f"{row['key']}.json") as tmp:
-        tmp.write_text(json.dumps(row, sort_keys=True, default=str))
+    row["worker"] = worker_name()
+    if rows_dir is not None:
+        _save_row(Path(rows_dir), row)
     return row
+
+
+def _save_row(rows_dir: Path, row: dict) -> None:
+    """``rows/<key>.json``: the same bytes whoever writes it (a local worker or the study
+    process for a cluster's worker)."""
+    with atomic_file(rows_dir / f"{row['key']}.json") as tmp:
+        tmp.write_text(json.dumps(row, sort_keys=True, default=str))
+
+
+def _scene_bundle(scene: str, cfgs: list[SceneConfig]) -> dict[str, Any]:
+    """What a cluster worker needs to scan the study's scene without this machine's files:
+    the scene file's text and the bytes of every OBJ file the grid's orchards use."""
+    objs: dict[str, bytes] = {}
+    for cfg in cfgs:
+        for prim in cfg.arrays.get("primitive", []):
+            if prim.get("type") == "obj" and prim.get("path") and prim["path"] not in objs:
+                try:
+                    objs[prim["path"]] = Path(prim["path"]).read_bytes()
+                except OSError as exc:
+                    raise ConfigError(f"cannot read OBJ file: {exc.strerror or exc}", file=scene,
+                                      key="primitive.path", value=prim["path"]) from exc
+    return {"scene": scene, "text": Path(scene).read_bytes().decode("utf-8"), "objs": objs}
+
+
+def _cluster_task(bundle: dict[str, Any], overrides: list[str], readings: bool, version: str) -> dict:
+    """:func:`run_one` on a cluster worker: the scene comes as data (``bundle``), the row goes
+    back to the study process, which writes it.  A worker running other code (another
+    simlidar-mi, Mitsuba or Dr.Jit) refuses, so that no row is filed under the wrong version."""
+    import tempfile  # noqa: PLC0415
+
+    from .._dask import worker_name  # noqa: PLC0415
+    mine = code_version()
+    if mine != version:
+        raise ConfigError(f"Dask worker {worker_name()} runs other code ({mine}) than the study "
+                          f"({version}): install the same simlidar-mi, mitsuba and drjit on every "
+                          "worker")
+    with tempfile.TemporaryDirectory(prefix="simlidar-study-") as tmp:
+        local = {}
+        for j, (path, data) in enumerate(sorted(bundle["objs"].items())):
+            local[path] = str(Path(tmp) / f"{j}_{Path(path).name}")
+            Path(local[path]).write_bytes(data)
+        return run_one(bundle["scene"], overrides, None, readings, version, text=bundle["text"],
+                       obj_files=local)
 
 
 def fit_through_origin(x: np.ndarray, y: np.ndarray) -> dict[str, float]:
@@ -384,7 +449,7 @@ def _stale(rows_dir: Path, grid: list[list[str]], keys: list[str], tables: list[
 def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | None = None, *,
               workers: int = 1, progress: bool = False, hit_rule: str = "any",
               footprint: int | None = None, readings: bool = True,
-              on_mismatch: str = "recompute") -> StudyResult:
+              on_mismatch: str = "recompute", scheduler: str | None = None) -> StudyResult:
     """Run (or resume) the study of ``grid`` (default :func:`paper_grid`) on ``scene``.
 
     ``hit_rule`` and ``footprint`` (see :func:`scan_overrides`) come before each grid
@@ -396,7 +461,14 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
     from another scene or by other code, ``on_mismatch="recompute"`` (default) rescans
     them and logs a warning naming the orchards (grid positions) and what differs; the
     old rows stay in ``rows/``, unused, so nothing computed is lost.
-    ``on_mismatch="refuse"`` raises :class:`ConfigError` saying the same, before any scan."""
+    ``on_mismatch="refuse"`` raises :class:`ConfigError` saying the same, before any scan.
+
+    Where the orchards are scanned (:func:`simlidar_mi._dask.cluster_client`): the Dask
+    scheduler at ``scheduler`` (``"tcp://host:8786"``; ``"local"`` forces the local pool),
+    else an active ``distributed.Client``, else ``DASK_SCHEDULER_ADDRESS``, else ``workers``
+    local processes.  On a cluster the scene file and its OBJ files are sent to the workers
+    as data (they need simlidar-mi, the same version, but not this machine's files) and
+    each row comes back to be written here as soon as its orchard is done."""
     if on_mismatch not in ("recompute", "refuse"):
         raise ConfigError("must be 'recompute' or 'refuse'", key="on_mismatch", value=on_mismatch)
     scene = str(Path(scene).resolve())
@@ -407,7 +479,8 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
     rule = scan_overrides(hit_rule, footprint)
     grid = [rule + list(g) for g in grid]
     version = code_version()
-    tables = [scene_table(load_scene(scene, o)) for o in grid]
+    cfgs = [load_scene(scene, o) for o in grid]
+    tables = [scene_table(c) for c in cfgs]
     keys = [_key(t, readings, version) for t in tables]
     out = Path(out_dir)
     rows_dir = out / "rows"
@@ -429,18 +502,18 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
     rows_dir.mkdir(parents=True, exist_ok=True)
     todo = [(o, k) for o, k in zip(grid, keys) if not (rows_dir / f"{k}.json").exists()]
     if todo:
-        import dask  # noqa: PLC0415
-        from dask.callbacks import Callback  # noqa: PLC0415
-        tasks = [dask.delayed(run_one)(scene, o, str(rows_dir), readings, version) for o, _ in todo]
-        opts: dict[str, Any] = {"scheduler": "synchronous"}
-        if workers > 1:
-            # Workers die with this process (SIGKILL included) instead of scanning on as orphans.
-            opts = {"scheduler": "processes", "num_workers": workers,
-                    "initializer": functools.partial(_die_with_parent, os.getpid())}
-        # one tick per finished orchard, through the package's progress (never on stdout)
-        with make_progress(progress).stage("study: scanning", len(todo), "orchard") as st, \
-                Callback(posttask=lambda *_: st.update()):
-            dask.compute(*tasks, **opts)
+        from .._dask import cluster_client, run_on_client  # noqa: PLC0415
+        with cluster_client(scheduler) as client:
+            if client is None:
+                _run_local(scene, todo, rows_dir, readings, version, workers, progress)
+            else:
+                if workers > 1:
+                    log.warning("study: workers=%d ignored: the Dask cluster's workers scan", workers)
+                calls = [(o, readings, version) for o, _ in todo]
+                with make_progress(progress).stage("study: scanning", len(todo), "orchard") as st:
+                    # each row is saved here the moment it arrives: an interrupted study resumes
+                    run_on_client(client, _cluster_task, calls, shared=_scene_bundle(scene, cfgs),
+                                  on_result=lambda row: (_save_row(rows_dir, row), st.update()))
         missing = [k for _, k in todo if not (rows_dir / f"{k}.json").exists()]
         if missing:  # a task keys its row by what it scanned: the inputs moved under us
             raise ConfigError(f"{len(missing)} rows were written under other keys than planned: the "
@@ -455,6 +528,24 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
         tmp.write_text(json.dumps(regression, indent=2) + "\n")
     _plot(rows, regression, files["png"])
     return StudyResult(rows, regression, files)
+
+
+def _run_local(scene: str, todo: list[tuple[list[str], str]], rows_dir: Path, readings: bool,
+               version: str, workers: int, progress: Any) -> None:
+    """The orchards of ``todo`` on Dask's local scheduler: this process, or ``workers``
+    processes; each task writes its own row."""
+    import dask  # noqa: PLC0415
+    from dask.callbacks import Callback  # noqa: PLC0415
+    tasks = [dask.delayed(run_one)(scene, o, str(rows_dir), readings, version) for o, _ in todo]
+    opts: dict[str, Any] = {"scheduler": "synchronous"}
+    if workers > 1:
+        # Workers die with this process (SIGKILL included) instead of scanning on as orphans.
+        opts = {"scheduler": "processes", "num_workers": workers,
+                "initializer": functools.partial(_die_with_parent, os.getpid())}
+    # one tick per finished orchard, through the package's progress (never on stdout)
+    with make_progress(progress).stage("study: scanning", len(todo), "orchard") as st, \
+            Callback(posttask=lambda *_: st.update()):
+        dask.compute(*tasks, **opts)
 
 
 def _plot(rows: list[dict], regression: dict, path: Path) -> None:

@@ -270,19 +270,30 @@ def scan_patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m=None) -> list:
 
 
 def _patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m) -> list:
-    from .platforms import airborne_pattern, path_patterns, static_pattern  # noqa: PLC0415
+    from .platforms import (airborne_pattern, path_patterns, rosette_patterns,  # noqa: PLC0415
+                            rotating_patterns, static_pattern)
     from .scan import resolve_settings  # noqa: PLC0415
     pf, sc, gr = cfg["platform"], cfg["scan"], cfg["ground"]
     common = {"footprint": sc["footprint"], "ground": gr["enabled"], "ground_z_m": gr["z_m"],
               "source": cfg.source}
     kind = pf["kind"]
+    sensor_rate = cfg["sensor"]["pulse_rate_hz"]
 
     def need(key):
         if pf[key] is None:
             raise ConfigError(f"a {kind} platform needs this key", file=cfg.source, key=f"platform.{key}")
         return pf[key]
+
+    def pulse_rate(default):
+        """The platform's pulse rate: [platform] pulse_rate_hz, else [sensor]'s, else ``default``."""
+        own = pf["pulse_rate_hz"]
+        if own is not None and sensor_rate > 0 and own != sensor_rate:
+            raise ConfigError(f"disagrees with sensor.pulse_rate_hz = {sensor_rate:g}; give one of them",
+                              file=cfg.source, key="platform.pulse_rate_hz", value=own)
+        return own if own is not None else (sensor_rate if sensor_rate > 0 else default)
     if kind == "tractor":
-        return [resolve_settings(sc, gr, lo_m, hi_m, cfg.source, near_x_m)]
+        return [resolve_settings(sc, gr, lo_m, hi_m, cfg.source, near_x_m, pulse_rate_hz=sensor_rate,
+                                 speed_m_s=pf["speed_m_s"], dy_given=cfg.gave("scan.dy_m"))]
     if kind == "static":
         az = pf["azimuth_deg"]
         return [static_pattern(need("position_m"), tuple(pf["elevation_deg"]),
@@ -291,10 +302,28 @@ def _patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m) -> list:
     if kind == "path":
         return path_patterns(need("waypoints_m"), pf["step_m"], tuple(pf["elevation_deg"]),
                              side=pf["side"], escape_m=sc["escape_m"], **common)
+    if kind == "rotating":  # timing from the block period; a [sensor] pulse rate does not enter
+        return rotating_patterns(pf["channels_deg"], pf["channel_offsets_us"], pf["block_period_us"],
+                                 pf["rotation_hz"], position_m=pf["position_m"], waypoints_m=pf["waypoints_m"],
+                                 speed_m_s=pf["speed_m_s"], azimuth_range_deg=pf["azimuth_range_deg"],
+                                 duration_s=pf["duration_s"], escape_m=sc["escape_m"],
+                                 max_beams=sc["max_beams"], **common)
+    if kind == "rosette":
+        from .platforms import MID70_PULSE_RATE_HZ  # noqa: PLC0415
+        return rosette_patterns(pf["rosette_hz"], pf["fov_deg"], pulse_rate(MID70_PULSE_RATE_HZ), pf["look_deg"],
+                                position_m=pf["position_m"], waypoints_m=pf["waypoints_m"],
+                                speed_m_s=pf["speed_m_s"], duration_s=pf["duration_s"],
+                                escape_m=sc["escape_m"], max_beams=sc["max_beams"], **common)
     escape = max(sc["escape_m"], 10 * pf["altitude_m"])
+    speed = pf["speed_m_s"] if pf["speed_m_s"] is not None else AIRBORNE_SPEED_M_S
     return [airborne_pattern(need("start_xy_m"), need("end_xy_m"), pf["altitude_m"], pf["swath_deg"],
-                             pf["speed_m_s"], pf["pulse_rate_hz"], pf["pulses_per_line"],
+                             speed, pulse_rate(AIRBORNE_PULSE_RATE_HZ), pf["pulses_per_line"],
                              escape_m=escape, **common)]
+
+
+#: Airborne defaults (the [platform] keys are shared by every kind, so their defaults depend on it).
+AIRBORNE_SPEED_M_S = 30.0
+AIRBORNE_PULSE_RATE_HZ = 300_000.0
 
 
 @writes_output("out_dir")

@@ -1,0 +1,121 @@
+"""Where a sweep's tasks run: the local process pool, or a Dask ``distributed`` cluster.
+
+Shared by every sweep (today :func:`simlidar_mi.lidar.study.run_study`).  A sweep asks
+:func:`cluster_client` which cluster to use, in this order:
+
+1. ``scheduler`` given (``--scheduler ADDRESS``): that scheduler; ``"local"`` forces the
+   local process pool even when one of the next two is set;
+2. an active :class:`distributed.Client` in this process (``distributed.default_client()``,
+   e.g. one a notebook made with ``Client("tcp://...")``), used and left open;
+3. ``DASK_SCHEDULER_ADDRESS`` in the environment (or Dask's ``scheduler-address`` config);
+4. none: the sweep runs on the local process pool as it always did.
+
+``distributed`` is imported only when one of 1–3 applies, so local runs pay nothing.
+"""
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import socket
+import sys
+from typing import Any, Callable, Iterator
+
+from .errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+LOCAL = "local"
+ENV = "DASK_SCHEDULER_ADDRESS"
+CONNECT_TIMEOUT_S = 30  # a cluster's scheduler may be slow to answer, but not forever
+
+
+def _active_client():
+    """The process's default ``distributed`` Client, or None (without importing distributed
+    when nothing could have made one)."""
+    if "distributed" not in sys.modules:
+        return None
+    from distributed import default_client  # noqa: PLC0415
+    try:
+        client = default_client()
+    except ValueError:  # "No clients found"
+        return None
+    return client if client.status == "running" else None
+
+
+def configured_address() -> str | None:
+    """``DASK_SCHEDULER_ADDRESS``, else Dask's ``scheduler-address`` config, else None."""
+    address = os.environ.get(ENV, "").strip()
+    if address:
+        return address
+    import dask  # noqa: PLC0415
+    return dask.config.get("scheduler-address", None) or None
+
+
+@contextlib.contextmanager
+def cluster_client(scheduler: str | None = None) -> Iterator[Any]:
+    """The ``distributed.Client`` a sweep should submit to, or None for the local pool.
+
+    A Client this function connects is closed on exit; an active one is left open."""
+    if scheduler is not None and not isinstance(scheduler, str):
+        raise ConfigError("must be a scheduler address such as 'tcp://host:8786', or 'local'",
+                          key="scheduler", value=scheduler)
+    scheduler = scheduler.strip() if scheduler else None
+    if scheduler == LOCAL:
+        yield None
+        return
+    if scheduler is None:
+        active = _active_client()
+        if active is not None:
+            yield active
+            return
+        scheduler = configured_address()
+        if scheduler is None:
+            yield None
+            return
+    from distributed import Client  # noqa: PLC0415
+    try:
+        client = Client(scheduler, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise ConfigError(f"cannot reach the Dask scheduler ({type(exc).__name__}: {exc}); start "
+                          "one with 'dask scheduler', or leave --scheduler and "
+                          f"{ENV} unset for the local process pool",
+                          key="scheduler", value=scheduler) from exc
+    try:
+        yield client
+    finally:
+        client.close()
+
+
+def worker_name() -> str:
+    """Who runs this task: the Dask worker's address on a cluster, else
+    ``local:<host>:<pid>`` (the local pool's process, or the study's own)."""
+    if "distributed" in sys.modules:
+        from distributed import get_worker  # noqa: PLC0415
+        try:
+            return get_worker().address
+        except ValueError:  # not inside a distributed worker
+            pass
+    return f"{LOCAL}:{socket.gethostname()}:{os.getpid()}"
+
+
+def run_on_client(client: Any, fn: Callable, calls: list[tuple], on_result: Callable[[Any], None],
+                  shared: Any = None) -> None:
+    """``fn(shared, *args)`` for each ``args`` of ``calls`` on the cluster; ``on_result`` gets
+    each result in this process as soon as its task finishes (so a Ctrl-C or a failed task
+    leaves every result already handed over saved).  ``shared`` is sent to the cluster once.
+    The first failed task raises its error here; the tasks not yet finished are cancelled."""
+    from distributed import as_completed  # noqa: PLC0415
+    if not client.scheduler_info().get("workers"):
+        log.warning("the Dask scheduler %s has no workers yet: the tasks wait for one",
+                    client.scheduler.address)
+    [shared_f] = client.scatter([shared], hash=False)
+    futures = [client.submit(fn, shared_f, *args, pure=False) for args in calls]
+    try:
+        for fut in as_completed(futures, loop=client.loop):
+            on_result(fut.result())
+    finally:
+        pending = [f for f in futures if not f.done()]
+        if pending:
+            client.cancel(pending)
+        client.cancel([shared_f])

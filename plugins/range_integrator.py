@@ -37,6 +37,11 @@ With footprint P = 0 none of that code runs and both rules agree.
 
 Which shape is wood or leaf, and which branch a triangle or curve segment belongs to,
 is given by the scene builder through :meth:`set_tables`.
+
+A real scanner (``[sensor]``, :mod:`simlidar_mi.lidar.sensor`) calls :meth:`trace_subrays`
+instead: every divergent sub-ray of a range of beams, unreduced (range, class, ids and, when
+energies are needed, |cos incidence| and reflectance), for the waveform built on the host.
+:meth:`trace` is untouched by it, so scans without a sensor keep their bytes and speed.
 """
 from __future__ import annotations
 
@@ -65,6 +70,8 @@ class RangeIntegrator(mi.SamplingIntegrator):
         self._prim = mi.UInt32(np.full(1, NO_ID, np.uint32))
         self._instanced = False
         self._prim_tree = None
+        self._class_rho = mi.Float(np.array([0.0, 0.20, 0.35, 0.45], np.float32))
+        self._shape_rho = None
 
     def set_tables(self, shape_class: np.ndarray, shape_base: np.ndarray,
                    prim_element: np.ndarray, instance_tree: np.ndarray | None = None,
@@ -159,6 +166,104 @@ class RangeIntegrator(mi.SamplingIntegrator):
             out["tree_id"] = tree
         dr.eval(out)  # one kernel: reading the arrays one by one would trace twice
         return out
+
+    def set_reflectance(self, class_reflectance: np.ndarray, shape_reflectance: np.ndarray | None = None) -> None:
+        """ρ per class code (escape, ground, wood, leaf) and, per shape registry id, a shape's own
+        reflectance (negative: use its class's).  Instanced shapes use their class's."""
+        self._class_rho = mi.Float(np.ascontiguousarray(class_reflectance, np.float32))
+        own = shape_reflectance is not None and bool(np.any(np.asarray(shape_reflectance) >= 0))
+        self._shape_rho = mi.Float(np.ascontiguousarray(shape_reflectance, np.float32)) if own else None
+
+    def trace_subrays(self, scene: mi.Scene, sensor: mi.Sensor, offsets_rad: np.ndarray,
+                      beam_start: int, beam_count: int, normals: bool = False) -> dict:
+        """Cast every divergent sub-ray of beams [beam_start, beam_start + beam_count).
+
+        Each dot-matrix sub-beam q < (P+1)² carries the S sub-rays of ``offsets_rad`` (S, 2):
+        angular offsets along (u, v) ⟂ the sub-beam's direction.  Returns Dr.Jit arrays of
+        length beam_count·(P+1)²·S, laid out (beam, q, j): ``t`` (inf where the sub-ray escaped),
+        ``class``, ``element_id``, ``tree_id`` (scenes of several plants), and with ``normals``
+        ``cos_incidence`` (|cos| between the sub-ray and the geometric normal; 0 on escapes) and
+        ``reflectance`` (see :meth:`set_reflectance`).  No reduction: the waveform is built on
+        the host.
+        """
+        M, P = sensor.n_angles, sensor.footprint
+        Q = (P + 1) ** 2
+        off = np.asarray(offsets_rad, np.float64).reshape(-1, 2)
+        S = len(off)
+        idx = dr.arange(mi.UInt32, beam_count * Q * S)
+        rest = idx // S if S > 1 else idx
+        beam = mi.UInt32(beam_start) + (rest // Q if Q > 1 else rest)
+        i, k = beam // M, beam % M
+        pos = mi.Vector2f((mi.Float(k) + 0.5) / M, (mi.Float(i) + 0.5) / sensor.n_positions)
+        if Q > 1:
+            sub = rest % Q
+            aperture = mi.Vector2f(mi.Float(sub % (P + 1)) / P, mi.Float(sub // (P + 1)) / P)
+        else:
+            aperture = mi.Vector2f(0.5, 0.5)
+        ray, _ = sensor.sample_ray(0.0, 0.0, pos, aperture)
+        if S > 1 or np.any(off != 0):
+            j = idx % S
+            tan_u = dr.gather(mi.Float, mi.Float(np.tan(off[:, 0]).astype(np.float32)), j)
+            tan_v = dr.gather(mi.Float, mi.Float(np.tan(off[:, 1]).astype(np.float32)), j)
+            d = ray.d
+            # (u, v) ⟂ d: u horizontal unless d is near vertical; the spiral is round, so only
+            # its orientation depends on this choice.
+            helper = dr.select(dr.abs(d.z) < 0.9, mi.Vector3f(0, 0, 1), mi.Vector3f(1, 0, 0))
+            u = dr.normalize(dr.cross(helper, d))
+            v = dr.cross(d, u)
+            ray = mi.Ray3f(ray.o, dr.normalize(d + tan_u * u + tan_v * v), ray.time)
+        pi = scene.ray_intersect_preliminary(ray, coherent=True)
+        hit = pi.is_valid()
+        cls, elem, tree, sid, in_inst = self._classify(pi, hit)
+        t = dr.select(hit, pi.t, dr.inf)
+        out = {}
+        if normals:
+            si = pi.compute_surface_interaction(ray, mi.RayFlags.Minimal, hit)
+            cos_i = dr.select(hit, dr.abs(dr.dot(si.n, ray.d)), 0.0)
+            rho = dr.gather(mi.Float, self._class_rho, cls, hit)
+            if self._shape_rho is not None:
+                own = dr.gather(mi.Float, self._shape_rho, sid, hit & ~in_inst)
+                rho = dr.select(hit & ~in_inst & (own >= 0.0), own, rho)
+        if self.ground:
+            down = ray.d.z < 0.0
+            t_ground = dr.select(down, (self.ground_z - ray.o.z) / ray.d.z, dr.inf)
+            use_ground = down & (t_ground < t)
+            t = dr.select(use_ground, t_ground, t)
+            cls = dr.select(use_ground, GROUND, cls)
+            elem = dr.select(use_ground, NO_ID, elem)
+            if tree is not None:
+                tree = dr.select(use_ground, NO_ID, tree)
+            if normals:  # the ground's normal is +z
+                cos_i = dr.select(use_ground, dr.abs(ray.d.z), cos_i)
+                rho = dr.select(use_ground, dr.gather(mi.Float, self._class_rho, mi.UInt32(GROUND)), rho)
+        out.update({"t": t, "class": cls, "element_id": elem})
+        if tree is not None:
+            out["tree_id"] = tree
+        if normals:
+            out["cos_incidence"], out["reflectance"] = cos_i, rho
+        dr.eval(out)  # one kernel for every output
+        return out
+
+    def _classify(self, pi, hit):
+        """Class, element id, tree id (or None), shape registry id and in-instance mask of
+        preliminary intersections (the lookups of :meth:`trace`)."""
+        sid = dr.reinterpret_array(mi.UInt32, pi.shape)
+        cls = dr.gather(mi.UInt32, self._class, sid, hit)
+        base = dr.gather(mi.UInt32, self._base, sid, hit)
+        tree, in_inst = None, mi.Bool(False)
+        if self._instanced:
+            iid = dr.reinterpret_array(mi.UInt32, pi.instance)
+            in_inst = hit & (iid != 0)
+            row = dr.gather(mi.UInt32, self._inst_proto, iid, in_inst) + pi.shape_index
+            cls = dr.select(in_inst, dr.gather(mi.UInt32, self._group_class, row, in_inst), cls)
+            base = dr.select(in_inst, dr.gather(mi.UInt32, self._group_base, row, in_inst), base)
+            if self._inst_has_tree:
+                tree = dr.select(in_inst, dr.gather(mi.UInt32, self._inst_tree, iid, in_inst), NO_ID)
+        cls = dr.select(hit, cls, ESCAPE)
+        elem = dr.select(hit, dr.gather(mi.UInt32, self._prim, base + pi.prim_index, hit), NO_ID)
+        if self._prim_tree is not None:
+            tree = dr.select(hit, dr.gather(mi.UInt32, self._prim_tree, base + pi.prim_index, hit), NO_ID)
+        return cls, elem, tree, sid, in_inst
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         """For ``mi.render``: a (N, M, 4) tensor of range, class, element id, hit fraction.

@@ -65,6 +65,10 @@ def nonneg(v):
     return _finite(v) or (None if v >= 0 else "must be ≥ 0")
 
 
+def unit_interval(v):
+    return _finite(v) or (None if 0 <= v <= 1 else "must lie in [0, 1]")
+
+
 def at_least(n):
     return lambda v: None if v >= n else f"must be ≥ {n}"
 
@@ -291,6 +295,10 @@ SECTIONS: dict[str, dict[str, Key]] = {
                                 "sets the energy constant R_ref"),
         "wavelength_nm": Key(FLOAT, None, positive, "informational, written to the headers"),
     },
+    "materials": {  # reflectance at the sensor's wavelength, per class
+        **{k: Key(FLOAT, d, unit_interval, f"{k} reflectance in [0, 1]")
+           for k, d in (("wood", 0.35), ("leaf", 0.45), ("ground", 0.20))},
+    },
     "random_leaves": {
         "n_leaves": Key(INT, 1000, nonneg, "number of flat leaves N (before periodic copies)"),
         "leaf_area_m2": Key(FLOAT, 0.001, positive, "one-sided area a of every leaf, m²"),
@@ -393,6 +401,8 @@ ARRAY_SECTIONS: dict[str, dict[str, Key]] = {
         "max_m": Key(LIST, None, vec3),
         "path": Key(STR, None),
         "label": Key(STR, "wood", one_of("wood", "leaf")),
+        "reflectance": Key(FLOAT, None, unit_interval, "this shape's reflectance in [0, 1] "
+                           "(default: [materials] of its label)"),
     },
     # [[species]] of a [forest]: a random-tree preset, optional overrides, an intensity
     "species": {
@@ -581,6 +591,12 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
         for key, ks in spec.items():
             values.setdefault(key, copy.deepcopy(ks.default))
         sections[name] = values
+
+    sensor = sections["sensor"]
+    if sensor["range_max_m"] is not None and not sensor["range_max_m"] > sensor["range_min_m"]:
+        raise ConfigError(f"must be greater than sensor.range_min_m ({sensor['range_min_m']} m)",
+                          file=overridden.get("sensor.range_max_m", src), key="sensor.range_max_m",
+                          value=sensor["range_max_m"])
 
     arrays: dict[str, list[dict[str, Any]]] = {name: [] for name in ARRAY_SECTIONS}
     for name, items in arrays_raw.items():

@@ -7,6 +7,15 @@ Channels (all N × M, row = position y_i, column = angle θ_k):
 ``hit_fraction`` float32 when a footprint was simulated.  Header attributes hold
 every scan setting, the footprint's ``hit_rule``, the seed, the scene file's SHA-256
 and the float64 origin.
+
+A scan with a ``[sensor]`` (``result.echoes`` set) keeps those channels for echo 1 and
+adds ``n_returns`` (uint32), ``intensity`` (float32 echo energy E, when the sensor's
+intensity is on) and, for each return r = 2 … max_returns, the layer ``echo{r}.range``
+(float32, escape distance where the beam has fewer echoes), ``echo{r}.class``,
+``echo{r}.branch_id`` (uint32, 0 / 0xFFFFFFFF where absent), ``echo{r}.intensity``
+(with intensity on) and ``echo{r}.tree_id`` (scenes of several plants).  The header
+attribute ``simlidar_sensor`` holds the resolved sensor as JSON.  Without echoes
+nothing changes, byte for byte.
 """
 from __future__ import annotations
 
@@ -74,6 +83,8 @@ def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = N
         channels["tree_id"] = np.ascontiguousarray(result.tree_id, np.uint32)
     if p.footprint > 0:
         channels["hit_fraction"] = np.ascontiguousarray(result.hit_fraction, np.float32)
+    if getattr(result, "echoes", None) is not None:
+        _echo_channels(result, channels, header)
     if seed is not None:
         header["seed"] = header_value(seed)
     for key, value in (extra or {}).items():
@@ -85,8 +96,39 @@ def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = N
     return Path(path)
 
 
+def _echo_channels(result: ScanResult, channels: dict, header: dict) -> None:
+    """Add the echo channels and the sensor header of a ``[sensor]`` scan (module docstring)."""
+    n, m = result.shape
+    echoes, sensor = result.echoes, result.sensor
+    counts = result.n_returns if result.n_returns is not None else \
+        echoes.returns_per_beam(n * m).reshape(n, m)
+    channels["n_returns"] = np.ascontiguousarray(counts, np.uint32)
+    with_intensity = result.intensity is not None
+    if with_intensity:
+        channels["intensity"] = np.ascontiguousarray(result.intensity, np.float32)
+    max_returns = int((sensor or {}).get("max_returns") or
+                      (int(echoes.return_number.max()) if len(echoes) else 1))
+    for r in range(2, max_returns + 1):
+        layer = echoes.layer((n, m), r, escape_m=result.pattern.escape_m)
+        channels[f"echo{r}.range"] = np.ascontiguousarray(layer["range_m"], np.float32)
+        channels[f"echo{r}.class"] = np.ascontiguousarray(layer["cls"], np.uint32)
+        channels[f"echo{r}.branch_id"] = np.ascontiguousarray(layer["element_id"], np.uint32)
+        if with_intensity:
+            channels[f"echo{r}.intensity"] = np.ascontiguousarray(layer["intensity"], np.float32)
+        if layer["tree_id"] is not None:
+            channels[f"echo{r}.tree_id"] = np.ascontiguousarray(layer["tree_id"], np.uint32)
+    if sensor is not None:
+        header["simlidar_sensor"] = json.dumps(sensor, sort_keys=True, default=_plain)
+
+
+def _plain(value):
+    """numpy scalars and arrays as JSON values."""
+    return value.tolist() if hasattr(value, "tolist") else str(value)
+
+
 def read_exr(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
-    """Channels and header of any EXR; JSON-encoded ``simlidar_pattern`` is decoded."""
+    """Channels and header of any EXR; JSON-encoded ``simlidar_pattern`` and
+    ``simlidar_sensor`` are decoded into ``header['pattern']`` and ``header['sensor']``."""
     try:
         with OpenEXR.File(str(path)) as f:
             header = dict(f.header())  # emptied when the file closes
@@ -95,4 +137,6 @@ def read_exr(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
         raise SimlidarError(f"{path}: cannot read EXR: {exc}") from exc
     if "simlidar_pattern" in header:
         header["pattern"] = json.loads(header["simlidar_pattern"])
+    if "simlidar_sensor" in header:
+        header["sensor"] = json.loads(header["simlidar_sensor"])
     return channels, header

@@ -26,10 +26,20 @@ coordinates are the scene's own, so the CRS only says what they mean.
 ``point_source_id`` is the leg index j of a multi-leg path (0, 1, …); a one-leg scan
 (every other platform) has a single source, so it is 0 for every point, and
 ``scan_position`` holds the row.  A ``simlidar-mi`` VLR (record 1) repeats the
-``gps_time`` definition used, as text.
+``gps_time`` definition used, as text.  A pattern that knows each beam's emission time
+(``beam_times_s()`` not None: a moving platform with a pulse rate) gives that time.
+
+A scan with a ``[sensor]`` (``result.echoes`` set) writes one point per echo, at the
+echo's range along the beam centre: ``return_number`` and ``number_of_returns`` (1 … 15),
+``intensity`` = min(65535, round(1000·E)) with E the echo energy (0 when the sensor's
+intensity is off), the beam's ``gps_time``, and an extra dimension ``echo_width_ns``
+(float32); ``range_m`` is then the echo's range.  VLR record 2 states the intensity
+scale, record 3 holds the resolved sensor as JSON.  Without echoes the file is the
+first-return cloud above (return numbers 0, intensity 0), byte for byte as before.
 """
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -50,6 +60,14 @@ TIME_PULSE = "pulse time: (i*M + k) / pulse_rate_hz seconds from the first pulse
 TIME_SCAN_ORDER = ("scan-order time, not measured: i + k/M on a nominal 1 s per row "
                    "(row i, column k of M), legs following each other")
 TIME_BEAM = "beam emission time in seconds from the first beam (BeamPattern.beam_times_s)"
+#: ASPRS code of each class code (geometry.CLASS_CODES) as a lookup table; escapes are not written.
+LAS_CLASS_LUT = np.zeros(256, np.uint8)
+LAS_CLASS_LUT[list(LAS_CLASS)] = list(LAS_CLASS.values())
+#: LAS intensity per unit of echo energy E (the radiometric law of lidar/sensor.py).
+INTENSITY_SCALE = 1000.0
+INTENSITY_TEXT = ("intensity = min(65535, round(1000 * E)), E = echo energy: sum over the echo's "
+                  "sub-rays of w * rho * |cos i| * (R_ref / r)^2, R_ref = range_at_10pct_m * "
+                  "sqrt(detection_threshold / 0.1); 0 when [sensor] intensity is off")
 
 
 def scan_times_s(result: ScanResult, first_row: int = 0) -> tuple[np.ndarray, str]:
@@ -67,6 +85,10 @@ def scan_times_s(result: ScanResult, first_row: int = 0) -> tuple[np.ndarray, st
     n, m = result.shape
     i = np.arange(n, dtype=np.float64)[:, None]
     k = np.arange(m, dtype=np.float64)[None, :]
+    beam_times = getattr(result.pattern, "beam_times_s", None)  # moving platforms (issue 7)
+    times = beam_times() if callable(beam_times) else None
+    if times is not None:
+        return np.asarray(times, np.float64).reshape(n, m), TIME_BEAM
     rate = (result.pattern.meta or {}).get("pulse_rate_hz")
     if rate:
         return (i * m + k) / float(rate), TIME_PULSE
@@ -81,32 +103,33 @@ def crs_wkt(crs: str) -> str:
 
 def write_scan_las(result: ScanResult | list[ScanResult], path: str | Path,
                    crs: str | None = None) -> Path:
-    """Write every non-escape first return of ``result`` (or of several legs) to ``path``.
+    """Write every non-escape first return of ``result`` (or of several legs) to ``path``;
+    with echoes (a ``[sensor]`` scan), every echo.
 
     With several results, ``point_source_id`` is the leg index and ``scan_position``
     counts rows within each leg.  ``crs`` (``"EPSG:<code>"``, the scene's
     ``[scene] crs``) is written as an OGC WKT record; None writes none.
     """
     results = result if isinstance(result, list) else [result]
+    with_echoes = any(getattr(r, "echoes", None) is not None for r in results)
     parts, first_row, time_kind = [], 0, TIME_SCAN_ORDER
     for leg, res in enumerate(results):
-        keep = res.cls != CLASS_CODES["escape"]
-        i_idx, k_idx = np.nonzero(keep)
-        tree = res.tree_id[keep] if res.tree_id is not None else np.full(len(i_idx), 0xFFFFFFFF, np.uint32)
         t, time_kind = scan_times_s(res, first_row)
         first_row += res.shape[0]
-        parts.append((res.points_m()[keep], res.cls[keep], res.pattern.col_angle_deg[k_idx],
-                      res.range_m[keep], i_idx, k_idx, res.element_id[keep],
-                      np.full(len(i_idx), leg), tree, t[keep]))
-    pts, cls, theta, rng, i_idx, k_idx, elem, source, tree, gps = (np.concatenate(c) for c in zip(*parts))
+        parts.append(_leg_points(res, leg, t, with_echoes))
+    cols = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    pts = cols["xyz"]
     with_tree = any(r.tree_id is not None for r in results)
     header = laspy.LasHeader(point_format=6, version="1.4")
+    range_text = "echo range (m)" if with_echoes else "first-return range (m)"
     header.add_extra_dims([
-        laspy.ExtraBytesParams("range_m", np.float32, description="first-return range (m)"),
+        laspy.ExtraBytesParams("range_m", np.float32, description=range_text),
         laspy.ExtraBytesParams("scan_position", np.uint32, description="sweep index i"),
         laspy.ExtraBytesParams("scan_angle_index", np.uint32, description="angle index k"),
         laspy.ExtraBytesParams("branch_id", np.uint32, description="element id"),
         *([laspy.ExtraBytesParams("tree_id", np.uint32, description="tree or plant id")] if with_tree else []),
+        *([laspy.ExtraBytesParams("echo_width_ns", np.float32, description="echo FWHM width (ns)")]
+          if with_echoes else []),
     ])
     header.scales = np.array([0.0001, 0.0001, 0.0001])  # 0.1 mm
     header.offsets = np.floor(pts.min(axis=0)) if len(pts) else np.zeros(3)
@@ -117,18 +140,77 @@ def write_scan_las(result: ScanResult | list[ScanResult], path: str | Path,
         header.vlrs.append(WktCoordinateSystemVlr(crs_wkt(crs)))
     header.vlrs.append(laspy.VLR("simlidar-mi", 1, "gps_time definition",
                                  (f"gps_time: {time_kind}\0").encode("ascii")))
-    las = laspy.LasData(header)
+    if with_echoes:
+        sensor = next((r.sensor for r in results if getattr(r, "sensor", None) is not None), None)
+        header.vlrs.append(laspy.VLR("simlidar-mi", 2, "intensity scale",
+                                     (INTENSITY_TEXT + "\0").encode("ascii")))
+        header.vlrs.append(laspy.VLR("simlidar-mi", 3, "sensor (JSON)",
+                                     json.dumps(sensor, sort_keys=True, default=_plain).encode("utf-8")))
+    # One preallocated record, filled field by field.
+    points = laspy.ScaleAwarePointRecord.zeros(len(pts), header=header)
+    las = laspy.LasData(header, points=points)
     las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
-    las.classification = np.vectorize(LAS_CLASS.get, otypes=[np.uint8])(cls) if len(cls) else cls
-    las.scan_angle = np.round(theta / 0.006).astype(np.int16)
-    las.point_source_id = source.astype(np.uint16)
-    las.gps_time = gps
-    las.range_m = rng
-    las.scan_position = i_idx.astype(np.uint32)
-    las.scan_angle_index = k_idx.astype(np.uint32)
-    las.branch_id = elem
+    las.classification = LAS_CLASS_LUT[cols["cls"]]
+    las.scan_angle = np.round(cols["theta"] / 0.006).astype(np.int16)
+    las.point_source_id = cols["source"].astype(np.uint16)
+    las.gps_time = cols["gps"]
+    las.range_m = cols["range"]
+    las.scan_position = cols["i"].astype(np.uint32)
+    las.scan_angle_index = cols["k"].astype(np.uint32)
+    las.branch_id = cols["elem"]
     if with_tree:
-        las.tree_id = tree
+        las.tree_id = cols["tree"]
+    if with_echoes:
+        if len(pts) and max(cols["ret"].max(), cols["nret"].max()) > 15:
+            raise ValueError("LAS point format 6 holds at most 15 returns per pulse; "
+                             f"this scan has {int(cols['nret'].max())}")
+        las.return_number = cols["ret"]
+        las.number_of_returns = cols["nret"]
+        las.intensity = cols["intensity"]
+        las.echo_width_ns = cols["width"]
     with atomic_file(path) as tmp:
         las.write(str(tmp))
     return Path(path)
+
+
+def _leg_points(res: ScanResult, leg: int, times_s: np.ndarray, with_echoes: bool) -> dict:
+    """Per-point columns of one leg: its first returns, or its echoes (module docstring)."""
+    n, m = res.shape
+    echoes = getattr(res, "echoes", None)
+    if echoes is None:
+        keep = res.cls != CLASS_CODES["escape"]
+        i_idx, k_idx = np.nonzero(keep)
+        cols = {"xyz": res.points_m()[keep], "cls": res.cls[keep], "range": res.range_m[keep],
+                "elem": res.element_id[keep],
+                "tree": res.tree_id[keep] if res.tree_id is not None else np.full(len(i_idx), 0xFFFFFFFF, np.uint32),
+                "gps": times_s[keep]}
+        if with_echoes:  # a first-return leg among echo legs: one return per pulse
+            ones = np.ones(len(i_idx), np.uint8)
+            cols.update(ret=ones, nret=ones, intensity=np.zeros(len(i_idx), np.uint16),
+                        width=np.zeros(len(i_idx), np.float32))
+    else:
+        i_idx, k_idx = np.divmod(np.asarray(echoes.beam, np.int64), m)
+        p = res.pattern
+        origin = p.row_origin_m[i_idx]
+        velocity, col_time = getattr(p, "velocity_m_s", None), getattr(p, "col_time_s", None)
+        if velocity is not None and col_time is not None:  # fired from where the platform was
+            origin = origin + np.asarray(col_time, np.float64)[k_idx, None] * np.asarray(velocity, np.float64)
+        rng = np.asarray(echoes.range_m, np.float64)
+        intensity_on = getattr(res, "intensity", None) is not None
+        energy = np.asarray(echoes.energy, np.float64)
+        cols = {"xyz": origin + rng[:, None] * p.world_dirs()[i_idx, k_idx],
+                "cls": echoes.cls, "range": rng.astype(np.float32), "elem": echoes.element_id,
+                "tree": echoes.tree_id if echoes.tree_id is not None else np.full(len(i_idx), 0xFFFFFFFF, np.uint32),
+                "gps": times_s[i_idx, k_idx], "ret": echoes.return_number, "nret": echoes.number_of_returns,
+                "intensity": (np.minimum(65535.0, np.rint(INTENSITY_SCALE * energy)).astype(np.uint16)
+                              if intensity_on else np.zeros(len(i_idx), np.uint16)),
+                "width": np.asarray(echoes.width_ns, np.float32)}
+    cols["theta"] = res.pattern.col_angle_deg[k_idx]
+    cols["i"], cols["k"] = i_idx, k_idx
+    cols["source"] = np.full(len(i_idx), leg)
+    return cols
+
+
+def _plain(value):
+    """numpy scalars and arrays as JSON values."""
+    return value.tolist() if hasattr(value, "tolist") else str(value)

@@ -27,6 +27,8 @@ from ..geometry import CLASS_CODES
 from ..io.exr import read_exr
 from ..scene.build import BuiltScene
 from .platforms import BeamPattern, elevation_dirs
+from .sensor import SensorModel, subray_offsets
+from .waveform import Echoes
 
 CLASS_NAMES = {v: k for k, v in CLASS_CODES.items()}
 NO_ID = 0xFFFFFFFF
@@ -249,6 +251,7 @@ class ScanResult:
     uint8 (0 escape, 1 ground, 2 wood, 3 leaf), ``element_id`` uint32 (branch row,
     ``n_branches + j`` for primitive j, leaf id; 0xFFFFFFFF for ground/escape),
     ``hit_fraction`` float32 share of sub-beams meeting vegetation (under either hit rule).
+    With a ``[sensor]`` section these first-return arrays hold echo 1 of ``echoes``.
     """
 
     settings: ScanSettings | None  # the tractor's settings; None for other platforms
@@ -261,6 +264,12 @@ class ScanResult:
     metadata: dict = field(default_factory=dict)
     pattern: BeamPattern | None = None
     tree_id: np.ndarray | None = None  # uint32 (N, M), scenes of several plants only
+    # A [sensor] scan (issue 7): every echo, echoes per beam, first-return intensity, and
+    # the resolved sensor for headers.  None: the first-return scan of old.
+    echoes: Echoes | None = None
+    n_returns: np.ndarray | None = None      # uint8 (N, M)
+    intensity: np.ndarray | None = None      # float32 (N, M), echo 1's energy
+    sensor: dict | None = None
 
     def __post_init__(self) -> None:
         if self.pattern is None:
@@ -319,38 +328,20 @@ class ScanResult:
 
 
 def scan(built: BuiltScene, settings: ScanSettings | BeamPattern,
-         variant: str | None = None) -> ScanResult:
-    """Fire every beam of ``settings`` (tractor) or of a platform's pattern into ``built``."""
+         variant: str | None = None, sensor: SensorModel | None = None, *, seed: int = 0,
+         leg: int = 0) -> ScanResult:
+    """Fire every beam of ``settings`` (tractor) or of a platform's pattern into ``built``.
+
+    With a :class:`~simlidar_mi.lidar.sensor.SensorModel` (``[sensor]`` effects on) the
+    physical scanner runs (:func:`scan_physical`, seeded by ``seed`` and ``leg``); without
+    one, SIMLIDAR's first-return scan."""
+    if sensor is not None:
+        return scan_physical(built, settings, sensor, seed=seed, leg=leg, variant=variant)
     mi = mitsuba(variant)
-    o = built.origin_m
-    if isinstance(settings, ScanSettings):
-        s = settings
-        pattern = s.pattern()
-        sensor = mi.load_dict({
-            "type": "tractor_lidar",
-            "n_positions": s.n_positions, "n_angles": s.n_angles,
-            "y_start": s.y_start_m - o[1], "dy": s.dy_m, "gap": s.gap,
-            "theta_min_deg": s.theta_min_deg, "dtheta_deg": s.dtheta_deg,
-            "x0": s.x0_m - o[0], "z0": s.z0_m - o[2], "footprint": s.footprint,
-            "film": _film(s.n_angles, s.n_positions),
-        })
-    else:
-        s, pattern = None, settings
-        sensor = mi.load_dict({"type": "lidar_pattern", "n_positions": pattern.n_rows,
-                               "n_angles": pattern.n_cols, "footprint": pattern.footprint,
-                               "film": _film(pattern.n_cols, pattern.n_rows)})
-        sensor.set_tables(*pattern.sub_tables(o))
-        if pattern.beam_dirs is not None:
-            sensor.set_beam_dirs(pattern.beam_dirs.reshape(-1, 3))
-    motion = pattern.motion_tables()
-    if motion is not None:  # each beam from the platform's position at its own time
-        sensor.set_motion(*motion)
-    integrator = mi.load_dict({"type": "lidar_range", "escape": pattern.escape_m,
-                               "ground": pattern.ground, "ground_z": pattern.ground_z_m - o[2],
-                               "hit_rule": pattern.hit_rule})
-    integrator.set_tables(**built.integrator_tables())
+    s, pattern, lidar = _lidar(mi, built, settings)
+    integrator = _range_integrator(mi, built, pattern)
     t0 = time.perf_counter()
-    out = integrator.trace(built.scene, sensor)
+    out = integrator.trace(built.scene, lidar)
     shape = (pattern.n_rows, pattern.n_cols)
     # .numpy() is a view of Dr.Jit memory: copy before the arrays are released.
     rng = out["range"].numpy().reshape(shape).copy()
@@ -360,8 +351,181 @@ def scan(built: BuiltScene, settings: ScanSettings | BeamPattern,
     tree = out["tree_id"].numpy().reshape(shape).copy() if "tree_id" in out else None
     seconds = time.perf_counter() - t0
     return ScanResult(s, rng, cls, elem, frac, built.origin_m.copy(), seconds,
-                      {"representation": built.representation, "facets": built.facets,
-                       "n_branches": built.n_branches, "n_dropped": built.n_dropped}, pattern, tree)
+                      _metadata(built), pattern, tree)
+
+
+def _metadata(built: BuiltScene) -> dict:
+    return {"representation": built.representation, "facets": built.facets,
+            "n_branches": built.n_branches, "n_dropped": built.n_dropped}
+
+
+def _lidar(mi, built: BuiltScene, settings):
+    """(tractor settings or None, pattern, Mitsuba sensor) for ``settings``."""
+    o = built.origin_m
+    if isinstance(settings, ScanSettings):
+        s = settings
+        pattern = s.pattern()
+        lidar = mi.load_dict({
+            "type": "tractor_lidar",
+            "n_positions": s.n_positions, "n_angles": s.n_angles,
+            "y_start": s.y_start_m - o[1], "dy": s.dy_m, "gap": s.gap,
+            "theta_min_deg": s.theta_min_deg, "dtheta_deg": s.dtheta_deg,
+            "x0": s.x0_m - o[0], "z0": s.z0_m - o[2], "footprint": s.footprint,
+            "film": _film(s.n_angles, s.n_positions),
+        })
+    else:
+        s, pattern = None, settings
+        lidar = mi.load_dict({"type": "lidar_pattern", "n_positions": pattern.n_rows,
+                              "n_angles": pattern.n_cols, "footprint": pattern.footprint,
+                              "film": _film(pattern.n_cols, pattern.n_rows)})
+        lidar.set_tables(*pattern.sub_tables(o))
+        if pattern.beam_dirs is not None:
+            lidar.set_beam_dirs(pattern.beam_dirs.reshape(-1, 3))
+    motion = pattern.motion_tables()
+    if motion is not None:  # each beam from the platform's position at its own time
+        lidar.set_motion(*motion)
+    return s, pattern, lidar
+
+
+def _range_integrator(mi, built: BuiltScene, pattern: BeamPattern):
+    integrator = mi.load_dict({"type": "lidar_range", "escape": pattern.escape_m,
+                               "ground": pattern.ground, "ground_z": pattern.ground_z_m - built.origin_m[2],
+                               "hit_rule": pattern.hit_rule})
+    integrator.set_tables(**built.integrator_tables())
+    return integrator
+
+
+DEFAULT_CHUNK_RAYS = 1 << 22  # ~4 M sub-rays per trace: ~150 MB of Dr.Jit and numpy arrays
+
+
+def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPattern,
+                  model: SensorModel, *, seed: int = 0, leg: int = 0, variant: str | None = None,
+                  chunk_rays: int = DEFAULT_CHUNK_RAYS) -> ScanResult:
+    """A real scanner's scan: divergent sub-rays, echoes from the waveform, intensity, noise.
+
+    Beams are traced in chunks of whole beams (at most ``chunk_rays`` sub-rays, at least one
+    beam), so memory stays bounded; every step is per beam or keyed by the global beam
+    index, so results do not depend on the chunk size.  Per sub-ray energies follow the law
+    of :mod:`simlidar_mi.lidar.sensor`; echoes come from
+    :func:`simlidar_mi.lidar.waveform.detect_echoes`, range noise from
+    :mod:`simlidar_mi.lidar.noise` keyed by (``seed``, ``leg``, beam, return number).
+
+    Without energies (divergence and/or range limits only: no echoes, intensity or noise)
+    a beam's first return is its nearest sub-ray inside [range_min_m, range_max_m]
+    (under ``hit_rule = "any"`` its nearest vegetation sub-ray, as for the dot matrix).
+
+    The result's first-return arrays hold echo 1 (escape where a beam has none);
+    ``hit_fraction`` is the profile-weighted share of the beam's sub-rays whose first hit is
+    vegetation; ``n_returns``, ``echoes``, ``intensity`` (with ``intensity = true``) and
+    ``sensor`` are filled.
+    """
+    mi = mitsuba(variant)
+    s, pattern, lidar = _lidar(mi, built, settings_or_pattern)
+    integrator = _range_integrator(mi, built, pattern)
+    integrator.set_reflectance(model.class_reflectance(), built.shape_reflectance)
+    offsets, w_sub = subray_offsets(model)
+    n_dot = (pattern.footprint + 1) ** 2
+    n_sub = n_dot * len(offsets)                     # sub-rays per beam, laid out (q, j)
+    weight = np.tile(w_sub, n_dot) / n_dot           # Σ = 1 per beam
+    N, M = pattern.n_rows, pattern.n_cols
+    n_beams = N * M
+    per_chunk = max(1, int(chunk_rays) // n_sub)
+    energy = model.needs_energy
+    rng = np.full(n_beams, pattern.escape_m, np.float32)
+    cls = np.zeros(n_beams, np.uint8)
+    elem = np.full(n_beams, NO_ID, np.uint32)
+    frac = np.zeros(n_beams, np.float32)
+    n_ret = np.zeros(n_beams, np.uint8)
+    tree = inten = None
+    parts = []
+    t0 = time.perf_counter()
+    trace_s = echo_s = 0.0
+    for b0 in range(0, n_beams, per_chunk):
+        n = min(per_chunk, n_beams - b0)
+        t1 = time.perf_counter()
+        out = integrator.trace_subrays(built.scene, lidar, offsets, b0, n, normals=energy)
+        t = out["t"].numpy().reshape(n, n_sub).astype(np.float64)
+        trace_s += time.perf_counter() - t1
+        c = out["class"].numpy().reshape(n, n_sub).astype(np.uint8)
+        e = out["element_id"].numpy().reshape(n, n_sub).copy()
+        tr = out["tree_id"].numpy().reshape(n, n_sub).copy() if "tree_id" in out else None
+        if tr is not None and tree is None:
+            tree = np.full(n_beams, NO_ID, np.uint32)
+        veg = (c == CLASS_CODES["wood"]) | (c == CLASS_CODES["leaf"])
+        sl = slice(b0, b0 + n)
+        frac[sl] = veg.astype(np.float64) @ weight
+        if energy:
+            cos_i = out["cos_incidence"].numpy().reshape(n, n_sub).astype(np.float64)
+            rho = out["reflectance"].numpy().reshape(n, n_sub).astype(np.float64)
+            t1 = time.perf_counter()
+            echoes = _echoes(model, t, c, e, tr, cos_i, rho, weight, np.arange(b0, b0 + n, dtype=np.int64),
+                             seed=seed, leg=leg)
+            echo_s += time.perf_counter() - t1
+            parts.append(echoes)
+            first = echoes.return_number == 1
+            beams = echoes.beam[first]
+            rng[beams] = echoes.range_m[first]
+            cls[beams] = echoes.cls[first]
+            elem[beams] = echoes.element_id[first]
+            if tree is not None and echoes.tree_id is not None:
+                tree[beams] = echoes.tree_id[first]
+            if model.intensity:
+                if inten is None:
+                    inten = np.zeros(n_beams, np.float32)
+                inten[beams] = echoes.energy[first]
+            n_ret[beams] = echoes.number_of_returns[first]
+        else:
+            inside = (t >= model.range_min_m) & (t <= model.range_max_m)
+            r = np.where(inside, t, np.inf)
+            if pattern.hit_rule == "any" and n_sub > 1:
+                r_veg = np.where(veg, r, np.inf)
+                r = np.where(np.isfinite(r_veg).any(axis=1, keepdims=True), r_veg, r)
+            j = np.argmin(r, axis=1)
+            rows = np.arange(n)
+            r1 = r[rows, j]
+            got = np.isfinite(r1)
+            rng[sl] = np.where(got, r1, pattern.escape_m)
+            cls[sl] = np.where(got, c[rows, j], CLASS_CODES["escape"])
+            elem[sl] = np.where(got, e[rows, j], NO_ID)
+            if tree is not None:
+                tree[sl] = np.where(got, tr[rows, j], NO_ID)
+            n_ret[sl] = got
+        del out
+    seconds = time.perf_counter() - t0
+    shape = (N, M)
+    echoes = Echoes.concat(parts) if energy else None
+    meta = _metadata(built)
+    meta.update({"sub_rays_per_beam": n_sub, "seed": int(seed), "leg": int(leg),
+                 "trace_seconds": trace_s, "echo_seconds": echo_s})
+    return ScanResult(s, rng.reshape(shape), cls.reshape(shape), elem.reshape(shape),
+                      frac.reshape(shape), built.origin_m.copy(), seconds, meta, pattern,
+                      None if tree is None else tree.reshape(shape), echoes=echoes,
+                      n_returns=n_ret.reshape(shape),
+                      intensity=None if inten is None else inten.reshape(shape),
+                      sensor=model.to_dict())
+
+
+def subray_energy(model: SensorModel, range_m: np.ndarray, reflectance: np.ndarray,
+                  cos_incidence: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """E_j = w_j·ρ_j·|cos i_j|·(R_ref/r_j)² (Lambertian, :mod:`~simlidar_mi.lidar.sensor`);
+    0 where the sub-ray escaped."""
+    with np.errstate(divide="ignore"):
+        inv_r2 = np.where(np.isfinite(range_m) & (range_m > 0), 1.0 / np.square(range_m), 0.0)
+    return weight * reflectance * np.abs(cos_incidence) * model.r_ref_m ** 2 * inv_r2
+
+
+def _echoes(model: SensorModel, t, c, e, tr, cos_i, rho, weight, beam_index, *, seed: int, leg: int):
+    from .waveform import detect_echoes  # noqa: PLC0415 - only scans with echoes need it
+    E = subray_energy(model, t, rho, cos_i, weight)
+    echoes = detect_echoes(t, E, c, e, tr, cos_i, beam_index, pulse_length_ns=model.pulse_length_ns,
+                           detection_threshold=model.detection_threshold,
+                           max_returns=model.max_returns, range_min_m=model.range_min_m,
+                           range_max_m=model.range_max_m)
+    if model.noise:
+        from .noise import apply_range_noise  # noqa: PLC0415
+        echoes = apply_range_noise(echoes, seed=seed, leg=leg, range_noise_m=model.range_noise_m,
+                                   range_noise_per_m=model.range_noise_per_m)
+    return echoes
 
 
 def _film(width: int, height: int) -> dict:

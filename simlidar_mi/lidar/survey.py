@@ -363,8 +363,10 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     seconds["build"] = time.perf_counter() - t
     bar(f"built {built.representation} scene")
 
+    sensor = scene_sensor(cfg, geometry, patterns)
     t = time.perf_counter()
-    results = [scan(built, p, cfg["scene"]["variant"]) for p in patterns]
+    results = [scan(built, p, cfg["scene"]["variant"], sensor, seed=cfg.seed, leg=j)
+               for j, p in enumerate(patterns)]
     seconds["scan"] = time.perf_counter() - t
     bar(f"scanned {n_beams} beams")
 
@@ -401,6 +403,25 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     return ScanRun(results[0] if len(results) == 1 else results, measures, files)
 
 
+def scene_sensor(cfg: SceneConfig, geometry: SceneGeometry, patterns: list):
+    """The scene's :class:`~simlidar_mi.lidar.sensor.SensorModel` (None: the first-return scan).
+
+    Auto ``beam_samples`` sees the farthest corner of the geometry's box from any scanner
+    position and the median branch diameter."""
+    from .sensor import resolve_sensor  # noqa: PLC0415
+    if not cfg.has("sensor"):
+        return None
+    lo, hi = geometry.bounds_m()
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    scanners = np.concatenate([scanner_positions_m(p) for p in patterns]) if patterns else np.zeros((1, 3))
+    far = float(np.max(np.linalg.norm(corners[None, :, :] - scanners[:, None, :], axis=2)))
+    feature = float(np.median(geometry.branches.diameter)) if len(geometry.branches) else None
+    try:
+        return resolve_sensor(cfg, far_range_m=far, feature_m=feature)
+    except ConfigError as exc:
+        raise cfg.relabel(exc) from None
+
+
 def scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results) -> dict:
     """measures.json of a run: the scene, the wood measures and what each scan saw."""
     wm = {}
@@ -429,6 +450,12 @@ def scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results) -> 
         out["legs"] = [{"N": r.shape[0], "M": r.shape[1], "hits": r.class_counts(),
                         "pattern": r.pattern.to_dict()} for r in results]
         out["hits"] = {k: sum(leg["hits"][k] for leg in out["legs"]) for k in first.class_counts()}
+    if first.sensor is not None:  # a real scanner: what it was and what its echoes were
+        out["sensor"] = first.sensor
+        out["sub_rays_per_beam"] = first.metadata.get("sub_rays_per_beam")
+        if first.echoes is not None:
+            from .waveform import echo_statistics  # noqa: PLC0415
+            out["echoes"] = echo_statistics(results)
     for key in ("V_L_m3", "A_L_m2", "A_PR_m2", "A_PR_exact_m2", "per_tree"):
         if key in wm:
             out[key] = wm[key]

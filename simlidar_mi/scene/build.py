@@ -103,6 +103,8 @@ class BuiltScene:
     group_base: np.ndarray | None = None
     n_instances: int = 0
     prim_tree: np.ndarray | None = None  # tree id per primitive (several plants, no instancing)
+    # Per shape registry id, a shape's own reflectance ([[primitive]] reflectance); −1: its class's.
+    shape_reflectance: np.ndarray | None = None
 
     def integrator_tables(self) -> dict:
         """Keyword arguments for the range integrator's ``set_tables``."""
@@ -443,6 +445,10 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     shape_class = np.zeros(size, np.uint32)
     shape_base = np.zeros(size, np.uint32)
     prim_parts, offset = [], 0
+    shape_rho = np.full(size, -1.0, np.float32)
+    for j, prim in enumerate(primitives):
+        if prim.params.get("reflectance") is not None:
+            shape_rho[by_key[f"primitive_{j:04d}"]] = prim.params["reflectance"]
     for key, cls, elems in groups:
         rid = by_key[key]
         shape_class[rid], shape_base[rid] = cls, offset
@@ -481,7 +487,8 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     else:
         lo = hi = origin.copy()
     return BuiltScene(scene, origin, shape_class, shape_base, prim_element.astype(np.uint32),
-                      len(kept), n_dropped, n_tri, representation, k, lo, hi, **inst)
+                      len(kept), n_dropped, n_tri, representation, k, lo, hi, **inst,
+                      shape_reflectance=shape_rho)
 
 
 def _plant_ids(key: str, elems: np.ndarray, branches: Branches, leaves: Leaves) -> np.ndarray:

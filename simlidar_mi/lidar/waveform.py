@@ -236,6 +236,8 @@ def detect_echoes(range_m, energy, cls, element_id, tree_id, cos_incidence, beam
         general[several[~ok]] = True
     if general.any():
         parts.append(_general_echoes(np.flatnonzero(general), starts, cl, nj, frac, ej, fwhm, kb, **fwd))
+    if not parts:
+        return Echoes.empty(with_tree)
     # Per echo: order key (global bin of its peak: the original group order), beam row,
     # range, energy, width (m), index of the strongest sub-ray in ``flat``.
     key, grow, g_range, g_energy, width_m, strong = (np.concatenate(c) for c in zip(*parts))

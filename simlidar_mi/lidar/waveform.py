@@ -193,7 +193,7 @@ def detect_echoes(range_m, energy, cls, element_id, tree_id, cos_incidence, beam
     if s == 1:
         flat = np.flatnonzero(valid.ravel())
     else:
-        order = np.argsort(np.where(valid, r, np.inf), axis=1, kind="stable")
+        order = _row_order(np.where(valid, r, np.inf))
         flat = (np.arange(n_rows, dtype=np.int64)[:, None] * s + order)[np.take_along_axis(valid, order, 1)]
     if len(flat) == 0:
         return Echoes.empty(with_tree)
@@ -286,10 +286,23 @@ def _vertex(wm, w0, wp):
     return d, height
 
 
+def _row_order(key):
+    """``np.argsort(key, axis=1, kind="stable")``, faster: the unstable (SIMD) sort, then
+    the stable one again for the rows where two finite keys tie (only there can the two
+    orders differ; infinite keys are escapes, dropped after sorting)."""
+    order = np.argsort(key, axis=1)
+    srt = np.take_along_axis(key, order, 1)
+    tie = np.flatnonzero(((srt[:, 1:] == srt[:, :-1]) & np.isfinite(srt[:, 1:])).any(axis=1))
+    if len(tie):
+        order[tie] = np.argsort(key[tie], axis=1, kind="stable")
+    return order
+
+
 def _pulse(taps, frac, ej, bin_sigmas):
-    """E_j·exp(−((t − frac_j)·h/σ)²/2) for the (n, T) taps t (int) of n sub-rays: the
-    operations of every path in the same order, so every path gets the same bits."""
-    x = np.subtract(taps, frac[:, None])
+    """E_j·exp(−((t − frac_j)·h/σ)²/2) for the (n, T) taps t (integers, held as float64:
+    exact) of n sub-rays: the operations of every path in the same order, so every path
+    gets the same bits."""
+    x = np.subtract(taps, frac[:, None], out=taps if taps.ndim == 2 else None)  # 2D: a temporary
     x *= bin_sigmas
     np.square(x, out=x)
     x *= -0.5
@@ -346,7 +359,7 @@ def _single_echoes(c, starts, nj, frac, ej, c_energy, *, lo, offset, nb, crow, h
     so the half-height crossings are ≤ 4.5 bins out) — the same bits as the full kernel."""
     j = starts[c]
     taps = np.arange(-(_SINGLE_TAPS // 2), _SINGLE_TAPS // 2 + 1)
-    V = _pulse(taps, frac[j], ej[j], bin_sigmas)
+    V = _pulse(taps.astype(np.float64), frac[j], ej[j], bin_sigmas)
     bin0 = nj[j] + taps[0]
     ok, peak_r, width_m = _one_peak(V, bin0, offset[c], lo[c], h)
     ok &= (bin0 >= 1) & (bin0 + _SINGLE_TAPS < nb[c])
@@ -374,7 +387,8 @@ def _narrow_echoes(c, starts, ends, cl, nj, frac, ej, c_energy, *, lo, offset, n
     (:func:`_one_peak`); the rest go to the general path."""
     span = nj[ends[c]] - nj[starts[c]]
     sub_all, k_all = _members(c, cl, len(nb))
-    strong = _strongest(ej, sub_all, k_all)
+    nsub = ends[c] - starts[c] + 1
+    strong = _strongest(ej, sub_all, k_all, np.r_[0, np.cumsum(nsub)[:-1]])
     ok = np.zeros(len(c), bool)
     spans = np.unique(span)
     local = np.empty(len(c), np.int64)                 # rank of each cluster in its span
@@ -393,9 +407,11 @@ def _narrow_echoes(c, starts, ends, cl, nj, frac, ej, c_energy, *, lo, offset, n
         bin0 = nj[starts[cs]] - _NARROW_PAD
         t0 = bin0[k] - nj[sub]                         # tap of window column 0, per sub-ray
         taps = np.arange(T)
+        t0f, tapsf = t0.astype(np.float64), taps.astype(np.float64)
         V = np.zeros(len(cs) * T)
-        for a, b in _pieces(sub, k):
-            vals = _pulse(t0[a:b, None] + taps, frac[sub[a:b]], ej[sub[a:b]], bin_sigmas)
+        nsub = ends[cs] - starts[cs] + 1
+        for a, b in _pieces(sub, k, np.r_[0, np.cumsum(nsub)[:-1]]):
+            vals = _pulse(t0f[a:b, None] + tapsf, frac[sub[a:b]], ej[sub[a:b]], bin_sigmas)
             base = int(k[a]) * T
             idx = (k[a:b] * T - base)[:, None] + taps
             span_bins = (int(k[b - 1]) + 1) * T - base
@@ -411,24 +427,24 @@ def _narrow_echoes(c, starts, ends, cl, nj, frac, ej, c_energy, *, lo, offset, n
     return ok, _Part(*(np.concatenate(x) for x in zip(*parts)))
 
 
-def _strongest(ej, sub, k):
-    """Per cluster k (the sub-rays ``sub`` grouped by k = 0, 1, …): the position of its
-    first sub-ray with the most energy (ties: the nearest)."""
+def _strongest(ej, sub, k, run):
+    """Per cluster k (the sub-rays ``sub`` grouped by k = 0, 1, …, each starting at
+    ``run[k]``): the position of its first sub-ray with the most energy (ties: the nearest)."""
     e = ej[sub]
-    run = np.r_[0, np.flatnonzero(np.diff(k)) + 1]
     top = np.maximum.reduceat(e, run)
     hit = np.flatnonzero(e == np.repeat(top, np.diff(np.r_[run, len(e)])))
     return sub[hit[np.r_[True, k[hit][1:] != k[hit][:-1]]]]
 
 
-def _pieces(sub, k, tile=_TILE_SUBRAYS):
+def _pieces(sub, k, row_start=None, tile=_TILE_SUBRAYS):
     """Pieces [a, b) of the sub-rays ``sub`` (positions in the flat list, increasing) for
     one bincount each: cut wherever the flat list's ``_WAVE_CHUNK`` chunks are (the sums'
     association, so the bits, follow them) and, for cache-sized pieces, at a cluster start
     about every ``tile`` sub-rays (a cluster cut there would change its sums)."""
     n = len(sub)
     must = np.searchsorted(sub, np.arange(_WAVE_CHUNK, int(sub[-1]) + 1, _WAVE_CHUNK))
-    row_start = np.r_[0, np.flatnonzero(np.diff(k)) + 1]  # first sub-ray of each cluster
+    if row_start is None:                              # first sub-ray of each cluster
+        row_start = np.r_[0, np.flatnonzero(np.diff(k)) + 1]
     out, a = [], 0
     mi = 0
     while a < n:
@@ -512,12 +528,13 @@ def _waveforms(gbin, frac, ej, total, kb, bin_sigmas, pieces) -> np.ndarray:
     |t| ≤ kb.  ``gbin`` never decreases, so a piece of sub-rays touches one stretch of bins:
     one bincount over that stretch per piece (:func:`_pieces`)."""
     taps = np.arange(-kb, kb + 1)
+    tapsf = taps.astype(np.float64)
     wave = np.zeros(total)
     for a, b in pieces:
         g = gbin[a:b]
         base = int(g[0]) - kb
         span = int(g[-1]) + kb + 1 - base
-        vals = _pulse(taps, frac[a:b], ej[a:b], bin_sigmas)
+        vals = _pulse(tapsf, frac[a:b], ej[a:b], bin_sigmas)
         idx = (g - base)[:, None] + taps
         wave[base:base + span] += np.bincount(idx.ravel(), vals.ravel(), minlength=span)
     return wave

@@ -28,6 +28,13 @@ Each sub-ray's pulse is evaluated exactly on the bins within ±6σ of it (the ta
 below 1.5e-8 of its peak); sub-rays of one beam more than that apart form independent
 clusters, laid end to end in one flat array, so ``np.bincount`` over chunks of sub-rays
 builds every waveform at once (no loop over beams).
+
+Most clusters are read without their whole waveform, with the same bits: a cluster whose
+energy is below the threshold gives no echo; one of a single sub-ray is read on the 11 bins
+around it; one whose sub-rays lie within 9 bins on a window 6 bins wider each side, when W has
+one peak there (:func:`_one_peak`).  The rest go through the full detector
+(:func:`_general_echoes`).  Every path sums the pulse terms in the same order and chunks and
+takes widths at the same global bin indices, so the result does not depend on the path.
 """
 from __future__ import annotations
 

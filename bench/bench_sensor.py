@@ -23,6 +23,10 @@ ROWS = [
     ("off (no [sensor])", []),
     ("divergence 11.9 mrad, S = 16", ["sensor.divergence_mrad=11.9", "sensor.beam_samples=16"]),
     ("divergence 11.9 mrad, S = 64", ["sensor.divergence_mrad=11.9", "sensor.beam_samples=64"]),
+    ("divergence S = 16, detection nearest", ["sensor.divergence_mrad=11.9", "sensor.beam_samples=16",
+                                              "sensor.detection=nearest"]),
+    ("divergence S = 64, detection nearest", ["sensor.divergence_mrad=11.9", "sensor.beam_samples=64",
+                                              "sensor.detection=nearest"]),
     ("echoes (max_returns 5), S = 1", ["sensor.max_returns=5"]),
     ("intensity, S = 1", ["sensor.intensity=true"]),
     ("range noise 1 cm, S = 1", ["sensor.range_noise_m=0.01"]),
@@ -99,14 +103,67 @@ def accuracy() -> list[dict]:
     return rows
 
 
+def readings(dy: float) -> list[dict]:
+    """How far ``detection = "waveform"`` (default) moves results from ``"nearest"``: the
+    orchard's vegetation returns and A_IM at 11.9 mrad (S = 64), and beams returning a 2 cm
+    stem at 10 m and 30 m (γ = 6 mrad, S = 64; wood ρ = 0.35) against the closed form:
+    a beam whose stem share f has f·ρ·R_ref²/r² ≥ threshold is detected."""
+    import math
+
+    import numpy as np
+    sys.path.insert(0, str(REPO))
+    from tests.test_sensor_physics import run, static
+    from simlidar_mi.config import load_scene
+    from simlidar_mi.lidar.scan import scan
+    from simlidar_mi.lidar.survey import build, generate, scan_patterns, scene_sensor
+    rows = []
+    for det in ("nearest", "waveform"):
+        cfg = load_scene(SCENE, [f"scan.dy_m={dy}", "sensor.divergence_mrad=11.9", "sensor.beam_samples=64",
+                                 f"sensor.detection={det}"])
+        g = generate(cfg)
+        lo, hi = g.bounds_m()
+        pats = scan_patterns(cfg, lo, hi, g.near_x_m)
+        res = scan(build(cfg, g, pats), pats[0], sensor=scene_sensor(cfg, g, pats), seed=cfg.seed)
+        row = {"detection": det, "orchard_vegetation_returns": int(res.vegetation().sum()),
+               "orchard_A_IM_m2": res.impacted_area_m2(), "orchard_beams": int(res.range_m.size),
+               "orchard_mean_vegetation_range_m": float(res.range_m[res.vegetation()].mean())}
+        for R in (10.0, 30.0):
+            d_m, step = 0.02, 0.005
+            az = np.arange(-0.3, 0.3 + 1e-9, step)
+            text = static(f"[{az[0]}, {az[-1] + step / 2}, {step}]") + (
+                f'[[primitive]]\ntype = "cylinder"\np0_m = [{R}, 0.0, -2.0]\np1_m = [{R}, 0.0, 2.0]\n'
+                f'diameter_m = {d_m}\n')
+            stem, model = run(text + f"[sensor]\ndivergence_mrad = 6.0\nbeam_samples = 64\ndetection = \"{det}\"\n")
+            # Closed form: E(a) = ρ·(R_ref/R)²·∫ p(x − a)·cos i(x) dx over the stem's angular
+            # half-width h, p the Gaussian's 1D marginal (sd w/2), cos i = √(1 − (x/h)²).
+            h = math.atan(d_m / 2 / R)
+            x = np.linspace(-h, h, 4001)
+            sd = 0.5 * 0.5 * 6.0e-3
+            e_beam = np.array([np.trapezoid(np.exp(-0.5 * ((x - a) / sd) ** 2) / (sd * math.sqrt(2 * math.pi))
+                                            * np.sqrt(np.clip(1 - (x / h) ** 2, 0, 1)), x)
+                               for a in np.deg2rad(stem.pattern.row_yaw_deg)])
+            e_beam *= model.reflectance_wood * (model.r_ref_m / R) ** 2
+            row[f"stem_{R:.0f}m_beams"] = int(stem.range_m.shape[0])
+            row[f"stem_{R:.0f}m_touched"] = int((stem.hit_fraction[:, 0] > 0).sum())
+            row[f"stem_{R:.0f}m_returns"] = int(stem.vegetation()[:, 0].sum())
+            row[f"stem_{R:.0f}m_closed_form"] = int((e_beam >= model.detection_threshold).sum())
+        rows.append(row)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--dy", type=float, default=0.02)
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--row", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--readings", action="store_true", help="only the detection-readings table")
     args = ap.parse_args()
     if args.row is not None:
         print(json.dumps(one(ROWS[args.row][1], args.dy, args.repeat)))
+        return
+    if args.readings:
+        for r in readings(args.dy):
+            print(r)
         return
     sys.path.insert(0, str(REPO / "bench"))
     from _machine import machine
@@ -123,6 +180,9 @@ def main() -> None:
               f"| {r['rss_mb']:.0f} | {r.get('echoes_per_beam', float('nan')):.3f} |", flush=True)
     print("\nthin stem (2 cm at 10 m, γ = 6 mrad): mean |hit share − reference|")
     for r in accuracy():
+        print(r)
+    print("\ndetection readings (orchard 11.9 mrad S = 64; 2 cm stem 6 mrad S = 64)")
+    for r in readings(args.dy):
         print(r)
 
 

@@ -280,6 +280,11 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "beam_samples": Key(INT, 0, nonneg, "sub-rays S per beam when divergence > 0 (0 = auto, see "
                             "simlidar_mi.lidar.sensor.auto_beam_samples)"),
         "max_returns": Key(INT, 1, at_least(1), "1 = first return only; > 1 = echoes from the waveform"),
+        "detection": Key(STR, "waveform", one_of("waveform", "nearest"),
+                         "with divergence > 0: 'waveform' = a beam returns only echoes of its "
+                         "waveform above detection_threshold (a real receiver), even with "
+                         "max_returns = 1; 'nearest' = its nearest sub-ray hit, however small "
+                         "its share of the beam (geometric, no energies)"),
         "pulse_length_ns": Key(FLOAT, 3.0, positive, "FWHM pulse duration τ; echoes closer than "
                                "c·τ/2 merge"),
         "detection_threshold": Key(FLOAT, 0.02, lambda v: _finite(v) or (

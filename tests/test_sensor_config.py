@@ -137,3 +137,19 @@ def test_subray_layout_matches_the_profile_quantiles():
     assert np.mean(a < gamma / 2) == pytest.approx(1 - math.exp(-2), abs=1 / S)
     # Centroid on the axis (the golden-angle spiral balances), to a fraction of the spacing.
     assert np.abs(off.mean(axis=0)).max() < 0.01 * gamma
+
+
+def test_detection_reading_is_validated_and_sets_whether_energies_are_computed(tmp_path):
+    path = _scene(tmp_path, '[sensor]\ndivergence_mrad = 3.0\ndetection = "first"\n')
+    with pytest.raises(ConfigError) as exc:
+        load_scene(path)
+    assert exc.value.key == "sensor.detection" and exc.value.value == "first"
+    assert "waveform" in str(exc.value) and "nearest" in str(exc.value)
+    wave = resolve_sensor(load_scene(_scene(tmp_path, "[sensor]\ndivergence_mrad = 3.0\n")))
+    assert wave.detection == "waveform" and wave.needs_energy and wave.max_returns == 1
+    assert wave.to_dict()["detection"] == "waveform"
+    near = resolve_sensor(load_scene(_scene(tmp_path, '[sensor]\ndivergence_mrad = 3.0\ndetection = "nearest"\n')))
+    assert near.detection == "nearest" and not near.needs_energy
+    # without divergence the reading changes nothing: one thin ray, no energies unless asked
+    limits = resolve_sensor(load_scene(_scene(tmp_path, "[sensor]\nrange_max_m = 50.0\n")))
+    assert not limits.needs_energy

@@ -309,3 +309,49 @@ def test_run_scan_with_a_sensor_writes_its_echoes_and_measures(tmp_path, scenes_
                      ["scan.dy_m=0.02", "sensor.divergence_mrad=5.0", "sensor.beam_samples=16",
                       "sensor.max_returns=3", "sensor.intensity=true", "sensor.range_noise_m=0.005"])
     assert again.result.echoes.range_m.tobytes() == res.echoes.range_m.tobytes()  # same seed, same bytes
+
+
+# --- detection: the waveform's threshold (default) against the nearest sub-ray -------------
+
+@pytest.mark.parametrize("k_threshold, kept", [(0.8, False), (1.25, True), (0.01, False)])
+def test_detection_waveform_drops_a_partial_hit_below_the_threshold_nearest_keeps_it(k_threshold, kept):
+    """A plate covering a share f of a Gaussian beam at r = 10 m, normal incidence, returns
+    E = f·ρ·R_ref²/r² (cos i and r_j vary by < 1e-4 across 8 mrad).  With ρ chosen so that
+    E = k·threshold, "waveform" (the default, even with max_returns = 1) keeps the return
+    iff k ≥ 1; "nearest" always returns the plate."""
+    R, S = 10.0, 64
+    geo = static() + plate(R, 0.025, 5.0)             # edge 2.5 mrad off the axis: f ≈ 0.1
+    sensor = f"[sensor]\ndivergence_mrad = 8.0\nbeam_samples = {S}\n"
+    near, model = run(geo + sensor + 'detection = "nearest"\n')
+    f = float(near.hit_fraction[0, 0])
+    assert f == pytest.approx(gaussian_share(-math.atan(0.025 / R), 8.0), abs=layout_discrepancy(model) + 1 / S)
+    assert 0.05 < f < 0.2
+    assert not model.needs_energy and near.echoes is None
+    rho = k_threshold * model.detection_threshold / (f * (model.r_ref_m / R) ** 2)
+    geo = static() + plate(R, 0.025, 5.0, extra=f"reflectance = {rho}\n")
+    near, _ = run(geo + sensor + 'detection = "nearest"\n')
+    wave, wmodel = run(geo + sensor)                   # the default reading
+    assert wmodel.detection == "waveform" and wmodel.needs_energy and wmodel.max_returns == 1
+    assert near.cls[0, 0] == 2 and near.range_m[0, 0] == pytest.approx(R, abs=1e-3)
+    assert near.n_returns[0, 0] == 1
+    assert wave.hit_fraction[0, 0] == near.hit_fraction[0, 0]   # geometry is the same
+    if kept:
+        assert wave.cls[0, 0] == 2 and wave.n_returns[0, 0] == 1
+        assert wave.range_m[0, 0] == pytest.approx(R, abs=1e-3)
+        assert float(wave.echoes.energy[0]) == pytest.approx(k_threshold * model.detection_threshold, rel=1e-4)
+    else:
+        assert wave.cls[0, 0] == 0 and wave.n_returns[0, 0] == 0 and len(wave.echoes) == 0
+        assert wave.range_m[0, 0] == near.pattern.escape_m
+
+
+def test_detection_waveform_on_a_full_plate_matches_nearest():
+    """A plate filling the beam far above the threshold: both readings return it, at the same
+    range to well under the bin (FWHM/8 = 5.6 cm at 3 ns)."""
+    text = static("[-0.2, 0.2, 0.1]") + plate(10.0) + "[sensor]\ndivergence_mrad = 8.0\nbeam_samples = 16\n"
+    near, _ = run(text + 'detection = "nearest"\n')
+    wave, _ = run(text)
+    assert np.all(near.cls == 2) and np.all(wave.cls == 2)
+    assert np.all(wave.n_returns == 1)
+    # nearest: the nearest sub-ray (≈ 10 m); waveform: the echo's peak, the energy-weighted
+    # middle of r_j = 10/cos a_j, a_j ≤ ~5 mrad: both within 0.2 mm of 10 m
+    assert np.allclose(near.range_m, 10.0, atol=2e-4) and np.allclose(wave.range_m, 10.0, atol=2e-4)

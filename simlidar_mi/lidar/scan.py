@@ -410,9 +410,9 @@ def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPat
     :func:`simlidar_mi.lidar.waveform.detect_echoes`, range noise from
     :mod:`simlidar_mi.lidar.noise` keyed by (``seed``, ``leg``, beam, return number).
 
-    Without energies (divergence and/or range limits only: no echoes, intensity or noise)
-    a beam's first return is its nearest sub-ray inside [range_min_m, range_max_m]
-    (under ``hit_rule = "any"`` its nearest vegetation sub-ray, as for the dot matrix).
+    Without energies (``model.needs_energy`` false: range limits alone, or divergence with
+    ``detection = "nearest"``) a beam's first return is its nearest sub-ray inside
+    [range_min_m, range_max_m] (under ``hit_rule = "any"`` its nearest vegetation sub-ray).
 
     The result's first-return arrays hold echo 1 (escape where a beam has none);
     ``hit_fraction`` is the profile-weighted share of the beam's sub-rays whose first hit is

@@ -22,6 +22,13 @@ R_ref = range_at_10pct_m·sqrt(threshold/0.1), so a 10 % target at normal incide
 fills the beam at ``range_at_10pct_m`` returns exactly the detection threshold.  E is a
 share of the emitted pulse's energy after the 1/r² law; escapes return 0, the ground's
 normal is +z.
+
+Detection (``detection``): with divergence, a real receiver reports only what its waveform
+shows above the threshold, so by default (``"waveform"``) every divergent scan computes the
+energies and runs :func:`~simlidar_mi.lidar.waveform.detect_echoes`, even with
+``max_returns = 1``: a twig met by 1 of 64 sub-rays returns nothing unless its echo reaches
+the threshold.  ``"nearest"`` keeps the geometric reading (a beam returns its nearest sub-ray
+hit, no energies, faster); BENCHMARKS.md §7 measures how far the two readings differ.
 """
 from __future__ import annotations
 
@@ -45,6 +52,7 @@ class SensorModel:
     beam_samples: int = 1          # S, resolved (never 0 here)
     beam_samples_auto: bool = False
     max_returns: int = 1
+    detection: str = "waveform"    # with divergence: "waveform" (thresholded echoes) or "nearest"
     pulse_length_ns: float = 3.0
     detection_threshold: float = 0.02
     range_min_m: float = 0.0
@@ -72,9 +80,12 @@ class SensorModel:
 
     @property
     def needs_energy(self) -> bool:
-        """Echo energies (and so |cos i| per sub-ray) are needed: echoes, intensity, or noise
-        (its σ grows as 1/|cos i|).  Divergence alone reports the nearest sub-ray."""
-        return self.max_returns > 1 or self.intensity or self.noise
+        """Echo energies (and so |cos i| per sub-ray) are needed: echoes, intensity, noise
+        (its σ grows as 1/|cos i|), or divergence read as a receiver does (``detection =
+        "waveform"``: only echoes above the threshold return, even with one return).  With
+        ``detection = "nearest"`` divergence alone reports the nearest sub-ray hit."""
+        return (self.max_returns > 1 or self.intensity or self.noise
+                or (self.divergence_mrad > 0 and self.detection == "waveform"))
 
     def effects_on(self) -> dict[str, bool]:
         """Which of the scanner's effects this model turns on."""
@@ -142,6 +153,7 @@ def resolve_sensor(cfg, *, far_range_m: float | None = None,
     model = SensorModel(
         divergence_mrad=div, beam_profile=s["beam_profile"], beam_samples=n_sub,
         beam_samples_auto=auto and div > 0, max_returns=int(s["max_returns"]),
+        detection=s["detection"],
         pulse_length_ns=float(s["pulse_length_ns"]), detection_threshold=float(s["detection_threshold"]),
         range_min_m=float(s["range_min_m"]),
         range_max_m=math.inf if s["range_max_m"] is None else float(s["range_max_m"]),

@@ -28,10 +28,18 @@ Each sub-ray's pulse is evaluated exactly on the bins within ±6σ of it (the ta
 below 1.5e-8 of its peak); sub-rays of one beam more than that apart form independent
 clusters, laid end to end in one flat array, so ``np.bincount`` over chunks of sub-rays
 builds every waveform at once (no loop over beams).
+
+Most clusters are read without their whole waveform, with the same bits: a cluster whose
+energy is below the threshold gives no echo; one of a single sub-ray is read on the 11 bins
+around it; one whose sub-rays lie within 9 bins on a window 6 bins wider each side, when W has
+one peak there (:func:`_one_peak`).  The rest go through the full detector
+(:func:`_general_echoes`).  Every path sums the pulse terms in the same order and chunks and
+takes widths at the same global bin indices, so the result does not depend on the path.
 """
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -45,6 +53,16 @@ BINS_PER_FWHM = 8
 KERNEL_SIGMAS = 6.0
 NO_ID = 0xFFFFFFFF
 _SIGMA_PER_FWHM = 1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+#: Sums of pulse terms are accumulated in chunks of this many sub-rays of the flat list;
+#: the association of the float sums (so the bits of W) follows these chunks.
+_WAVE_CHUNK = 1 << 16
+#: Pieces of about this many sub-rays keep the kernel temporaries in cache.
+_TILE_SUBRAYS = 1 << 12
+#: One-sub-ray clusters: W on the 11 bins around the sub-ray (peak ± 5).
+_SINGLE_TAPS = 11
+#: Narrow clusters (sub-rays within 9 bins): W from 6 bins before the first to 6 after the last.
+_NARROW_SPAN_BINS, _NARROW_PAD = 9, 6
+_Part = namedtuple("_Part", "key row range energy width_m strongest")
 
 
 def range_fwhm_m(pulse_length_ns: float) -> float:
@@ -179,58 +197,312 @@ def detect_echoes(range_m, energy, cls, element_id, tree_id, cos_incidence, beam
 
     # Valid sub-rays, per beam nearest first, in one flat list (beams in row order).
     valid = np.isfinite(r) & (e > 0)
-    order = np.argsort(np.where(valid, r, np.inf), axis=1, kind="stable")
-    flat = (np.arange(n_rows, dtype=np.int64)[:, None] * s + order)[np.take_along_axis(valid, order, 1)]
+    if s == 1:
+        flat = np.flatnonzero(valid.ravel())
+    else:
+        order = _row_order(np.where(valid, r, np.inf))
+        flat = (np.arange(n_rows, dtype=np.int64)[:, None] * s + order)[np.take_along_axis(valid, order, 1)]
     if len(flat) == 0:
         return Echoes.empty(with_tree)
     rj, ej = r.ravel()[flat], e.ravel()[flat]
-    row = flat // s
+    row = np.repeat(np.arange(n_rows, dtype=np.int64), valid.sum(axis=1)) if s > 1 else flat
 
-    # Clusters: a new one at each beam and wherever two kernels cannot overlap.
+    # Clusters: a new one at each beam and wherever two kernels cannot overlap.  Each has
+    # its own bins (offset, nb); bin indices are global over all clusters.
     new = np.ones(len(flat), bool)
     new[1:] = (row[1:] != row[:-1]) | (np.diff(rj) > 2 * kb * h)
-    cl = np.cumsum(new) - 1
     starts = np.flatnonzero(new)
+    n_cl = len(starts)
+    cl = np.repeat(np.arange(n_cl), np.diff(np.r_[starts, len(flat)])) if n_cl < len(flat) else np.arange(n_cl)
     ends = np.r_[starts[1:], len(flat)] - 1
     lo = rj[starts] - (kb + 1) * h                      # centre of the cluster's bin 0 (W = 0 there)
     nb = np.floor((rj[ends] - lo) / h).astype(np.int64) + kb + 3
     offset = np.r_[0, np.cumsum(nb)[:-1]]
-    total = int(nb.sum())
     pos = (rj - lo[cl]) / h
-    nj = np.rint(pos).astype(np.int64)
+    nj = np.rint(pos).astype(np.int64)                  # bin of r_j within its cluster
     frac = pos - nj                                     # sub-bin offset of r_j, in bins
-    gbin = offset[cl] + nj
-    wave = _waveforms(gbin, frac, ej, total, kb, h / sigma)
+
+    # Energy of each cluster, summed in sub-ray order (as the echo energies are): every echo
+    # of a cluster holds a subset of its sub-rays, so a cluster below the threshold gives none.
+    c_energy = np.bincount(cl, weights=ej, minlength=n_cl)
+    alive = (c_energy >= detection_threshold) & (c_energy > 0)
+    size = ends - starts + 1
+    narrow = alive & (nj[ends] - nj[starts] <= _NARROW_SPAN_BINS)
+    single = np.flatnonzero(narrow & (size == 1))
+    several = np.flatnonzero(narrow & (size > 1))
+    general = alive & ~narrow
+    fwd = dict(lo=lo, offset=offset, nb=nb, crow=row[starts], h=h, bin_sigmas=h / sigma)
+    parts = []
+    if len(single):
+        ok, part = _single_echoes(single, starts, nj, frac, ej, c_energy, **fwd)
+        parts.append(part)
+        general[single[~ok]] = True
+    if len(several):
+        ok, part = _narrow_echoes(several, starts, ends, cl, nj, frac, ej, c_energy, **fwd)
+        parts.append(part)
+        general[several[~ok]] = True
+    if general.any():
+        parts.append(_general_echoes(np.flatnonzero(general), starts, cl, nj, frac, ej, fwhm, kb, **fwd))
+    if not parts:
+        return Echoes.empty(with_tree)
+    # Per echo: order key (global bin of its peak: the original group order), beam row,
+    # range, energy, width (m), index of the strongest sub-ray in ``flat``.
+    key, grow, g_range, g_energy, width_m, strong = (np.concatenate(c) for c in zip(*parts))
+    strong = strong.copy()
+    if len(parts) > 1:
+        o = np.argsort(key, kind="stable")
+        grow, g_range, g_energy, width_m, strong = grow[o], g_range[o], g_energy[o], width_m[o], strong[o]
+    keep = (g_energy >= detection_threshold) & (g_range >= range_min_m) & (g_range <= range_max_m)
+    if not keep.all():
+        grow, g_range, g_energy, width_m, strong = (x[keep] for x in (grow, g_range, g_energy, width_m, strong))
+    if len(grow) == 0:
+        return Echoes.empty(with_tree)
+    beam = beam_index[grow]
+    srt = np.lexsort((g_range, beam))
+    if np.any(np.diff(srt) != 1):
+        beam, g_range, g_energy, width_m, strong = (x[srt] for x in (beam, g_range, g_energy, width_m, strong))
+    first = np.r_[True, beam[1:] != beam[:-1]]
+    beam_no = np.cumsum(first) - 1
+    begin = np.flatnonzero(first)
+    rank = np.arange(len(beam)) - begin[beam_no]
+    n_ret = np.minimum(np.diff(np.r_[begin, len(beam)]), int(max_returns))[beam_no]
+    k = rank < int(max_returns)
+    if not k.all():
+        beam, g_range, g_energy, width_m, strong, rank, n_ret = (
+            x[k] for x in (beam, g_range, g_energy, width_m, strong, rank, n_ret))
+    src = flat[strong]
+    take = (lambda x, dt: np.asarray(x).ravel()[src].astype(dt))
+    return Echoes(beam, (rank + 1).astype(np.uint8), n_ret.astype(np.uint8), g_range,
+                  g_energy.astype(np.float32), (width_m * 2.0 / C_M_S * 1e9).astype(np.float32),
+                  take(cls, np.uint8), take(element_id, np.uint32),
+                  take(tree_id, np.uint32) if with_tree else None,
+                  take(cos_incidence, np.float32))
+
+
+def _vertex(wm, w0, wp):
+    """Offset d (bins) and height of the vertex of the parabola through ln W at a peak's
+    bins k−1, k, k+1 (exact for one Gaussian); d = 0 and the bin's height when the three
+    do not bracket a vertex."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lm, l0, lp = np.log(wm), np.log(w0), np.log(wp)
+        curv = lm - 2 * l0 + lp
+        d = 0.5 * (lm - lp) / curv
+        ok = np.isfinite(d) & (curv < 0) & (np.abs(d) <= 1)
+        d = np.where(ok, d, 0.0)
+        height = np.where(ok, np.exp(l0 - 0.25 * (lm - lp) * d), w0)
+    return d, height
+
+
+def _row_order(key):
+    """``np.argsort(key, axis=1, kind="stable")``, faster: the unstable (SIMD) sort, then
+    the stable one again for the rows where two finite keys tie (only there can the two
+    orders differ; infinite keys are escapes, dropped after sorting)."""
+    order = np.argsort(key, axis=1)
+    srt = np.take_along_axis(key, order, 1)
+    tie = np.flatnonzero(((srt[:, 1:] == srt[:, :-1]) & np.isfinite(srt[:, 1:])).any(axis=1))
+    if len(tie):
+        order[tie] = np.argsort(key[tie], axis=1, kind="stable")
+    return order
+
+
+def _pulse(taps, frac, ej, bin_sigmas):
+    """E_j·exp(−((t − frac_j)·h/σ)²/2) for the (n, T) taps t (integers, held as float64:
+    exact) of n sub-rays: the operations of every path in the same order, so every path
+    gets the same bits."""
+    x = np.subtract(taps, frac[:, None], out=taps if taps.ndim == 2 else None)  # 2D: a temporary
+    x *= bin_sigmas
+    np.square(x, out=x)
+    x *= -0.5
+    np.exp(x, out=x)
+    x *= ej[:, None]
+    return x
+
+
+def _one_peak(V, bin0, goff, lo, h):
+    """Echo of clusters whose waveform is known on a window V (n, T) of bins bin0 … bin0+T−1
+    (cluster-local): W rises into the window and falls out of it (the pulse tails), so the
+    detector of :func:`_general_echoes` finds exactly one peak iff the slope signs in the
+    window (flats carrying the slope before them) change once from + to −; then W rises to
+    it and falls after it, and the half-height walk is read off the window.  Returns ``ok``
+    (else the cluster goes to the general path), the peak's range and the width (m)."""
+    n, T = V.shape
+    up = np.empty((n, T), np.int8)
+    up[:, 0] = 1
+    up[:, 1:] = (V[:, 1:] > V[:, :-1]).view(np.int8) - (V[:, 1:] < V[:, :-1]).view(np.int8)
+    if not up.all():  # flats carry the slope before them
+        idx = np.where(up != 0, np.arange(T), 0)
+        np.maximum.accumulate(idx, axis=1, out=idx)
+        up = np.take_along_axis(up, idx, 1)
+    is_max = np.zeros((n, T), bool)
+    is_max[:, :-1] = (up[:, :-1] > 0) & (up[:, 1:] < 0)
+    is_max[:, -1] = up[:, -1] > 0
+    p = np.argmax(is_max, axis=1)
+    rows = np.arange(n)
+    ok = (is_max.sum(axis=1) == 1) & (p >= 1) & (p <= T - 2)
+    p = np.clip(p, 1, T - 2)
+    w0 = V[rows, p]
+    d, height = _vertex(V[rows, p - 1], w0, V[rows, p + 1])
+    peak_r = lo + (bin0 + p + d) * h
+    # Half-height walk: W ≥ half is a run around p (W rises to p and falls after it).
+    half = height / 2.0
+    above = V >= half[:, None]
+    cols = np.arange(T)
+    n_left = (above & (cols < p[:, None])).sum(axis=1)
+    n_right = (above & (cols > p[:, None])).sum(axis=1)
+    a, b = p - n_left, p + n_right
+    ok &= (a >= 1) & (b <= T - 2)                      # the walk stopped inside the window
+    a, b = np.clip(a, 1, T - 2), np.clip(b, 1, T - 2)
+    g0 = goff + bin0                                   # global bin of column 0
+    left = (g0 + a) + -1 * _crossing_values(V[rows, a], V[rows, a - 1], V[rows, a + 1],
+                                            V[rows, a - 1], half, -1)
+    right = (g0 + b) + 1 * _crossing_values(V[rows, b], V[rows, b - 1], V[rows, b + 1],
+                                            V[rows, b + 1], half, 1)
+    return ok, peak_r, (right - left) * h
+
+
+def _single_echoes(c, starts, nj, frac, ej, c_energy, *, lo, offset, nb, crow, h, bin_sigmas):
+    """Clusters ``c`` of one sub-ray: one Gaussian of the sub-ray's energy, evaluated on the
+    11 bins around it (the peak, the log-parabola and the half-height walk: FWHM = 8 bins,
+    so the half-height crossings are ≤ 4.5 bins out) — the same bits as the full kernel."""
+    j = starts[c]
+    taps = np.arange(-(_SINGLE_TAPS // 2), _SINGLE_TAPS // 2 + 1)
+    V = _pulse(taps.astype(np.float64), frac[j], ej[j], bin_sigmas)
+    bin0 = nj[j] + taps[0]
+    ok, peak_r, width_m = _one_peak(V, bin0, offset[c], lo[c], h)
+    ok &= (bin0 >= 1) & (bin0 + _SINGLE_TAPS < nb[c])
+    gpeak = offset[c] + nj[j]
+    return ok, _Part(gpeak[ok], crow[c][ok], peak_r[ok], c_energy[c][ok], width_m[ok], j[ok])
+
+
+def _members(c, cl, n_cl):
+    """Sub-rays (positions in the flat list, increasing) of the clusters ``c`` (increasing)
+    and the rank in ``c`` of each one's cluster."""
+    rank = np.full(n_cl, -1, np.int64)
+    rank[c] = np.arange(len(c))
+    k = rank[cl]
+    sub = np.flatnonzero(k >= 0)
+    return sub, k[sub]
+
+
+def _narrow_echoes(c, starts, ends, cl, nj, frac, ej, c_energy, *, lo, offset, nb, crow, h, bin_sigmas):
+    """Clusters ``c`` of several sub-rays within ``_NARROW_SPAN_BINS`` bins of each other:
+    their waveform on a window from ``_NARROW_PAD`` bins before the first sub-ray to as many
+    after the last, accumulated like :func:`_waveforms` (every window bin is within the
+    kernel of every sub-ray of the cluster, so each bin gets the same terms in the same
+    order and the same chunking: the same bits).  Clusters with one peak (almost all:
+    Gaussians within 2σ of each other have a log-concave sum) are read off the window
+    (:func:`_one_peak`); the rest go to the general path."""
+    span = nj[ends[c]] - nj[starts[c]]
+    sub_all, k_all = _members(c, cl, len(nb))
+    nsub = ends[c] - starts[c] + 1
+    strong = _strongest(ej, sub_all, k_all, np.r_[0, np.cumsum(nsub)[:-1]])
+    ok = np.zeros(len(c), bool)
+    spans = np.unique(span)
+    local = np.empty(len(c), np.int64)                 # rank of each cluster in its span
+    for s in spans:
+        sel = span == s
+        local[sel] = np.arange(np.count_nonzero(sel))
+    by_span = np.argsort(span[k_all].astype(np.int16), kind="stable")
+    cut = np.searchsorted(span[k_all][by_span], np.r_[spans, spans[-1] + 1])
+    parts = []
+    for i, s in enumerate(spans):  # one window width per span
+        sel = np.flatnonzero(span == s)
+        cs = c[sel]
+        T = int(s) + 2 * _NARROW_PAD + 1
+        o = by_span[cut[i]:cut[i + 1]]
+        sub, k = sub_all[o], local[k_all[o]]
+        bin0 = nj[starts[cs]] - _NARROW_PAD
+        t0 = bin0[k] - nj[sub]                         # tap of window column 0, per sub-ray
+        taps = np.arange(T)
+        t0f, tapsf = t0.astype(np.float64), taps.astype(np.float64)
+        V = np.zeros(len(cs) * T)
+        nsub = ends[cs] - starts[cs] + 1
+        for a, b in _pieces(sub, k, np.r_[0, np.cumsum(nsub)[:-1]]):
+            vals = _pulse(t0f[a:b, None] + tapsf, frac[sub[a:b]], ej[sub[a:b]], bin_sigmas)
+            base = int(k[a]) * T
+            idx = (k[a:b] * T - base)[:, None] + taps
+            span_bins = (int(k[b - 1]) + 1) * T - base
+            V[base:base + span_bins] += np.bincount(idx.ravel(), vals.ravel(), minlength=span_bins)
+        V = V.reshape(len(cs), T)
+        good, peak_r, width_m = _one_peak(V, bin0, offset[cs], lo[cs], h)
+        good &= (bin0 >= 1) & (bin0 + T < nb[cs])
+        ok[sel] = good
+        cg = cs[good]
+        # one echo per cluster: the cluster's bin offset orders it among the others
+        parts.append(_Part(offset[cg], crow[cg], peak_r[good], c_energy[cg], width_m[good],
+                           strong[sel[good]]))
+    return ok, _Part(*(np.concatenate(x) for x in zip(*parts)))
+
+
+def _strongest(ej, sub, k, run):
+    """Per cluster k (the sub-rays ``sub`` grouped by k = 0, 1, …, each starting at
+    ``run[k]``): the position of its first sub-ray with the most energy (ties: the nearest)."""
+    e = ej[sub]
+    top = np.maximum.reduceat(e, run)
+    hit = np.flatnonzero(e == np.repeat(top, np.diff(np.r_[run, len(e)])))
+    return sub[hit[np.r_[True, k[hit][1:] != k[hit][:-1]]]]
+
+
+def _pieces(sub, k, row_start=None, tile=_TILE_SUBRAYS):
+    """Pieces [a, b) of the sub-rays ``sub`` (positions in the flat list, increasing) for
+    one bincount each: cut wherever the flat list's ``_WAVE_CHUNK`` chunks are (the sums'
+    association, so the bits, follow them) and, for cache-sized pieces, at a cluster start
+    about every ``tile`` sub-rays (a cluster cut there would change its sums)."""
+    n = len(sub)
+    must = np.searchsorted(sub, np.arange(_WAVE_CHUNK, int(sub[-1]) + 1, _WAVE_CHUNK))
+    if row_start is None:                              # first sub-ray of each cluster
+        row_start = np.r_[0, np.flatnonzero(np.diff(k)) + 1]
+    out, a = [], 0
+    mi = 0
+    while a < n:
+        while mi < len(must) and must[mi] <= a:
+            mi += 1
+        limit = int(must[mi]) if mi < len(must) else n
+        if limit - a <= tile:
+            b = limit
+        else:
+            q = np.searchsorted(row_start, a + tile)
+            b = int(row_start[q]) if q < len(row_start) else n
+            b = min(b, limit)
+        out.append((a, b))
+        a = b
+    return out
+
+
+def _general_echoes(c, starts, cl, nj, frac, ej, fwhm, kb, *, lo, offset, nb, crow, h, bin_sigmas):
+    """Clusters ``c`` (any shape) read on all their bins: the full detector of the module
+    docstring.  Bins are laid out compactly here; widths are taken at the global bin
+    indices (``offset``) and sums are cut at the flat list's chunks, so every path gives
+    the bits the whole-list detector gives."""
+    sub, ccl = _members(c, cl, len(nb))               # ccl: compact cluster of each sub-ray
+    cnb = nb[c]
+    coff = np.r_[0, np.cumsum(cnb)[:-1]]
+    shift = offset[c] - coff                           # compact → global bin index
+    total = int(cnb.sum())
+    gbin = coff[ccl] + nj[sub]
+    wave = _waveforms(gbin, frac[sub], ej[sub], total, kb, bin_sigmas, _pieces(sub, ccl))
+    ej_s = ej[sub]
 
     # Slopes, flats carrying the slope before them; a cluster starts rising and ends falling.
     up = np.empty(total, np.int8)
     up[0] = 1
     up[1:] = (wave[1:] > wave[:-1]).view(np.int8) - (wave[1:] < wave[:-1]).view(np.int8)
-    up[offset] = 1
+    up[coff] = 1
     idx = np.where(up != 0, np.arange(total), 0)
     up = up[np.maximum.accumulate(idx)]
     nxt = np.empty_like(up)
     nxt[:-1] = up[1:]
-    nxt[offset + nb - 1] = -1
+    nxt[coff + cnb - 1] = -1
     is_max = (up > 0) & (nxt < 0)
     is_min = (up < 0) & (nxt > 0)
-    start_bin = np.zeros(total, bool)
-    start_bin[offset] = True
-    basin = np.cumsum(is_min | start_bin) - 1          # one maximum per basin
+    is_min[coff] = True
+    basin = np.cumsum(is_min) - 1                      # one maximum per basin
     peak = np.flatnonzero(is_max)
-    cl_bin = np.repeat(np.arange(len(starts)), nb)
-    pcl = cl_bin[peak]
+    pcl = np.repeat(np.arange(len(c)), cnb)[peak]
 
-    # Peak position and height: vertex of the parabola through ln W at peak−1, peak, peak+1.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lm, l0, lp = np.log(wave[peak - 1]), np.log(wave[peak]), np.log(wave[peak + 1])
-        curv = lm - 2 * l0 + lp
-        d = 0.5 * (lm - lp) / curv
-        ok = np.isfinite(d) & (curv < 0) & (np.abs(d) <= 1)
-        d = np.where(ok, d, 0.0)
-        height = np.where(ok, np.exp(l0 - 0.25 * (lm - lp) * d), wave[peak])
-    peak_r = lo[pcl] + (peak - offset[pcl] + d) * h
-    beam_row = row[starts][pcl]
+    d, height = _vertex(wave[peak - 1], wave[peak], wave[peak + 1])
+    peak_r = lo[c][pcl] + (peak - coff[pcl] + d) * h
+    beam_row = crow[c][pcl]
 
     # Merge peaks closer than c·τ/2 within a beam; the highest peak of a group represents it.
     gnew = np.ones(len(peak), bool)
@@ -243,62 +515,43 @@ def detect_echoes(range_m, energy, cls, element_id, tree_id, cos_incidence, beam
     # Energy and attributes from the sub-rays: sub-ray → basin (= peak) → group.  Sub-rays
     # are in (beam, range) order, so each group's sub-rays are one run of this list.
     gsub = group[basin[gbin]]
-    g_energy = np.bincount(gsub, weights=ej, minlength=n_groups)
+    g_energy = np.bincount(gsub, weights=ej_s, minlength=n_groups)
     run = np.flatnonzero(np.r_[True, gsub[1:] != gsub[:-1]])
-    top = np.maximum.reduceat(ej, run)
-    hit = np.flatnonzero(ej == np.repeat(top, np.diff(np.r_[run, len(ej)])))
+    top = np.maximum.reduceat(ej_s, run)
+    hit = np.flatnonzero(ej_s == np.repeat(top, np.diff(np.r_[run, len(ej_s)])))
     first_hit = hit[np.r_[True, gsub[hit][1:] != gsub[hit][:-1]]]  # ties: the nearest
     strongest = np.full(n_groups, -1, np.int64)        # a group can hold no sub-ray (a ripple)
-    strongest[gsub[first_hit]] = flat[first_hit]
+    strongest[gsub[first_hit]] = sub[first_hit]
 
-    g_range = peak_r[rep]
-    keep = ((g_energy >= detection_threshold) & (g_energy > 0) & (strongest >= 0)
-            & (g_range >= range_min_m) & (g_range <= range_max_m))
-    g = np.flatnonzero(keep)
-    if len(g) == 0:
-        return Echoes.empty(with_tree)
-    width_m = _fwhm_bins(wave, peak[rep[g]], height[rep[g]], offset[pcl[rep[g]]],
-                         offset[pcl[rep[g]]] + nb[pcl[rep[g]]]) * h
-    beam = beam_index[beam_row[rep[g]]]
-    rng = g_range[g]
-    srt = np.lexsort((rng, beam))
-    g, beam, rng, width_m = g[srt], beam[srt], rng[srt], width_m[srt]
-    first = np.r_[True, beam[1:] != beam[:-1]]
-    begin = np.maximum.accumulate(np.where(first, np.arange(len(beam)), 0))
-    rank = np.arange(len(beam)) - begin
-    counts = np.bincount(np.cumsum(first) - 1)
-    n_ret = np.minimum(counts, int(max_returns))[np.cumsum(first) - 1]
-    k = rank < int(max_returns)
-    src = strongest[g[k]]
-    take = (lambda x, dt: np.asarray(x).ravel()[src].astype(dt))
-    return Echoes(beam[k], (rank[k] + 1).astype(np.uint8), n_ret[k].astype(np.uint8), rng[k],
-                  g_energy[g[k]].astype(np.float32),
-                  (width_m[k] * 2.0 / C_M_S * 1e9).astype(np.float32),
-                  take(cls, np.uint8), take(element_id, np.uint32),
-                  take(tree_id, np.uint32) if with_tree else None,
-                  take(cos_incidence, np.float32))
+    g = np.flatnonzero((g_energy > 0) & (strongest >= 0))
+    rp = rep[g]
+    width_m = _fwhm_bins(wave, peak[rp], height[rp], coff[pcl[rp]], coff[pcl[rp]] + cnb[pcl[rp]],
+                         shift[pcl[rp]]) * h
+    return _Part(peak[rp] + shift[pcl[rp]], beam_row[rp], peak_r[rp], g_energy[g], width_m, strongest[g])
 
 
-def _waveforms(gbin, frac, ej, total, kb, bin_sigmas, chunk=1 << 16) -> np.ndarray:
+def _waveforms(gbin, frac, ej, total, kb, bin_sigmas, pieces) -> np.ndarray:
     """W on all bins: sub-ray j adds E_j·exp(−((t − frac_j)·h/σ)²/2) to bin gbin_j + t,
-    |t| ≤ kb.  ``gbin`` never decreases, so a chunk of sub-rays touches one stretch of bins:
-    one bincount over that stretch per chunk (memory ∝ chunk·(2·kb + 1))."""
+    |t| ≤ kb.  ``gbin`` never decreases, so a piece of sub-rays touches one stretch of bins:
+    one bincount over that stretch per piece (:func:`_pieces`)."""
     taps = np.arange(-kb, kb + 1)
+    tapsf = taps.astype(np.float64)
     wave = np.zeros(total)
-    for a in range(0, len(gbin), chunk):
-        g, f = gbin[a:a + chunk], frac[a:a + chunk]
+    for a, b in pieces:
+        g = gbin[a:b]
         base = int(g[0]) - kb
         span = int(g[-1]) + kb + 1 - base
-        vals = ej[a:a + chunk, None] * np.exp(-0.5 * ((taps[None, :] - f[:, None]) * bin_sigmas) ** 2)
-        idx = (g - base)[:, None] + taps[None, :]
+        vals = _pulse(tapsf, frac[a:b], ej[a:b], bin_sigmas)
+        idx = (g - base)[:, None] + taps
         wave[base:base + span] += np.bincount(idx.ravel(), vals.ravel(), minlength=span)
     return wave
 
 
-def _fwhm_bins(wave, peak, height, lo_bin, hi_bin) -> np.ndarray:
+def _fwhm_bins(wave, peak, height, lo_bin, hi_bin, shift) -> np.ndarray:
     """Full width (in bins) at height/2 around each ``peak``, walked outward while W ≥
     height/2 (inside the cluster [lo_bin, hi_bin)), each crossing interpolated on the
-    parabola through ln W at the three bins around the last bin above half."""
+    parabola through ln W at the three bins around the last bin above half.  ``shift``
+    maps the bins to global indices (the edges are summed there)."""
     half = height / 2.0
     edges = []
     for step in (-1, 1):
@@ -310,17 +563,20 @@ def _fwhm_bins(wave, peak, height, lo_bin, hi_bin) -> np.ndarray:
             ok = inside & (wave[np.clip(nxt, 0, len(wave) - 1)] >= half[live])
             at[live[ok]] = nxt[ok]
             live = live[ok]
-        edges.append(at + step * _crossing(wave, at, half, step))
+        edges.append((at + shift) + step * _crossing(wave, at, half, step))
     return edges[1] - edges[0]
 
 
 def _crossing(wave, k, level, step) -> np.ndarray:
-    """Distance (bins, in [0, 1]) from bin k (W ≥ level) towards k + step (W < level) where
-    W crosses ``level``: on the parabola through ln W at k−1, k, k+1 (exact for a Gaussian),
-    else linearly."""
     n = len(wave)
-    w0, wm, wp = wave[k], wave[np.clip(k - 1, 0, n - 1)], wave[np.clip(k + 1, 0, n - 1)]
-    wn = wave[np.clip(k + step, 0, n - 1)]
+    return _crossing_values(wave[k], wave[np.clip(k - 1, 0, n - 1)], wave[np.clip(k + 1, 0, n - 1)],
+                            wave[np.clip(k + step, 0, n - 1)], level, step)
+
+
+def _crossing_values(w0, wm, wp, wn, level, step) -> np.ndarray:
+    """Distance (bins, in [0, 1]) from bin k (W = w0 ≥ level; wm, wp, wn: W at k−1, k+1,
+    k + step) towards k + step (W < level) where W crosses ``level``: on the parabola
+    through ln W at k−1, k, k+1 (exact for a Gaussian), else linearly."""
     lin = np.clip(np.where(w0 > wn, (w0 - level) / np.where(w0 > wn, w0 - wn, 1.0), 1.0), 0.0, 1.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         lm, l0, lp, lt = np.log(wm), np.log(w0), np.log(wp), np.log(level)

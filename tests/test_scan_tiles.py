@@ -17,10 +17,12 @@ from simlidar_mi.lidar.scan import scan
 from simlidar_mi.lidar.survey import build, generate, run_scan, scan_patterns, scene_sensor
 from tests.conftest import SCENES
 
-# A 100 m airborne pass over the instanced four-species forest: 334 lines × 200 pulses.
+# A 40 m airborne pass over a 40 m × 40 m corner of the instanced four-species forest
+# (11 trees with leaves): 134 lines × 200 pulses.
 AIRBORNE = (SCENES / "forest_airborne.toml",
-            ["platform.pulses_per_line=200", "platform.pulse_rate_hz=20000.0", "platform.speed_m_s=30.0",
-             "platform.start_xy_m=[60.0, 60.0]", "platform.end_xy_m=[60.0, 160.0]"])
+            ["forest.domain_m=[40.0, 80.0, 70.0, 110.0]", "platform.pulses_per_line=200",
+             "platform.pulse_rate_hz=20000.0", "platform.speed_m_s=30.0",
+             "platform.start_xy_m=[60.0, 70.0]", "platform.end_xy_m=[60.0, 110.0]"])
 # A small tractor orchard scan with a real scanner: divergence, echoes, intensity and range
 # noise (keyed by the global beam index), a 2 × 2 dot matrix.
 SENSOR = (SCENES / "apple_orchard.toml",
@@ -93,6 +95,8 @@ def test_cluster_scan_is_the_one_process_scan(tmp_path, cluster, scene):
         np.testing.assert_array_equal(run.result.echoes.beam, ref.result.echoes.beam)
         np.testing.assert_array_equal(run.result.echoes.range_m, ref.result.echoes.range_m)
         assert (ref.result.n_returns > 1).any()
+    else:
+        assert (ref.result.cls == 3).any() and ref.result.tree_id is not None  # leaves, tree ids
 
 
 def test_active_client_and_env_choose_the_cluster(tmp_path, cluster, monkeypatch):
@@ -100,7 +104,7 @@ def test_active_client_and_env_choose_the_cluster(tmp_path, cluster, monkeypatch
     CLI's --scheduler and --tile-rows reach the tiles; 'local' forces this process."""
     import distributed  # noqa: PLC0415
     path, over = AIRBORNE
-    over = over + ["platform.end_xy_m=[60.0, 90.0]"]  # 101 lines
+    over = over + ["platform.end_xy_m=[60.0, 90.0]"]  # 67 lines
     ref = run_scan(load_scene(path, over), tmp_path / "ref")
     plans = []
     real_plan = tiles.tile_plan

@@ -1,6 +1,7 @@
 """Where a sweep's tasks run: the local process pool, or a Dask ``distributed`` cluster.
 
-Shared by every sweep (today :func:`simlidar_mi.lidar.study.run_study`).  A sweep asks
+Shared by every sweep (today :func:`simlidar_mi.lidar.study.run_study`) and by scans split
+into row tiles (:mod:`simlidar_mi.lidar.tiles`, from ``run_scan``).  A sweep asks
 :func:`cluster_client` which cluster to use, in this order:
 
 1. ``scheduler`` given (``--scheduler ADDRESS``): that scheduler; ``"local"`` forces the

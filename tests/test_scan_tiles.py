@@ -108,7 +108,7 @@ def test_active_client_and_env_choose_the_cluster(tmp_path, cluster, monkeypatch
     ref = run_scan(load_scene(path, over), tmp_path / "ref")
     plans = []
     real_plan = tiles.tile_plan
-    monkeypatch.setattr(tiles, "tile_plan", lambda p, rows=None: plans.append(rows) or real_plan(p, rows))
+    monkeypatch.setattr(tiles, "tile_plan", lambda p, rows=None: (p and plans.append(rows)) or real_plan(p, rows))
     with distributed.Client(cluster) as client:
         run_scan(load_scene(path, over), tmp_path / "active", tile_rows=30)
         assert client.status == "running"
@@ -181,6 +181,8 @@ def test_tile_plan_and_bad_tile_rows():
     for bad in (0, -3, 2.5, True, "10"):
         with pytest.raises(ConfigError, match="tile_rows"):
             tiles.tile_plan(pats, bad)
+    with pytest.raises(ConfigError, match="tile_rows"):  # also with no cluster to use it
+        run_scan(cfg, None, tile_rows=0)
 
 
 def test_worker_of_other_code_refuses(tmp_path):

@@ -348,6 +348,9 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, overrides)
     check_variant(cfg["scene"]["variant"], cfg.source)  # before any work
+    if tile_rows is not None:  # refused even when no cluster would use it
+        from .tiles import tile_plan  # noqa: PLC0415
+        tile_plan([], tile_rows)
     steps = ["generate", "build", "scan", "write"]
     shown = make_progress(progress)
     bar = shown.stage("scan", len(steps), "stage").step

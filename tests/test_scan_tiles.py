@@ -14,7 +14,7 @@ from simlidar_mi.config import load_scene
 from simlidar_mi.errors import ConfigError
 from simlidar_mi.lidar import tiles
 from simlidar_mi.lidar.scan import scan
-from simlidar_mi.lidar.survey import build, generate, run_scan, scan_patterns, scene_sensor
+from simlidar_mi.lidar.survey import build, generate, prepare_scan, run_scan, scan_patterns, scene_sensor
 from tests.conftest import SCENES
 
 # A 40 m airborne pass over a 40 m × 40 m corner of the instanced four-species forest
@@ -188,4 +188,4 @@ def test_tile_plan_and_bad_tile_rows():
 def test_worker_of_other_code_refuses(tmp_path):
     cfg, *_ = _prepared(*SENSOR)
     with pytest.raises(ConfigError, match="runs other code"):
-        tiles._tile_task(tiles.scene_bundle(cfg), 0, 0, 1, "0.0+other mitsuba ? drjit ?")
+        tiles._tile_task(tiles.scene_bundle(cfg, prepare_scan), 0, 0, 1, "0.0+other mitsuba ? drjit ?")

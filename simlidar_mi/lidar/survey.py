@@ -374,8 +374,8 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
             from .tiles import scan_on_cluster  # noqa: PLC0415
             scene_sensor(cfg, geometry, patterns)  # a bad [sensor] fails here, before any task
             t = time.perf_counter()
-            built, results, facts = scan_on_cluster(client, cfg, patterns, tile_rows=tile_rows,
-                                                    progress=shown)
+            built, results, facts = scan_on_cluster(client, cfg, patterns, prepare_scan,
+                                                    tile_rows=tile_rows, progress=shown)
             seconds["build"] = facts["build_seconds"]  # the slowest worker's (inside the scan's time)
             seconds["scan"] = time.perf_counter() - t
             bar(f"built {built.representation} scene on {len(facts['workers'])} workers")
@@ -424,6 +424,15 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
         measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}
     bar("written")
     return ScanRun(results[0] if len(results) == 1 else results, measures, files)
+
+
+def prepare_scan(cfg: SceneConfig) -> tuple[list, object, object]:
+    """(patterns, built scene, sensor) of ``cfg`` as :func:`run_scan` makes them: what a
+    cluster worker builds once for the tiles it scans (:mod:`simlidar_mi.lidar.tiles`)."""
+    geometry = generate(cfg)
+    lo, hi = geometry.bounds_m()
+    patterns = scan_patterns(cfg, lo, hi, geometry.near_x_m)
+    return patterns, build(cfg, geometry, patterns), scene_sensor(cfg, geometry, patterns)
 
 
 def scene_sensor(cfg: SceneConfig, geometry: SceneGeometry, patterns: list):

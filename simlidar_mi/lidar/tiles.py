@@ -64,9 +64,11 @@ def tile_plan(patterns: list, tile_rows: int | None = None) -> list[tuple[int, i
     return plan
 
 
-def scene_bundle(cfg) -> dict[str, Any]:
+def scene_bundle(cfg, prepare) -> dict[str, Any]:
     """What a worker needs to build the scene without this machine's files: the validated
-    scene and the bytes of its OBJ files, with a digest that names both."""
+    scene and the bytes of its OBJ files, with a digest that names both, and ``prepare``
+    (``cfg -> (patterns, built scene, sensor)``, :func:`simlidar_mi.lidar.survey.prepare_scan`;
+    passed in, sent by reference, so that this module does not import the workflows)."""
     objs: dict[str, bytes] = {}
     for prim in cfg.arrays.get("primitive", []):
         if prim.get("type") == "obj" and prim.get("path") and prim["path"] not in objs:
@@ -78,7 +80,7 @@ def scene_bundle(cfg) -> dict[str, Any]:
     digest = hashlib.sha256(pickle.dumps(cfg, protocol=5))
     for path in sorted(objs):
         digest.update(path.encode() + b"\0" + objs[path])
-    return {"cfg": cfg, "objs": objs, "digest": digest.hexdigest()}
+    return {"cfg": cfg, "objs": objs, "digest": digest.hexdigest(), "prepare": prepare}
 
 
 @dataclass
@@ -103,7 +105,6 @@ def _prepared(bundle: dict[str, Any]) -> tuple[_Prepared, bool]:
     if got is not None:
         return got, False
     _SCENES.clear()  # free the previous scene before building the next
-    from .survey import build, generate, scan_patterns, scene_sensor  # noqa: PLC0415
     cfg = copy.deepcopy(bundle["cfg"])
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="simlidar-tiles-") as tmp:
@@ -114,11 +115,7 @@ def _prepared(bundle: dict[str, Any]) -> tuple[_Prepared, bool]:
         for prim in cfg.arrays.get("primitive", []):
             if prim.get("type") == "obj" and prim.get("path") in local:
                 prim["path"] = local[prim["path"]]
-        geometry = generate(cfg)
-        lo, hi = geometry.bounds_m()
-        patterns = scan_patterns(cfg, lo, hi, geometry.near_x_m)
-        built = build(cfg, geometry, patterns)
-        sensor = scene_sensor(cfg, geometry, patterns)
+        patterns, built, sensor = bundle["prepare"](cfg)
     got = _Prepared(cfg, patterns, built, sensor, time.perf_counter() - t0)
     _SCENES[bundle["digest"]] = got
     return got, True
@@ -129,7 +126,7 @@ def _tile_task(bundle: dict[str, Any], leg: int, r0: int, r1: int, version: str)
     running other code (another simlidar-mi, Mitsuba or Dr.Jit) refuses, as in the study."""
     from .._dask import worker_name  # noqa: PLC0415
     from .scan import scan  # noqa: PLC0415
-    from .study import code_version  # noqa: PLC0415
+    from .._dask import code_version  # noqa: PLC0415
     mine = code_version()
     if mine != version:
         raise ConfigError(f"Dask worker {worker_name()} runs other code ({mine}) than this scan "
@@ -178,16 +175,17 @@ def merge_tiles(patterns: list, tiles: list[dict[str, Any]]) -> list:
     return results
 
 
-def scan_on_cluster(client: Any, cfg, patterns: list, *, tile_rows: int | None = None,
+def scan_on_cluster(client: Any, cfg, patterns: list, prepare, *, tile_rows: int | None = None,
                     progress: Any = False) -> tuple[Any, list, dict[str, Any]]:
-    """Scan ``patterns`` of ``cfg`` in row tiles on the Dask cluster of ``client``.
+    """Scan ``patterns`` of ``cfg`` in row tiles on the Dask cluster of ``client``; each
+    worker builds the scene with ``prepare`` (see :func:`scene_bundle`).
 
     Returns (the built scene's description: ``representation``, ``facets``, ``origin_m``,
     ``n_dropped``, ``n_instances``, ``n_triangles``, as attributes; the merged results, one
     per leg; facts of the run: ``tiles``, ``workers``, ``build_seconds``, the longest build
     of one worker)."""
     from .._dask import run_on_client  # noqa: PLC0415
-    from .study import code_version  # noqa: PLC0415
+    from .._dask import code_version  # noqa: PLC0415
     plan = tile_plan(patterns, tile_rows)
     tiles: list[dict[str, Any]] = []
     with make_progress(progress).stage("scan: tiles", len(plan), "tile") as st:
@@ -195,7 +193,7 @@ def scan_on_cluster(client: Any, cfg, patterns: list, *, tile_rows: int | None =
             tiles.append(tile)
             st.update()
         run_on_client(client, _tile_task, [(j, r0, r1, code_version()) for j, r0, r1 in plan], got,
-                      shared=scene_bundle(cfg))
+                      shared=scene_bundle(cfg, prepare))
     origins = {tuple(t["built"]["origin_m"]) for t in tiles}
     if len(origins) != 1:  # the same scene and positions always give one origin
         raise RuntimeError(f"workers built the scene around different origins: {sorted(origins)}")

@@ -1,6 +1,7 @@
 """Where a sweep's tasks run: the local process pool, or a Dask ``distributed`` cluster.
 
-Shared by every sweep (today :func:`simlidar_mi.lidar.study.run_study`).  A sweep asks
+Shared by every sweep (today :func:`simlidar_mi.lidar.study.run_study`) and by scans split
+into row tiles (:mod:`simlidar_mi.lidar.tiles`, from ``run_scan``).  A sweep asks
 :func:`cluster_client` which cluster to use, in this order:
 
 1. ``scheduler`` given (``--scheduler ADDRESS``): that scheduler; ``"local"`` forces the
@@ -15,12 +16,16 @@ Shared by every sweep (today :func:`simlidar_mi.lidar.study.run_study`).  A swee
 from __future__ import annotations
 
 import contextlib
+import functools
+import hashlib
 import logging
 import os
 import socket
 import sys
+from pathlib import Path
 from typing import Any, Callable, Iterator
 
+from ._version import __version__
 from .errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -119,3 +124,35 @@ def run_on_client(client: Any, fn: Callable, calls: list[tuple], on_result: Call
         if pending:
             client.cancel(pending)
         client.cancel([shared_f])
+
+
+@functools.lru_cache(maxsize=1)
+def code_version() -> str:
+    """``<version>+<source digest> mitsuba <v> drjit <v>``: the package version, a digest of
+    the package's and its Mitsuba plugins' Python source (so an edited checkout counts as
+    other code), and the Mitsuba and Dr.Jit that scan."""
+    import importlib.metadata as md  # noqa: PLC0415
+    import importlib.util  # noqa: PLC0415
+
+    # Files are named as they sit in an installed wheel (plugins under simlidar_mi/plugins/),
+    # so a cluster worker with the wheel agrees with a study run from a source checkout,
+    # where plugins/ is a top-level folder.
+    files: dict[str, Path] = {}
+    package = Path(__file__).resolve().parent
+    spec = importlib.util.find_spec("simlidar_mi.plugins")
+    roots = [(package, "")] + [(Path(p).resolve(), "plugins/")
+                               for p in ((spec.submodule_search_locations or []) if spec else [])]
+    for root, prefix in roots:
+        for f in root.rglob("*.py"):
+            if "__pycache__" not in f.parts:
+                files[prefix + f.relative_to(root).as_posix()] = f
+    digest = hashlib.sha256()
+    for name in sorted(files):
+        digest.update(name.encode() + b"\0" + files[name].read_bytes() + b"\0")
+    libs = []
+    for dist in ("mitsuba", "drjit"):
+        try:
+            libs.append(f"{dist} {md.version(dist)}")
+        except md.PackageNotFoundError:
+            libs.append(f"{dist} ?")
+    return " ".join([f"{__version__}+{digest.hexdigest()[:12]}", *libs])

@@ -48,6 +48,13 @@ def _scan_args(p: argparse.ArgumentParser) -> None:
                    help="output folder: scan.exr, scan.png, points.las, measures.json")
     p.add_argument("--no-las", action="store_true", help="skip points.las")
     p.add_argument("--no-png", action="store_true", help="skip scan.png")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="scan in row tiles on the Dask cluster whose scheduler is ADDRESS (e.g. "
+                        "tcp://host:8786; default: $DASK_SCHEDULER_ADDRESS if set, else this process; "
+                        "'local' forces this process); the same files; each worker needs this simlidar-mi")
+    p.add_argument("--tile-rows", type=int, default=None, metavar="N",
+                   help="rows (scan lines, sweeps, positions) per cluster task (default: about 1 M "
+                        "beams a tile)")
 
 
 @command("scan", "Tractor LiDAR scan of a scene: range EXR, range PNG, LAS points, measures", _scan_args)
@@ -55,7 +62,8 @@ def _scan_run(args: argparse.Namespace) -> int:
     from .lidar.survey import run_scan
 
     run = run_scan(args.scene, args.out, _overrides(args), write_las=not args.no_las,
-                   write_png=not args.no_png, progress=True)
+                   write_png=not args.no_png, progress=True,
+                   scheduler=args.scheduler, tile_rows=args.tile_rows)
     m = run.measures
     grids = [(m["N"], m["M"])] if "N" in m else [(leg["N"], leg["M"]) for leg in m["legs"]]
     trees = f", {m['n_instances']} instanced trees" if m.get("n_instances") else ""

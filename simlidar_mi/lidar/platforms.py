@@ -34,7 +34,7 @@ coordinate (origin moves along the platform's row step) and the column angle.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -113,6 +113,17 @@ class BeamPattern:
     def moving(self) -> bool:
         """True when beams of one row start from different positions (velocity × column delay)."""
         return self.velocity_m_s is not None and self.col_time_s is not None
+
+    def rows(self, r0: int, r1: int) -> "BeamPattern":
+        """Rows r0 … r1 − 1 of this pattern (a tile of a scan split over a cluster): every
+        per-row array sliced, columns and timing per column unchanged, so each beam of the
+        tile is the same ray as in the whole pattern."""
+        if not 0 <= r0 < r1 <= self.n_rows:
+            raise ValueError(f"rows {r0}…{r1} outside 0…{self.n_rows}")
+        cut = lambda a: None if a is None else a[r0:r1]  # noqa: E731
+        return replace(self, row_origin_m=self.row_origin_m[r0:r1], row_yaw_deg=self.row_yaw_deg[r0:r1],
+                       row_coord=cut(self.row_coord), row_time_s=cut(self.row_time_s),
+                       beam_dirs=cut(self.beam_dirs))
 
     def beam_times_s(self) -> np.ndarray | None:
         """(N, M) float64 emission time of every beam (seconds from the first), or None

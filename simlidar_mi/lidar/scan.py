@@ -329,16 +329,18 @@ class ScanResult:
 
 def scan(built: BuiltScene, settings: ScanSettings | BeamPattern,
          variant: str | None = None, sensor: SensorModel | None = None, *, seed: int = 0,
-         leg: int = 0) -> ScanResult:
+         leg: int = 0, rows: tuple[int, int] | None = None) -> ScanResult:
     """Fire every beam of ``settings`` (tractor) or of a platform's pattern into ``built``.
 
     With a :class:`~simlidar_mi.lidar.sensor.SensorModel` (``[sensor]`` effects on) the
     physical scanner runs (:func:`scan_physical`, seeded by ``seed`` and ``leg``); without
-    one, SIMLIDAR's first-return scan."""
+    one, SIMLIDAR's first-return scan.  ``rows = (r0, r1)`` fires only rows r0 … r1 − 1, a
+    tile of :mod:`simlidar_mi.lidar.tiles`: the same rays and the same per-beam values as
+    those rows of the whole scan (arrays of r1 − r0 rows; echoes keep global beam indices)."""
     if sensor is not None:
-        return scan_physical(built, settings, sensor, seed=seed, leg=leg, variant=variant)
+        return scan_physical(built, settings, sensor, seed=seed, leg=leg, variant=variant, rows=rows)
     mi = mitsuba(variant)
-    s, pattern, lidar = _lidar(mi, built, settings)
+    s, pattern, lidar = _lidar(mi, built, settings, rows)
     integrator = _range_integrator(mi, built, pattern)
     t0 = time.perf_counter()
     out = integrator.trace(built.scene, lidar)
@@ -359,8 +361,9 @@ def _metadata(built: BuiltScene) -> dict:
             "n_branches": built.n_branches, "n_dropped": built.n_dropped}
 
 
-def _lidar(mi, built: BuiltScene, settings):
-    """(tractor settings or None, pattern, Mitsuba sensor) for ``settings``."""
+def _lidar(mi, built: BuiltScene, settings, rows: tuple[int, int] | None = None):
+    """(tractor settings or None, pattern, Mitsuba sensor) for ``settings`` (only rows
+    r0 … r1 − 1 of it with ``rows``: the pattern returned is then those rows)."""
     o = built.origin_m
     if isinstance(settings, ScanSettings):
         s = settings
@@ -373,8 +376,17 @@ def _lidar(mi, built: BuiltScene, settings):
             "x0": s.x0_m - o[0], "z0": s.z0_m - o[2], "footprint": s.footprint,
             "film": _film(s.n_angles, s.n_positions),
         })
+        if rows is not None:  # the whole tractor's float32 tables, sliced: the same rays
+            r0, r1 = rows
+            p1 = s.footprint + 1
+            origins = np.stack([np.asarray(a, np.float64)[r0 * p1:r1 * p1] for a in lidar._o], axis=1)
+            dirs = np.stack([np.asarray(a, np.float64) for a in lidar._d], axis=1)
+            pattern = pattern.rows(r0, r1)
+            lidar = mi.load_dict({"type": "lidar_pattern", "n_positions": r1 - r0, "n_angles": s.n_angles,
+                                  "footprint": s.footprint, "film": _film(s.n_angles, r1 - r0)})
+            lidar.set_tables(origins, dirs)
     else:
-        s, pattern = None, settings
+        s, pattern = None, (settings if rows is None else settings.rows(*rows))
         lidar = mi.load_dict({"type": "lidar_pattern", "n_positions": pattern.n_rows,
                               "n_angles": pattern.n_cols, "footprint": pattern.footprint,
                               "film": _film(pattern.n_cols, pattern.n_rows)})
@@ -400,12 +412,13 @@ DEFAULT_CHUNK_RAYS = 1 << 22  # ~4 M sub-rays per trace: ~150 MB of Dr.Jit and n
 
 def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPattern,
                   model: SensorModel, *, seed: int = 0, leg: int = 0, variant: str | None = None,
-                  chunk_rays: int = DEFAULT_CHUNK_RAYS) -> ScanResult:
+                  chunk_rays: int = DEFAULT_CHUNK_RAYS, rows: tuple[int, int] | None = None) -> ScanResult:
     """A real scanner's scan: divergent sub-rays, echoes from the waveform, intensity, noise.
 
     Beams are traced in chunks of whole beams (at most ``chunk_rays`` sub-rays, at least one
     beam), so memory stays bounded; every step is per beam or keyed by the global beam
-    index, so results do not depend on the chunk size.  Per sub-ray energies follow the law
+    index, so results do not depend on the chunk size (nor on ``rows``, a tile of the scan: see
+    :func:`scan`).  Per sub-ray energies follow the law
     of :mod:`simlidar_mi.lidar.sensor`; echoes come from
     :func:`simlidar_mi.lidar.waveform.detect_echoes`, range noise from
     :mod:`simlidar_mi.lidar.noise` keyed by (``seed``, ``leg``, beam, return number).
@@ -420,7 +433,7 @@ def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPat
     ``sensor`` are filled.
     """
     mi = mitsuba(variant)
-    s, pattern, lidar = _lidar(mi, built, settings_or_pattern)
+    s, pattern, lidar = _lidar(mi, built, settings_or_pattern, rows)
     integrator = _range_integrator(mi, built, pattern)
     integrator.set_reflectance(model.class_reflectance(), built.shape_reflectance)
     if model.needs_energy:
@@ -433,6 +446,7 @@ def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPat
     weight = np.tile(w_sub, n_dot) / n_dot           # Σ = 1 per beam
     N, M = pattern.n_rows, pattern.n_cols
     n_beams = N * M
+    beam0 = rows[0] * M if rows is not None else 0  # a tile's first beam in the whole scan
     per_chunk = max(1, int(chunk_rays) // n_sub)
     energy = model.needs_energy
     rng = np.full(n_beams, pattern.escape_m, np.float32)
@@ -462,12 +476,12 @@ def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPat
             cos_i = out["cos_incidence"].numpy().reshape(n, n_sub).astype(np.float64)
             rho = out["reflectance"].numpy().reshape(n, n_sub).astype(np.float64)
             t1 = time.perf_counter()
-            echoes = _echoes(model, t, c, e, tr, cos_i, rho, weight, np.arange(b0, b0 + n, dtype=np.int64),
+            echoes = _echoes(model, t, c, e, tr, cos_i, rho, weight, np.arange(beam0 + b0, beam0 + b0 + n, dtype=np.int64),
                              seed=seed, leg=leg)
             echo_s += time.perf_counter() - t1
             parts.append(echoes)
             first = echoes.return_number == 1
-            beams = echoes.beam[first]
+            beams = echoes.beam[first] - beam0
             rng[beams] = echoes.range_m[first]
             cls[beams] = echoes.cls[first]
             elem[beams] = echoes.element_id[first]

@@ -48,7 +48,8 @@ from typing import Any
 
 import numpy as np
 
-from .._version import __version__
+from .._dask import code_version  # noqa: F401  (rows record it; tests patch it here)
+from .._version import __version__  # noqa: F401
 from .._progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
@@ -123,38 +124,6 @@ def scene_table(cfg: SceneConfig) -> dict[str, Any]:
                     value = "sha256:" + _file_sha256(value)
                 table[f"{name}[{j}].{key}"] = value
     return table
-
-
-@functools.lru_cache(maxsize=1)
-def code_version() -> str:
-    """``<version>+<source digest> mitsuba <v> drjit <v>``: the package version, a digest of
-    the package's and its Mitsuba plugins' Python source (so an edited checkout counts as
-    other code), and the Mitsuba and Dr.Jit that scan."""
-    import importlib.metadata as md  # noqa: PLC0415
-    import importlib.util  # noqa: PLC0415
-
-    # Files are named as they sit in an installed wheel (plugins under simlidar_mi/plugins/),
-    # so a cluster worker with the wheel agrees with a study run from a source checkout,
-    # where plugins/ is a top-level folder.
-    files: dict[str, Path] = {}
-    package = Path(__file__).resolve().parents[1]
-    spec = importlib.util.find_spec("simlidar_mi.plugins")
-    roots = [(package, "")] + [(Path(p).resolve(), "plugins/")
-                               for p in ((spec.submodule_search_locations or []) if spec else [])]
-    for root, prefix in roots:
-        for f in root.rglob("*.py"):
-            if "__pycache__" not in f.parts:
-                files[prefix + f.relative_to(root).as_posix()] = f
-    digest = hashlib.sha256()
-    for name in sorted(files):
-        digest.update(name.encode() + b"\0" + files[name].read_bytes() + b"\0")
-    libs = []
-    for dist in ("mitsuba", "drjit"):
-        try:
-            libs.append(f"{dist} {md.version(dist)}")
-        except md.PackageNotFoundError:
-            libs.append(f"{dist} ?")
-    return " ".join([f"{__version__}+{digest.hexdigest()[:12]}", *libs])
 
 
 def _key(table: dict[str, Any], readings: bool = True, version: str | None = None) -> str:

@@ -329,20 +329,31 @@ AIRBORNE_PULSE_RATE_HZ = 300_000.0
 @writes_output("out_dir")
 def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
              overrides: list[str] | tuple = (), *, write_las: bool = True,
-             write_png: bool = True, progress: bool = False) -> ScanRun:
+             write_png: bool = True, progress: bool = False, scheduler: str | None = None,
+             tile_rows: int | None = None) -> ScanRun:
     """Generate, build, scan and (with ``out_dir``) write the scan's files.
 
     The tractor writes scan.exr, scan.png, points.las and measures.json.  Other
     platforms write the same, and a multi-leg path one scan_legJ.exr / scan_legJ.png
     per leg with every leg's points in the one LAS file.  Files appear together when
     all are complete; a failure leaves ``out_dir`` as it was.
+
+    On a Dask cluster (``scheduler`` such as ``"tcp://host:8786"``, else an active
+    ``distributed.Client``, else ``DASK_SCHEDULER_ADDRESS``; ``"local"`` or none of them:
+    this process) the scan runs as tiles of ``tile_rows`` rows on the cluster's workers and
+    is merged here into the same result and files (:mod:`simlidar_mi.lidar.tiles`).
     """
+    from .._dask import cluster_client  # noqa: PLC0415
     from .scan import scan  # noqa: PLC0415
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, overrides)
     check_variant(cfg["scene"]["variant"], cfg.source)  # before any work
+    if tile_rows is not None:  # refused even when no cluster would use it
+        from .tiles import tile_plan  # noqa: PLC0415
+        tile_plan([], tile_rows)
     steps = ["generate", "build", "scan", "write"]
-    bar = make_progress(progress).stage("scan", len(steps), "stage").step
+    shown = make_progress(progress)
+    bar = shown.stage("scan", len(steps), "stage").step
     seconds: dict[str, float] = {}
 
     t = time.perf_counter()
@@ -358,17 +369,29 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     seconds["generate"] = time.perf_counter() - t
     bar(f"generated {len(geometry.branches)} branches, {len(geometry.leaves)} leaf triangles")
 
-    t = time.perf_counter()
-    built = build(cfg, geometry, patterns)
-    seconds["build"] = time.perf_counter() - t
-    bar(f"built {built.representation} scene")
+    with cluster_client(scheduler) as client:
+        if client is not None:  # tiles on the cluster's workers, each building the scene once
+            from .tiles import scan_on_cluster  # noqa: PLC0415
+            scene_sensor(cfg, geometry, patterns)  # a bad [sensor] fails here, before any task
+            t = time.perf_counter()
+            built, results, facts = scan_on_cluster(client, cfg, patterns, prepare_scan,
+                                                    tile_rows=tile_rows, progress=shown)
+            seconds["build"] = facts["build_seconds"]  # the slowest worker's (inside the scan's time)
+            seconds["scan"] = time.perf_counter() - t
+            bar(f"built {built.representation} scene on {len(facts['workers'])} workers")
+            bar(f"scanned {n_beams} beams in {facts['tiles']} tiles")
+    if client is None:
+        t = time.perf_counter()
+        built = build(cfg, geometry, patterns)
+        seconds["build"] = time.perf_counter() - t
+        bar(f"built {built.representation} scene")
 
-    sensor = scene_sensor(cfg, geometry, patterns)
-    t = time.perf_counter()
-    results = [scan(built, p, cfg["scene"]["variant"], sensor, seed=cfg.seed, leg=j)
-               for j, p in enumerate(patterns)]
-    seconds["scan"] = time.perf_counter() - t
-    bar(f"scanned {n_beams} beams")
+        sensor = scene_sensor(cfg, geometry, patterns)
+        t = time.perf_counter()
+        results = [scan(built, p, cfg["scene"]["variant"], sensor, seed=cfg.seed, leg=j)
+                   for j, p in enumerate(patterns)]
+        seconds["scan"] = time.perf_counter() - t
+        bar(f"scanned {n_beams} beams")
 
     measures = scan_measures(cfg, geometry, built, results)
     files: dict[str, Path] = {}
@@ -401,6 +424,15 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
         measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}
     bar("written")
     return ScanRun(results[0] if len(results) == 1 else results, measures, files)
+
+
+def prepare_scan(cfg: SceneConfig) -> tuple[list, object, object]:
+    """(patterns, built scene, sensor) of ``cfg`` as :func:`run_scan` makes them: what a
+    cluster worker builds once for the tiles it scans (:mod:`simlidar_mi.lidar.tiles`)."""
+    geometry = generate(cfg)
+    lo, hi = geometry.bounds_m()
+    patterns = scan_patterns(cfg, lo, hi, geometry.near_x_m)
+    return patterns, build(cfg, geometry, patterns), scene_sensor(cfg, geometry, patterns)
 
 
 def scene_sensor(cfg: SceneConfig, geometry: SceneGeometry, patterns: list):

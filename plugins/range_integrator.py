@@ -70,6 +70,7 @@ class RangeIntegrator(mi.SamplingIntegrator):
         self._prim = mi.UInt32(np.full(1, NO_ID, np.uint32))
         self._instanced = False
         self._prim_tree = None
+        self._prim_n = None  # set_normals: incidence from a table
         self._class_rho = mi.Float(np.array([0.0, 0.20, 0.35, 0.45], np.float32))
         self._shape_rho = None
 
@@ -181,6 +182,18 @@ class RangeIntegrator(mi.SamplingIntegrator):
         own = shape_reflectance is not None and bool(np.any(np.asarray(shape_reflectance) >= 0))
         self._shape_rho = mi.Float(np.ascontiguousarray(shape_reflectance, np.float32)) if own else None
 
+    def set_normals(self, prim_normal: np.ndarray, instance_yaw_rad: np.ndarray | None = None) -> None:
+        """Unit normal of every primitive (n, 3), laid out like ``prim_element`` and in its
+        shape's own frame, and per instance registry id the yaw that turns a prototype's
+        normals into the scene frame.  With them, :meth:`trace_subrays` reads incidence from
+        a table instead of Mitsuba's surface interaction (see BuiltScene.prim_normals)."""
+        n = np.ascontiguousarray(prim_normal, np.float32).reshape(-1, 3)
+        self._prim_n = [mi.Float(np.ascontiguousarray(n[:, j])) for j in range(3)]
+        yaw = None if instance_yaw_rad is None else np.asarray(instance_yaw_rad, np.float64)
+        self._inst_cs = None
+        if yaw is not None and np.any(yaw != 0):
+            self._inst_cs = (mi.Float(np.cos(yaw).astype(np.float32)), mi.Float(np.sin(yaw).astype(np.float32)))
+
     def trace_subrays(self, scene: mi.Scene, sensor: mi.Sensor, offsets_rad: np.ndarray,
                       beam_start: int, beam_count: int, normals: bool = False) -> dict:
         """Cast every divergent sub-ray of beams [beam_start, beam_start + beam_count).
@@ -221,12 +234,21 @@ class RangeIntegrator(mi.SamplingIntegrator):
             ray = mi.Ray3f(ray.o, dr.normalize(d + tan_u * u + tan_v * v), ray.time)
         pi = scene.ray_intersect_preliminary(ray, coherent=True)
         hit = pi.is_valid()
-        cls, elem, tree, sid, in_inst = self._classify(pi, hit)
+        cls, elem, tree, sid, in_inst, row = self._classify(pi, hit)
         t = dr.select(hit, pi.t, dr.inf)
         out = {}
         if normals:
-            si = pi.compute_surface_interaction(ray, mi.RayFlags.Minimal, hit)
-            cos_i = dr.select(hit, dr.abs(dr.dot(si.n, ray.d)), 0.0)
+            if self._prim_n is not None:
+                nx, ny, nz = (dr.gather(mi.Float, a, row, hit) for a in self._prim_n)
+                if self._inst_cs is not None:  # placed trees: turn the prototype's normal by the yaw
+                    iid = dr.reinterpret_array(mi.UInt32, pi.instance)
+                    c = dr.gather(mi.Float, self._inst_cs[0], iid, in_inst)
+                    s_ = dr.gather(mi.Float, self._inst_cs[1], iid, in_inst)
+                    nx, ny = dr.select(in_inst, c * nx - s_ * ny, nx), dr.select(in_inst, s_ * nx + c * ny, ny)
+                n = mi.Vector3f(nx, ny, nz)
+            else:  # analytic shapes: Mitsuba's geometric normal
+                n = pi.compute_surface_interaction(ray, mi.RayFlags.Minimal, hit).n
+            cos_i = dr.select(hit, dr.abs(dr.dot(n, ray.d)), 0.0)
             rho = dr.gather(mi.Float, self._class_rho, cls, hit)
             if self._shape_rho is not None:
                 own = dr.gather(mi.Float, self._shape_rho, sid, hit & ~in_inst)
@@ -267,10 +289,11 @@ class RangeIntegrator(mi.SamplingIntegrator):
             if self._inst_has_tree:
                 tree = dr.select(in_inst, dr.gather(mi.UInt32, self._inst_tree, iid, in_inst), NO_ID)
         cls = dr.select(hit, cls, ESCAPE)
-        elem = dr.select(hit, dr.gather(mi.UInt32, self._prim, base + pi.prim_index, hit), NO_ID)
+        row = base + pi.prim_index
+        elem = dr.select(hit, dr.gather(mi.UInt32, self._prim, row, hit), NO_ID)
         if self._prim_tree is not None:
-            tree = dr.select(hit, dr.gather(mi.UInt32, self._prim_tree, base + pi.prim_index, hit), NO_ID)
-        return cls, elem, tree, sid, in_inst
+            tree = dr.select(hit, dr.gather(mi.UInt32, self._prim_tree, row, hit), NO_ID)
+        return cls, elem, tree, sid, in_inst, row
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         """For ``mi.render``: a (N, M, 4) tensor of range, class, element id, hit fraction.

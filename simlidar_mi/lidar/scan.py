@@ -476,6 +476,10 @@ def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPat
     s, pattern, lidar = _lidar(mi, built, settings_or_pattern)
     integrator = _range_integrator(mi, built, pattern)
     integrator.set_reflectance(model.class_reflectance(), built.shape_reflectance)
+    if model.needs_energy:
+        normals = built.prim_normals()
+        if normals is not None:
+            integrator.set_normals(normals, built.instance_yaw_rad)
     offsets, w_sub = subray_offsets(model)
     n_dot = (pattern.footprint + 1) ** 2
     n_sub = n_dot * len(offsets)                     # sub-rays per beam, laid out (q, j)

@@ -105,6 +105,32 @@ class BuiltScene:
     prim_tree: np.ndarray | None = None  # tree id per primitive (several plants, no instancing)
     # Per shape registry id, a shape's own reflectance ([[primitive]] reflectance); −1: its class's.
     shape_reflectance: np.ndarray | None = None
+    # Per instance registry id, its yaw (rad): turns prototype-frame normals into the scene's.
+    instance_yaw_rad: np.ndarray | None = None
+    # The shape holding each part of prim_element, in its order (meshes, or None for analytic
+    # shapes): the source of prim_normals(), computed only when a sensor needs incidence.
+    prim_shapes: list = field(default_factory=list, repr=False)
+
+    def prim_normals(self) -> np.ndarray | None:
+        """Unit geometric normal of every primitive, laid out like ``prim_element`` (float32
+        (n, 3), in each shape's own frame: prototypes' in the prototype's), or None when a
+        part is not a triangle mesh (analytic cylinders, curves).
+
+        Read back from the built meshes (float32 vertices, as Embree sees them); a table
+        lookup at a hit replaces Mitsuba's surface interaction, whose per-shape dispatch
+        compiles one function per instance (minutes for a forest of a thousand trees)."""
+        if not self.prim_shapes or any(m is None for m in self.prim_shapes):
+            return None
+        import mitsuba as mi  # noqa: PLC0415  (the variant is set: the scene exists)
+        parts = []
+        for mesh in self.prim_shapes:
+            params = mi.traverse(mesh)
+            v = params["vertex_positions"].numpy().reshape(-1, 3).astype(np.float64)
+            f = params["faces"].numpy().reshape(-1, 3)
+            n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+            norm = np.linalg.norm(n, axis=1, keepdims=True)
+            parts.append(np.divide(n, norm, out=np.zeros_like(n), where=norm > 0).astype(np.float32))
+        return np.concatenate(parts) if parts else np.zeros((1, 3), np.float32)
 
     def integrator_tables(self) -> dict:
         """Keyword arguments for the range integrator's ``set_tables``."""
@@ -420,9 +446,10 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
 
     group_rows: list[tuple[int, int, int, np.ndarray]] = []  # (prototype, shape index, class, elements)
     instance_keys: list[tuple[str, int, int]] = []
+    group_meshes: list = []  # the mesh of each group row
     real_instances = instances is not None and len(instances)
     if real_instances:
-        n_tri += _add_instances(mi, instances, origin, k, shapes, group_rows, instance_keys)
+        n_tri += _add_instances(mi, instances, origin, k, shapes, group_rows, instance_keys, group_meshes)
     flat = [g for g in groups if g[0] in ("wood_mesh", "leaf_mesh")]
     grouped = sum(len(e) for _, _, e in flat) >= GROUP_MIN_TRIANGLES
     if grouped:
@@ -430,8 +457,9 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
         proto = len(instances.prototypes) if real_instances else 0
         members = {}
         for j, (key, cls, elems) in enumerate(flat):  # names keep the shape index order
-            members[f"{chr(ord('a') + j)}_{key}"] = shapes.pop(key)
+            members[f"{chr(ord('a') + j)}_{key}"] = mesh_j = shapes.pop(key)
             group_rows.append((proto, j, cls, elems))
+            group_meshes.append(mesh_j)
         groups = [g for g in groups if g not in flat]
         shapes["flat_group"] = mi.load_dict({"type": "shapegroup", **members})
         shapes["flat_instance"] = mi.load_dict({"type": "instance", "shapegroup": shapes["flat_group"]})
@@ -449,10 +477,12 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     for j, prim in enumerate(primitives):
         if prim.params.get("reflectance") is not None:
             shape_rho[by_key[f"primitive_{j:04d}"]] = prim.params["reflectance"]
+    prim_shapes = []
     for key, cls, elems in groups:
         rid = by_key[key]
         shape_class[rid], shape_base[rid] = cls, offset
         prim_parts.append(elems)
+        prim_shapes.append(shapes[key] if isinstance(shapes[key], mi.Mesh) else None)
         offset += len(elems)
     inst = {}
     if instance_keys:
@@ -460,16 +490,20 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
         n_proto = max(g[0] for g in group_rows) + 1
         inst["group_class"] = np.zeros(n_proto * n_groups, np.uint32)
         inst["group_base"] = np.zeros(n_proto * n_groups, np.uint32)
-        for proto, gidx, cls, elems in group_rows:
+        for (proto, gidx, cls, elems), mesh in zip(group_rows, group_meshes):
             inst["group_class"][proto * n_groups + gidx] = cls
             inst["group_base"][proto * n_groups + gidx] = offset
             prim_parts.append(elems)
+            prim_shapes.append(mesh)
             offset += len(elems)
         size_i = max(by_key[key] for key, _, _ in instance_keys) + 1
         inst["instance_tree"] = np.zeros(size_i, np.uint32)
         inst["instance_proto"] = np.zeros(size_i, np.uint32)
+        inst["instance_yaw_rad"] = np.zeros(size_i, np.float64)
         for key, tree, proto in instance_keys:
             inst["instance_tree"][by_key[key]] = tree
+            if key.startswith("tree_"):
+                inst["instance_yaw_rad"][by_key[key]] = np.deg2rad(instances.yaw_deg[int(key[5:])])
             inst["instance_proto"][by_key[key]] = proto * n_groups  # premultiplied row
         inst["n_instances"] = len(instance_keys) - grouped  # placed trees only
     prim_element = np.concatenate(prim_parts) if prim_parts else np.zeros(1, np.uint32)
@@ -488,7 +522,7 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
         lo = hi = origin.copy()
     return BuiltScene(scene, origin, shape_class, shape_base, prim_element.astype(np.uint32),
                       len(kept), n_dropped, n_tri, representation, k, lo, hi, **inst,
-                      shape_reflectance=shape_rho)
+                      shape_reflectance=shape_rho, prim_shapes=prim_shapes)
 
 
 def _plant_ids(key: str, elems: np.ndarray, branches: Branches, leaves: Leaves) -> np.ndarray:
@@ -544,8 +578,9 @@ def _check_float32(corners: np.ndarray, origin: np.ndarray, feature: tuple[float
 
 
 def _add_instances(mi, instances: Instances, origin: np.ndarray, k: int, shapes: dict,
-                   group_rows: list, instance_keys: list) -> int:
-    """One shapegroup per prototype (wood mesh, then leaf mesh), one instance per tree.
+                   group_rows: list, instance_keys: list, group_meshes: list) -> int:
+    """One shapegroup per prototype (wood mesh, then leaf mesh), one instance per tree;
+    ``group_meshes`` gets the mesh of each row appended to ``group_rows``.
 
     Returns the triangles built (each prototype once, however often it is placed)."""
     n_tri = 0
@@ -559,10 +594,12 @@ def _add_instances(mi, instances: Instances, origin: np.ndarray, k: int, shapes:
             v, f, owner = prism_mesh(kept.p0, kept.p1, r, k, caps=caps)
             members["a_wood"] = _mi_mesh(mi, f"proto{p}_wood", v, f)
             group_rows.append((p, len(members) - 1, CLASS_CODES["wood"], kept_index[owner].astype(np.uint32)))
+            group_meshes.append(members["a_wood"])
             n_tri += len(f)
         if leaves is not None and len(leaves):
             v = leaves.vertices.reshape(-1, 3)
             members["b_leaf"] = _mi_mesh(mi, f"proto{p}_leaf", v, np.arange(len(v)).reshape(-1, 3))
+            group_meshes.append(members["b_leaf"])
             group_rows.append((p, len(members) - 1, CLASS_CODES["leaf"], leaves.leaf_id.astype(np.uint32)))
             n_tri += len(leaves)
         # Shape index inside a group follows insertion order: wood 0, leaf 1.

@@ -322,7 +322,10 @@ def test_eq8_limits_come_from_the_nearest_wood_in_the_scanned_rows():
 
 def _orchard_scenes():
     from tests.conftest import SCENES
-    return sorted(p for p in SCENES.glob("*.toml") if "[orchard" in p.read_text())
+    # Scenes whose sweep is SIMLIDAR's (eq. 8 θ limits, tractor): a sensor preset's own field
+    # of view (sick-lms511) or a rotating platform (vlp16) is not meant to cover every branch.
+    return sorted(p for p in SCENES.glob("*.toml") if "[orchard" in (t := p.read_text())
+                  and "[sensor]" not in t and "[platform]" not in t)
 
 
 @pytest.mark.parametrize("path", _orchard_scenes(), ids=lambda p: p.stem)

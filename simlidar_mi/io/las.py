@@ -34,7 +34,9 @@ echo's range along the beam centre: ``return_number`` and ``number_of_returns`` 
 ``intensity`` = min(65535, round(1000·E)) with E the echo energy (0 when the sensor's
 intensity is off), the beam's ``gps_time``, and an extra dimension ``echo_width_ns``
 (float32); ``range_m`` is then the echo's range.  VLR record 2 states the intensity
-scale, record 3 holds the resolved sensor as JSON.  Without echoes the file is the
+scale, record 3 holds the resolved sensor as JSON.  The Extra Bytes record carries no
+min/max statistics (its option bits 1 and 2 are 0), so a file's bytes do not depend on
+how many chunks wrote it.  Without echoes the file is the
 first-return cloud above (return numbers 0, intensity 0), byte for byte as before.
 """
 from __future__ import annotations
@@ -164,6 +166,11 @@ def las_header(offsets_m, time_kind: str, *, with_tree: bool, with_echoes: bool 
         *([laspy.ExtraBytesParams("echo_width_ns", np.float32, description="echo FWHM width (ns)")]
           if with_echoes else []),
     ])
+    # No min/max statistics in the Extra Bytes record: laspy 2.7 fills them from one
+    # point per write_points call, so they were wrong and changed with the chunk size
+    # (issue #8). With the option bits clear, readers ignore those fields.
+    for eb in header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs:
+        eb.options &= ~(eb.MIN_BIT_MASK | eb.MAX_BIT_MASK)
     header.scales = np.array([0.0001, 0.0001, 0.0001])  # 0.1 mm
     header.offsets = np.asarray(offsets_m, np.float64)
     header.generating_software = "simlidar-mi"

@@ -99,13 +99,20 @@ class RangeIntegrator(mi.SamplingIntegrator):
                 self._inst_tree = u32(instance_tree)
             self._group_class, self._group_base = u32(group_class), u32(group_base)
 
-    def trace(self, scene: mi.Scene, sensor: mi.Sensor) -> dict:
-        """Cast every beam; return Dr.Jit arrays of length N·M (row-major: position, angle)."""
+    def trace(self, scene: mi.Scene, sensor: mi.Sensor, beam_start: int = 0,
+              beam_count: int | None = None) -> dict:
+        """Cast beams [beam_start, beam_start + beam_count) (default: every beam); return
+        Dr.Jit arrays of length beam_count (row-major beam order: position, angle).
+
+        Every value is a function of its global beam index alone, so a scan traced in
+        chunks has the bytes of the whole-scan call (which runs the code it always did)."""
         N, M, P = sensor.n_positions, sensor.n_angles, sensor.footprint
         S = (P + 1) ** 2
-        idx = dr.arange(mi.UInt32, N * M * S)
-        beam = idx // S if S > 1 else idx
-        i, k = beam // M, beam % M
+        count = N * M - beam_start if beam_count is None else int(beam_count)
+        idx = dr.arange(mi.UInt32, count * S)
+        beam = idx // S if S > 1 else idx          # chunk-local: indexes the block reductions
+        glob = beam if beam_start == 0 else mi.UInt32(beam_start) + beam
+        i, k = glob // M, glob % M
         pos = mi.Vector2f((mi.Float(k) + 0.5) / M, (mi.Float(i) + 0.5) / N)
         if S > 1:
             sub = idx % S

@@ -219,6 +219,9 @@ SECTIONS: dict[str, dict[str, Key]] = {
                         "its share of sub-beams that hit"),
         "escape_m": Key(FLOAT, 1000.0, positive, "range reported for beams that hit nothing"),
         "max_beams": Key(INT, 200_000_000, at_least(1), "refuse scans larger than this"),
+        "chunk_beams": Key(INT, 1 << 22, at_least(1),
+                           "beams traced and written per chunk (memory stays flat as scans grow; "
+                           "results do not depend on it)"),
     },
     # --- gap fraction (simlidar_mi.canopy.gapfraction); generators validate their own laws too
     "platform": {  # where the scanner is; "tractor" uses [scan]'s x0_m/z0_m/dy_m/dtheta_deg

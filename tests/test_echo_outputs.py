@@ -60,7 +60,7 @@ def test_exr_has_every_echo_layer_and_the_sensor(tmp_path):
     n, m = res.shape
     path = write_scan_exr(res, tmp_path / "e.exr", seed=3)
     ch, header = read_exr(path)
-    base = {"range", "class", "branch_id", "angle_deg", "row_coord", "tree_id"}
+    base = {"range", "class", "branch_id", "tree_id"}  # angle and row coordinate: header arrays
     layers = {f"echo{r}.{c}" for r in (2, 3) for c in ("range", "class", "branch_id", "intensity", "tree_id")}
     assert set(ch) == base | {"n_returns", "intensity"} | layers
     beam = np.arange(n * m).reshape(n, m)
@@ -155,12 +155,34 @@ def test_las_without_echoes_is_main_bytes(tmp_path, calibration_scan):
         a, b = laspy.read(new), laspy.read(old)
         assert len(a) > 100 and list(a.point_format.dimension_names) == list(b.point_format.dimension_names)
         assert np.all(np.asarray(a.return_number) == 0)  # first-return files state no return numbers
+        eb = a.header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs
+        assert [(s.name.rstrip(b"\0"), s.options) for s in eb][:4] == [
+            (b"range_m", 0), (b"scan_position", 0), (b"scan_angle_index", 0), (b"branch_id", 0)]
 
 
-def test_exr_without_echoes_is_main_bytes(tmp_path, calibration_scan):
+def test_exr_without_echoes_keeps_main_values(tmp_path, calibration_scan):
+    """Issue #8 moved θ and y from N × M channels to 1-D header arrays; read_scan_exr
+    (broadcast=True) gives back main's channels exactly, and every other channel and
+    header value is main's."""
+    from simlidar_mi.lidar.scan import read_scan_exr
     new = write_scan_exr(calibration_scan, tmp_path / "new.exr", seed=1, scene_sha256="x", extra={"a": 1})
     old = _main_write_scan_exr(calibration_scan, tmp_path / "old.exr", seed=1, scene_sha256="x", extra={"a": 1})
-    assert new.read_bytes() == old.read_bytes()
+    ch_new, h_new = read_scan_exr(new, broadcast=True)
+    ch_old, h_old = read_scan_exr(old, broadcast=True)
+    assert set(ch_new) == set(ch_old) == {"range", "class", "branch_id", "theta_deg", "y_m"}
+    for k in ch_old:
+        assert ch_new[k].dtype == ch_old[k].dtype and np.array_equal(ch_new[k], ch_old[k]), k
+    assert set(read_exr(new)[0]) == {"range", "class", "branch_id"}
+    s = calibration_scan.settings
+    assert np.array_equal(h_new["theta_deg"], s.theta_deg) and np.array_equal(h_new["y_m"], s.y_m)
+    for k, v in h_old.items():
+        if k in ("y_channel_note", "channels", "settings", "theta_deg", "y_m"):
+            continue
+        if isinstance(v, (np.ndarray, tuple)):  # origin_m; dataWindow / displayWindow (tuples of arrays)
+            assert np.array_equal(np.asarray(h_new[k]), np.asarray(v)), k
+        else:
+            assert h_new[k] == v, k
+    assert new.stat().st_size < 0.8 * old.stat().st_size
 
 
 def _main_write_scan_las(result, path, crs=None) -> Path:
@@ -186,6 +208,10 @@ def _main_write_scan_las(result, path, crs=None) -> Path:
         laspy.ExtraBytesParams("branch_id", np.uint32, description="element id"),
         *([laspy.ExtraBytesParams("tree_id", np.uint32, description="tree or plant id")] if with_tree else []),
     ])
+    # The one change since main (issue #8): no Extra Bytes min/max statistics, which laspy
+    # filled from one point per write call, so chunked files differed.
+    for eb in header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs:
+        eb.options &= ~(eb.MIN_BIT_MASK | eb.MAX_BIT_MASK)
     header.scales = np.array([0.0001, 0.0001, 0.0001])
     header.offsets = np.floor(pts.min(axis=0)) if len(pts) else np.zeros(3)
     header.generating_software = "simlidar-mi"

@@ -110,8 +110,9 @@ def test_exr_keeps_float64_origin(tmp_path):
     s = ScanSettings(1e5 + 1.0, 1.0, 2.9, 0.002, 0, 100, -40.0, 0.5, 120)
     r = scan(built, s)
     write_scan_exr(r, tmp_path / "s.exr", seed=7)
-    ch, hdr = read_scan_exr(tmp_path / "s.exr")
+    ch, hdr = read_scan_exr(tmp_path / "s.exr", broadcast=True)
     assert hdr["origin_m"].dtype == np.float64
+    assert np.array_equal(hdr["y_m"], s.y_m) and np.array_equal(hdr["theta_deg"], s.theta_deg)  # exact
     np.testing.assert_array_equal(hdr["origin_m"], built.origin_m)
     assert hdr["origin_m"][0] == 1e5 + 2.0  # the branch bbox centre, rounded to metres
     np.testing.assert_allclose(ch["y_m"][:, 0] + hdr["origin_m"][1], s.y_m, atol=1e-6)

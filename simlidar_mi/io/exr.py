@@ -20,6 +20,7 @@ nothing changes, byte for byte.
 from __future__ import annotations
 
 import json
+import zlib
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -52,48 +53,177 @@ def header_value(value):
     return str(value)
 
 
-def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = None,
-                   scene_sha256: str = "", extra: dict | None = None) -> Path:
-    """Write ``result`` to ``path`` (ZIP compression); returns the path."""
+#: Header attributes holding the broadcast constants (float64 JSON lists, exact) that
+#: were N × M float32 channels before issue #8: tractor θ per column and y per row (real
+#: y, not y − origin), other platforms' column angle and row coordinate.
+CONSTANT_ATTRS = {"theta_deg": "simlidar_theta_deg", "y_m": "simlidar_y_m",
+                  "angle_deg": "simlidar_angle_deg", "row_coord": "simlidar_row_coord"}
+
+
+def scan_exr_layout(result, *, seed: int | None = None, scene_sha256: str = "",
+                    extra: dict | None = None) -> tuple[dict, dict]:
+    """(header, channel dtypes) of a scan's EXR (module docstring); ``result`` needs only
+    ``settings``, ``pattern``, ``origin_m`` and, for the channel set, ``tree_id``."""
     s, p = result.settings, result.pattern
-    n, m = result.shape
-    channels = {
-        "range": np.ascontiguousarray(result.range_m, np.float32),
-        "class": np.ascontiguousarray(result.cls, np.uint32),
-        "branch_id": np.ascontiguousarray(result.element_id, np.uint32),
-    }
+    dtypes = {"range": np.float32, "class": np.uint32, "branch_id": np.uint32}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
               "origin_m": np.asarray(result.origin_m, np.float64), "scene_sha256": scene_sha256,
               "hit_rule": p.hit_rule}
-    if s is not None:  # the tractor: θ and y channels, every setting in the header
-        channels["theta_deg"] = np.ascontiguousarray(np.broadcast_to(s.theta_deg[None, :], (n, m)), np.float32)
-        channels["y_m"] = np.ascontiguousarray(
-            np.broadcast_to((s.y_m - result.origin_m[1])[:, None], (n, m)), np.float32)
+    if s is not None:  # the tractor: θ and y as 1-D attributes, every setting in the header
+        header[CONSTANT_ATTRS["theta_deg"]] = json.dumps([float(x) for x in s.theta_deg])
+        header[CONSTANT_ATTRS["y_m"]] = json.dumps([float(x) for x in s.y_m])
         header["simlidar_settings"] = json.dumps(s.to_dict(), sort_keys=True)
-        header["y_channel_note"] = "y_m channel is y minus origin_m[1]; range in metres"
         for key, value in s.to_dict().items():
             header[f"scan_{key}"] = header_value(value)
     else:  # other platforms: column angle and row coordinate, the pattern in the header
-        channels["angle_deg"] = np.ascontiguousarray(np.broadcast_to(p.col_angle_deg[None, :], (n, m)), np.float32)
-        channels["row_coord"] = np.ascontiguousarray(np.broadcast_to(p.row_coord[:, None], (n, m)), np.float32)
+        header[CONSTANT_ATTRS["angle_deg"]] = json.dumps([float(x) for x in p.col_angle_deg])
+        header[CONSTANT_ATTRS["row_coord"]] = json.dumps([float(x) for x in p.row_coord])
         header["simlidar_pattern"] = json.dumps(p.to_dict(), sort_keys=True)
         header["row_coord_label"] = p.row_label
         header["angle_label"] = p.col_label
-    if result.tree_id is not None:
-        channels["tree_id"] = np.ascontiguousarray(result.tree_id, np.uint32)
+    if getattr(result, "tree_id", None) is not None:
+        dtypes["tree_id"] = np.uint32
     if p.footprint > 0:
-        channels["hit_fraction"] = np.ascontiguousarray(result.hit_fraction, np.float32)
-    if getattr(result, "echoes", None) is not None:
-        _echo_channels(result, channels, header)
+        dtypes["hit_fraction"] = np.float32
     if seed is not None:
         header["seed"] = header_value(seed)
     for key, value in (extra or {}).items():
         header[key] = header_value(value)
-    with atomic_file(path) as tmp:
-        # OpenEXR.File modifies the dicts it is given: pass copies.
-        with OpenEXR.File(dict(header), dict(channels)) as f:
-            f.write(str(tmp))
+    return header, dtypes
+
+
+def result_rows(result, a: int, b: int) -> dict[str, np.ndarray]:
+    """Rows [a, b) of a held ScanResult's first-return channels."""
+    out = {"range": result.range_m[a:b], "class": result.cls[a:b], "branch_id": result.element_id[a:b],
+           "hit_fraction": result.hit_fraction[a:b]}
+    if result.tree_id is not None:
+        out["tree_id"] = result.tree_id[a:b]
+    return out
+
+
+def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = None,
+                   scene_sha256: str = "", extra: dict | None = None) -> Path:
+    """Write ``result`` to ``path`` (ZIP compression, scanlines); returns the path."""
+    header, dtypes = scan_exr_layout(result, seed=seed, scene_sha256=scene_sha256, extra=extra)
+    n, m = result.shape
+    full = {}
+    if getattr(result, "echoes", None) is not None:
+        _echo_channels(result, full, header)
+        dtypes.update({k: v.dtype.type for k, v in full.items()})
+    with atomic_file(path) as tmp, ScanlineExrWriter(tmp, header, dtypes, n, m) as w:
+        step = max(16, (1 << 20) // max(m, 1) // 16 * 16)  # ~1 M beams of conversions at a time
+        for a in range(0, n, step):
+            rows = result_rows(result, a, a + step)
+            rows.update({k: v[a:a + step] for k, v in full.items()})
+            w.write_rows(rows)
     return Path(path)
+
+
+class ScanlineExrWriter:
+    """A single-part scanline OpenEXR file with ZIP compression, written rows at a time.
+
+    OpenEXR 3.5's ``OpenEXR.File`` writes whole images only (every channel of the scan in
+    memory at once), and the deprecated ``OpenEXR.OutputFile``, which writes scanlines,
+    stores float attributes as float32 and refuses float64 ones.  So the header is made by
+    ``OpenEXR.File`` (a one-row image, its data window then set to N rows) and the pixel
+    blocks here, as the EXR format defines them: 16 scanlines per block, each line's channels
+    in name order, bytes split into even/odd halves, delta-coded (+128), zlib-deflated (or
+    stored raw when that is not smaller), behind a table of block offsets.  Block contents
+    depend only on the rows, so the file's bytes do not depend on how rows are fed.
+    """
+
+    LINES = 16  # scanlines per ZIP block (the EXR format's)
+
+    def __init__(self, path, header: dict, dtypes: dict, n_rows: int, n_cols: int, level: int = 4):
+        self.names = sorted(dtypes, key=lambda k: k.encode())
+        self.dtypes = {k: np.dtype(dtypes[k]).newbyteorder("<") for k in self.names}
+        self.n, self.m, self.level = int(n_rows), int(n_cols), level
+        head = _header_bytes(header, self.dtypes, self.n, self.m)
+        self.f = open(path, "wb")
+        self.f.write(head)
+        self.table_at = len(head)
+        self.offsets: list[int] = []
+        self.f.write(b"\0" * 8 * (-(-self.n // self.LINES)))
+        self.pending: dict[str, list] = {k: [] for k in self.names}
+        self.buffered = self.row = 0
+        from concurrent.futures import ThreadPoolExecutor  # noqa: PLC0415
+        self.pool = ThreadPoolExecutor(2)  # zlib releases the GIL: compress blocks on both cores
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, value, tb):
+        if kind is None:
+            self.close()
+        else:
+            self.pool.shutdown()
+            self.f.close()
+
+    def write_rows(self, rows: dict[str, np.ndarray]) -> None:
+        """Append rows (every channel of the header, each (r, M) any castable dtype)."""
+        r = len(rows[self.names[0]])
+        for k in self.names:
+            self.pending[k].append(np.ascontiguousarray(rows[k], self.dtypes[k]).reshape(r, self.m))
+        self.buffered += r
+        whole = self.buffered // self.LINES * self.LINES
+        if whole or self.row + self.buffered == self.n:
+            self._flush(whole if self.row + self.buffered < self.n else self.buffered)
+
+    def _flush(self, count: int) -> None:
+        data = {k: np.concatenate(v) if len(v) > 1 else v[0] for k, v in self.pending.items()}
+        blocks = []
+        for a in range(0, count, self.LINES):
+            b = min(count, a + self.LINES)
+            blocks.append((self.row + a, [data[k][a:b] for k in self.names]))
+        for y, payload in zip([y for y, _ in blocks], self.pool.map(self._block, [c for _, c in blocks])):
+            self.offsets.append(self.f.tell())
+            self.f.write(np.array([y, len(payload)], "<i4").tobytes())
+            self.f.write(payload)
+        self.row += count
+        self.buffered -= count
+        self.pending = {k: [data[k][count:]] if self.buffered else [] for k in self.names}
+
+    def _block(self, chans: list[np.ndarray]) -> bytes:
+        # line-interleaved: for each scanline, every channel's row in name order
+        raw = np.concatenate([c[:, None, :].view(np.uint8).reshape(len(c), 1, -1) for c in chans],
+                             axis=1).ravel()
+        buf = np.concatenate([raw[0::2], raw[1::2]])
+        pred = buf.copy()
+        pred[1:] = buf[1:] - buf[:-1] + np.uint8(128)  # uint8 wraps as the format's mod 256
+        packed = zlib.compress(pred.tobytes(), self.level)
+        return packed if len(packed) < raw.size else raw.tobytes()
+
+    def close(self) -> None:
+        if self.row != self.n:
+            raise ValueError(f"EXR writer got {self.row} of {self.n} rows")
+        self.pool.shutdown()
+        self.f.seek(self.table_at)
+        self.f.write(np.asarray(self.offsets, "<u8").tobytes())
+        self.f.close()
+
+
+def _header_bytes(header: dict, dtypes: dict, n: int, m: int) -> bytes:
+    """Magic, version and attributes of an N × M image, as ``OpenEXR.File`` writes them."""
+    import tempfile  # noqa: PLC0415
+    with tempfile.TemporaryDirectory() as d:
+        one = {k: np.zeros((1, m), t) for k, t in dtypes.items()}
+        with OpenEXR.File(dict(header), one) as f:
+            f.write(f"{d}/h.exr")
+        data = open(f"{d}/h.exr", "rb").read()
+    pos, out = 8, bytearray(data[:8])
+    while data[pos] != 0:
+        name_end = data.index(b"\0", pos)
+        type_end = data.index(b"\0", name_end + 1)
+        size = int.from_bytes(data[type_end + 1:type_end + 5], "little")
+        name = data[pos:name_end]
+        value = data[type_end + 5:type_end + 5 + size]
+        if name in (b"dataWindow", b"displayWindow"):
+            box = np.frombuffer(value, "<i4").copy()
+            box[3] = box[1] + n - 1
+            value = box.tobytes()
+        out += data[pos:type_end + 5] + value
+        pos = type_end + 5 + size
+    return bytes(out + b"\0")
 
 
 def _echo_channels(result: ScanResult, channels: dict, header: dict) -> None:

@@ -34,7 +34,9 @@ echo's range along the beam centre: ``return_number`` and ``number_of_returns`` 
 ``intensity`` = min(65535, round(1000·E)) with E the echo energy (0 when the sensor's
 intensity is off), the beam's ``gps_time``, and an extra dimension ``echo_width_ns``
 (float32); ``range_m`` is then the echo's range.  VLR record 2 states the intensity
-scale, record 3 holds the resolved sensor as JSON.  Without echoes the file is the
+scale, record 3 holds the resolved sensor as JSON.  The Extra Bytes record carries no
+min/max statistics (its option bits 1 and 2 are 0), so a file's bytes do not depend on
+how many chunks wrote it.  Without echoes the file is the
 first-return cloud above (return numbers 0, intensity 0), byte for byte as before.
 """
 from __future__ import annotations
@@ -78,21 +80,41 @@ def scan_times_s(result: ScanResult, first_row: int = 0) -> tuple[np.ndarray, st
     emission time, :meth:`~simlidar_mi.lidar.platforms.BeamPattern.beam_times_s`, already
     continuous across legs; else the airborne pattern's pulse times, else the scan-order time.
     """
-    times = result.pattern.beam_times_s()
-    if times is not None:
-        how = (result.pattern.meta or {}).get("timing")
+    return row_times_s(result.pattern, first_row, 0, result.shape[0])
+
+
+def row_times_s(pattern, first_row: int, a: int, b: int) -> tuple[np.ndarray, str]:
+    """:func:`scan_times_s` of rows [a, b) only, (b − a, M)."""
+    m = pattern.n_cols
+    if pattern.row_time_s is not None:
+        col = pattern.col_time_s if pattern.col_time_s is not None else np.zeros(m)
+        times = np.asarray(pattern.row_time_s, np.float64)[a:b, None] + np.asarray(col, np.float64)[None, :]
+        how = (pattern.meta or {}).get("timing")
         return times, f"{TIME_BEAM}: {how}" if how else TIME_BEAM
-    n, m = result.shape
-    i = np.arange(n, dtype=np.float64)[:, None]
+    i = np.arange(a, b, dtype=np.float64)[:, None]
     k = np.arange(m, dtype=np.float64)[None, :]
-    beam_times = getattr(result.pattern, "beam_times_s", None)  # moving platforms (issue 7)
-    times = beam_times() if callable(beam_times) else None
-    if times is not None:
-        return np.asarray(times, np.float64).reshape(n, m), TIME_BEAM
-    rate = (result.pattern.meta or {}).get("pulse_rate_hz")
+    rate = (pattern.meta or {}).get("pulse_rate_hz")
     if rate:
         return (i * m + k) / float(rate), TIME_PULSE
     return (first_row + i + k / m) * ROW_PERIOD_S, TIME_SCAN_ORDER
+
+
+def row_points_m(pattern, range_m: np.ndarray, a: int, b: int) -> np.ndarray:
+    """(b − a, M, 3) first-return points of rows [a, b): ``ScanResult.points_m()[a:b]``,
+    without building the whole scan's (N, M, 3) origins and directions."""
+    p = pattern
+    o = p.row_origin_m[a:b, None, :]
+    if p.moving:
+        o = o + p.col_time_s[None, :, None] * np.asarray(p.velocity_m_s, np.float64)[None, None, :]
+    if p.beam_dirs is not None:
+        d = p.beam_dirs[a:b]
+    else:
+        yaw = np.deg2rad(p.row_yaw_deg[a:b])
+        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        cd = p.col_dir[None, :, :]
+        d = np.stack([c * cd[..., 0] - s * cd[..., 1], s * cd[..., 0] + c * cd[..., 1],
+                      np.broadcast_to(cd[..., 2], (len(yaw), len(p.col_dir)))], axis=-1)
+    return o + np.asarray(range_m, np.float32).reshape(b - a, -1).astype(np.float64)[..., None] * d
 
 
 def crs_wkt(crs: str) -> str:
@@ -120,6 +142,19 @@ def write_scan_las(result: ScanResult | list[ScanResult], path: str | Path,
     cols = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
     pts = cols["xyz"]
     with_tree = any(r.tree_id is not None for r in results)
+    offsets = np.floor(pts.min(axis=0)) if len(pts) else np.zeros(3)
+    sensor = next((r.sensor for r in results if getattr(r, "sensor", None) is not None), None)
+    header = las_header(offsets, time_kind, with_tree=with_tree, with_echoes=with_echoes, crs=crs,
+                        sensor=sensor)
+    record = las_record(header, cols, with_tree=with_tree, with_echoes=with_echoes)
+    with atomic_file(path) as tmp, laspy.open(str(tmp), mode="w", header=header) as w:
+        w.write_points(record)
+    return Path(path)
+
+
+def las_header(offsets_m, time_kind: str, *, with_tree: bool, with_echoes: bool = False,
+               crs: str | None = None, sensor: dict | None = None) -> laspy.LasHeader:
+    """The LAS header of a scan (module docstring) with the given offsets."""
     header = laspy.LasHeader(point_format=6, version="1.4")
     range_text = "echo range (m)" if with_echoes else "first-return range (m)"
     header.add_extra_dims([
@@ -131,8 +166,13 @@ def write_scan_las(result: ScanResult | list[ScanResult], path: str | Path,
         *([laspy.ExtraBytesParams("echo_width_ns", np.float32, description="echo FWHM width (ns)")]
           if with_echoes else []),
     ])
+    # No min/max statistics in the Extra Bytes record: laspy 2.7 fills them from one
+    # point per write_points call, so they were wrong and changed with the chunk size
+    # (issue #8). With the option bits clear, readers ignore those fields.
+    for eb in header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs:
+        eb.options &= ~(eb.MIN_BIT_MASK | eb.MAX_BIT_MASK)
     header.scales = np.array([0.0001, 0.0001, 0.0001])  # 0.1 mm
-    header.offsets = np.floor(pts.min(axis=0)) if len(pts) else np.zeros(3)
+    header.offsets = np.asarray(offsets_m, np.float64)
     header.generating_software = "simlidar-mi"
     # LAS 1.4 R15: the WKT bit must be set for point formats 6-10, CRS or not
     header.global_encoding.wkt = True
@@ -141,14 +181,17 @@ def write_scan_las(result: ScanResult | list[ScanResult], path: str | Path,
     header.vlrs.append(laspy.VLR("simlidar-mi", 1, "gps_time definition",
                                  (f"gps_time: {time_kind}\0").encode("ascii")))
     if with_echoes:
-        sensor = next((r.sensor for r in results if getattr(r, "sensor", None) is not None), None)
         header.vlrs.append(laspy.VLR("simlidar-mi", 2, "intensity scale",
                                      (INTENSITY_TEXT + "\0").encode("ascii")))
         header.vlrs.append(laspy.VLR("simlidar-mi", 3, "sensor (JSON)",
                                      json.dumps(sensor, sort_keys=True, default=_plain).encode("utf-8")))
-    # One preallocated record, filled field by field.
-    points = laspy.ScaleAwarePointRecord.zeros(len(pts), header=header)
-    las = laspy.LasData(header, points=points)
+    return header
+
+
+def las_record(header: laspy.LasHeader, cols: dict, *, with_tree: bool, with_echoes: bool = False):
+    """One preallocated point record of ``cols`` (see :func:`_leg_points`), filled field by field."""
+    pts = cols["xyz"]
+    las = laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(len(pts), header=header))
     las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
     las.classification = LAS_CLASS_LUT[cols["cls"]]
     las.scan_angle = np.round(cols["theta"] / 0.006).astype(np.int16)
@@ -168,9 +211,24 @@ def write_scan_las(result: ScanResult | list[ScanResult], path: str | Path,
         las.number_of_returns = cols["nret"]
         las.intensity = cols["intensity"]
         las.echo_width_ns = cols["width"]
-    with atomic_file(path) as tmp:
-        las.write(str(tmp))
-    return Path(path)
+    return las.points
+
+
+def block_points(pattern, leg: int, a: int, b: int, block: dict, times_s: np.ndarray) -> dict:
+    """Per-point columns (as :func:`_leg_points`) of rows [a, b) of a first-return scan
+    streamed in blocks (``block``: flat ``range``, ``cls``, ``elem``, ``tree`` of those rows)."""
+    m = pattern.n_cols
+    cls = block["cls"].reshape(b - a, m)
+    keep = cls != CLASS_CODES["escape"]
+    i_idx, k_idx = np.nonzero(keep)
+    rng = block["range"].reshape(b - a, m)
+    tree = block["tree"]
+    cols = {"xyz": row_points_m(pattern, rng, a, b)[keep], "cls": cls[keep], "range": rng[keep],
+            "elem": block["elem"].reshape(b - a, m)[keep],
+            "tree": tree.reshape(b - a, m)[keep] if tree is not None else np.full(len(i_idx), 0xFFFFFFFF, np.uint32),
+            "gps": times_s[keep], "theta": pattern.col_angle_deg[k_idx], "i": i_idx + a, "k": k_idx,
+            "source": np.full(len(i_idx), leg)}
+    return cols
 
 
 def _leg_points(res: ScanResult, leg: int, times_s: np.ndarray, with_echoes: bool) -> dict:

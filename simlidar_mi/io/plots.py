@@ -229,8 +229,55 @@ def _fmt(v: float, decimals: int) -> str:
     return "0" if float(s) == 0 else s  # no "-0.0"
 
 
+class RangeImageReducer:
+    """:func:`range_rgb` of an N × M scan fed in blocks of whole rows (a streamed scan):
+    holds only the reduced image's nearest vegetation range and ground flag, and the
+    running range limits.  :meth:`rgb` gives :func:`range_rgb`'s bytes for the same scan."""
+
+    def __init__(self, n: int, m: int, max_px: int = MAX_IMAGE_PX):
+        if max_px < 1:
+            raise ValueError(f"max_px must be >= 1, got {max_px}")
+        self.n, self.m = n, m
+        self.fr, self.fc = -(-n // max_px), -(-m // max_px)
+        n_out, m_out = -(-n // self.fr), -(-m // self.fc)
+        self.near = np.full((n_out, m_out), np.inf, np.float32)
+        self.gnd = np.zeros((n_out, m_out), bool)
+        self.lo, self.hi = math.inf, -math.inf
+
+    def add(self, a: int, range_m: np.ndarray, cls: np.ndarray) -> None:
+        """Rows a … a + len − 1 (range_m, cls: (rows, M) or flat)."""
+        c = np.asarray(cls).reshape(-1, self.m)
+        r = np.asarray(range_m).reshape(-1, self.m)
+        veg = (c == _VEG[0]) | (c == _VEG[1])
+        if veg.any():
+            v = r[veg]
+            self.lo, self.hi = min(self.lo, float(v.min())), max(self.hi, float(v.max()))
+        near = np.where(veg, r, np.float32(np.inf))
+        gnd = c == _GROUND
+        if self.fc > 1:
+            near = _block_reduce(near, 1, self.fc, np.minimum, np.inf)
+            gnd = _block_reduce(gnd, 1, self.fc, np.logical_or, False)
+        # rows a … b−1 fall in output rows a//fr … (b−1)//fr; min and or are exact in any order
+        out_row = np.arange(a, a + len(c)) // self.fr
+        starts = np.flatnonzero(np.r_[True, out_row[1:] != out_row[:-1]])
+        rows = out_row[starts]
+        self.near[rows] = np.minimum(self.near[rows], np.minimum.reduceat(near, starts, axis=0))
+        self.gnd[rows] |= np.logical_or.reduceat(gnd, starts, axis=0)
+
+    @property
+    def limits(self) -> tuple[float, float] | None:
+        return (self.lo, self.hi) if self.lo <= self.hi else None
+
+    def rgb(self) -> tuple[np.ndarray, tuple[int, int]]:
+        vmin, vmax = self.limits or (0.0, 0.0)
+        out = np.where(self.gnd[..., None], np.array(GROUND_RGB, np.uint8), np.array(ESCAPE_RGB, np.uint8))
+        hit = np.isfinite(self.near)
+        out[hit] = VIRIDIS_LUT[lut_index(self.near[hit], vmin, vmax)]
+        return np.ascontiguousarray(out.transpose(1, 0, 2)[::-1]), (self.fr, self.fc)
+
+
 def plot_scan_png(result: ScanResult, path: str | Path, title: str = "", *,
-                  max_px: int = MAX_IMAGE_PX) -> Path:
+                  max_px: int = MAX_IMAGE_PX, reduced: RangeImageReducer | None = None) -> Path:
     """Write the range image of a scan (module docstring) as an RGB PNG, atomically.
 
     Parameters
@@ -244,9 +291,13 @@ def plot_scan_png(result: ScanResult, path: str | Path, title: str = "", *,
         Most data pixels on a side (see *Size rule* in the module docstring).
     """
     p = result.pattern
-    rng, cls = result.range_m, result.cls
-    limits = range_limits(rng, cls)
-    data, (fr, fc) = range_rgb(rng, cls, max_px=max_px, limits=limits)
+    if reduced is not None:  # a streamed scan (``result`` holds no beams): the reduced image
+        limits = reduced.limits
+        data, (fr, fc) = reduced.rgb()
+    else:
+        rng, cls = result.range_m, result.cls
+        limits = range_limits(rng, cls)
+        data, (fr, fc) = range_rgb(rng, cls, max_px=max_px, limits=limits)
     h, w = data.shape[:2]
     sx, sy = -(-MIN_DATA_W // w), -(-MIN_DATA_H // h)
     if sx > 1 or sy > 1:
@@ -261,7 +312,7 @@ def plot_scan_png(result: ScanResult, path: str | Path, title: str = "", *,
     x_lo, x_hi = rows[0] - half_row, rows[-1] + half_row
     y_lo, y_hi = ang[0] - span / 2, ang[-1] + span / 2
     # the last block of a reduced scan may be partly padding: the axes span whole blocks
-    n, m = rng.shape
+    n, m = p.n_rows, p.n_cols
     x_hi = x_lo + (x_hi - x_lo) * (-(-n // fr) * fr) / n
     y_hi = y_lo + (y_hi - y_lo) * (-(-m // fc) * fc) / m
     if not title:

@@ -327,32 +327,86 @@ class ScanResult:
         return self.vegetation().astype(np.float64)
 
 
+DEFAULT_CHUNK_BEAMS = 1 << 22  # [scan] chunk_beams' default: ~4 M beams per trace
+
+
+class BeamTracer:
+    """SIMLIDAR's first-return scan of one pattern, traced on demand by beam range.
+
+    :meth:`trace` of any range gives the bytes the whole-scan trace gives for those beams
+    (plugins/range_integrator.py ``trace``), so scans streamed in chunks do not depend on
+    the chunk size."""
+
+    def __init__(self, built: BuiltScene, settings: ScanSettings | BeamPattern, variant: str | None = None,
+                 rows: tuple[int, int] | None = None):
+        mi = mitsuba(variant)
+        self.settings, self.pattern, self._lidar = _lidar(mi, built, settings, rows)
+        self._integrator = _range_integrator(mi, built, self.pattern)
+        self._scene = built.scene
+        self.n_beams = self.pattern.n_beams
+
+    def trace(self, beam_start: int = 0, beam_count: int | None = None) -> dict[str, np.ndarray | None]:
+        """Flat numpy arrays ``range`` (float32 m), ``cls`` (uint8), ``elem`` and ``tree``
+        (uint32; tree None for scenes of one plant) and ``frac`` (float32) of the beams."""
+        if beam_start == 0 and beam_count in (None, self.n_beams):
+            out = self._integrator.trace(self._scene, self._lidar)
+        else:
+            out = self._integrator.trace(self._scene, self._lidar, int(beam_start), int(beam_count))
+        # .numpy() is a view of Dr.Jit memory: copy before the arrays are released.
+        return {"range": out["range"].numpy().copy(), "cls": out["class"].numpy().astype(np.uint8),
+                "elem": out["element_id"].numpy().copy(), "frac": out["hit_fraction"].numpy().copy(),
+                "tree": out["tree_id"].numpy().copy() if "tree_id" in out else None}
+
+    def row_blocks(self, chunk_beams: int = DEFAULT_CHUNK_BEAMS):
+        """Yield (first row, end row, arrays) over whole rows, tracing at most ``chunk_beams``
+        beams at a time (a row longer than that is traced in pieces and joined)."""
+        N, M = self.pattern.n_rows, self.pattern.n_cols
+        chunk_beams = max(1, int(chunk_beams))
+        rows = max(1, chunk_beams // M)
+        for a in range(0, N, rows):
+            b = min(N, a + rows)
+            if chunk_beams >= M:
+                yield a, b, self.trace(a * M, (b - a) * M)
+                continue
+            pieces = [self.trace(a * M + c, min(chunk_beams, M - c)) for c in range(0, M, chunk_beams)]
+            yield a, b, {k: None if pieces[0][k] is None else np.concatenate([p[k] for p in pieces])
+                         for k in pieces[0]}
+
+
 def scan(built: BuiltScene, settings: ScanSettings | BeamPattern,
          variant: str | None = None, sensor: SensorModel | None = None, *, seed: int = 0,
-         leg: int = 0, rows: tuple[int, int] | None = None) -> ScanResult:
+         leg: int = 0, rows: tuple[int, int] | None = None, chunk_beams: int | None = None) -> ScanResult:
     """Fire every beam of ``settings`` (tractor) or of a platform's pattern into ``built``.
 
     With a :class:`~simlidar_mi.lidar.sensor.SensorModel` (``[sensor]`` effects on) the
     physical scanner runs (:func:`scan_physical`, seeded by ``seed`` and ``leg``); without
     one, SIMLIDAR's first-return scan.  ``rows = (r0, r1)`` fires only rows r0 … r1 − 1, a
     tile of :mod:`simlidar_mi.lidar.tiles`: the same rays and the same per-beam values as
-    those rows of the whole scan (arrays of r1 − r0 rows; echoes keep global beam indices)."""
+    those rows of the whole scan (arrays of r1 − r0 rows; echoes keep global beam indices).
+    ``chunk_beams`` (``[scan] chunk_beams``) bounds the beams per trace; None traces the
+    first-return scan at once.  The result holds every beam either way
+    (:mod:`simlidar_mi.lidar.stream` writes files without holding them)."""
     if sensor is not None:
-        return scan_physical(built, settings, sensor, seed=seed, leg=leg, variant=variant, rows=rows)
-    mi = mitsuba(variant)
-    s, pattern, lidar = _lidar(mi, built, settings, rows)
-    integrator = _range_integrator(mi, built, pattern)
-    t0 = time.perf_counter()
-    out = integrator.trace(built.scene, lidar)
+        return scan_physical(built, settings, sensor, seed=seed, leg=leg, variant=variant, rows=rows,
+                             chunk_beams=chunk_beams or DEFAULT_CHUNK_BEAMS)
+    tracer = BeamTracer(built, settings, variant, rows)
+    pattern = tracer.pattern
     shape = (pattern.n_rows, pattern.n_cols)
-    # .numpy() is a view of Dr.Jit memory: copy before the arrays are released.
-    rng = out["range"].numpy().reshape(shape).copy()
-    cls = out["class"].numpy().reshape(shape).astype(np.uint8)
-    elem = out["element_id"].numpy().reshape(shape).copy()
-    frac = out["hit_fraction"].numpy().reshape(shape).copy()
-    tree = out["tree_id"].numpy().reshape(shape).copy() if "tree_id" in out else None
+    t0 = time.perf_counter()
+    if chunk_beams is None or chunk_beams >= tracer.n_beams:
+        a = tracer.trace()
+    else:
+        a = None
+        for r0, r1, part in tracer.row_blocks(chunk_beams):
+            if a is None:
+                a = {k: None if v is None else np.empty(tracer.n_beams, v.dtype) for k, v in part.items()}
+            for k, v in part.items():
+                if v is not None:
+                    a[k][r0 * shape[1]:r1 * shape[1]] = v
     seconds = time.perf_counter() - t0
-    return ScanResult(s, rng, cls, elem, frac, built.origin_m.copy(), seconds,
+    tree = a["tree"].reshape(shape) if a["tree"] is not None else None
+    return ScanResult(tracer.settings, a["range"].reshape(shape), a["cls"].reshape(shape),
+                      a["elem"].reshape(shape), a["frac"].reshape(shape), built.origin_m.copy(), seconds,
                       _metadata(built), pattern, tree)
 
 
@@ -412,13 +466,15 @@ DEFAULT_CHUNK_RAYS = 1 << 22  # ~4 M sub-rays per trace: ~150 MB of Dr.Jit and n
 
 def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPattern,
                   model: SensorModel, *, seed: int = 0, leg: int = 0, variant: str | None = None,
-                  chunk_rays: int = DEFAULT_CHUNK_RAYS, rows: tuple[int, int] | None = None) -> ScanResult:
+                  chunk_beams: int = DEFAULT_CHUNK_BEAMS, chunk_rays: int = DEFAULT_CHUNK_RAYS,
+                  rows: tuple[int, int] | None = None) -> ScanResult:
     """A real scanner's scan: divergent sub-rays, echoes from the waveform, intensity, noise.
 
-    Beams are traced in chunks of whole beams (at most ``chunk_rays`` sub-rays, at least one
-    beam), so memory stays bounded; every step is per beam or keyed by the global beam
-    index, so results do not depend on the chunk size (nor on ``rows``, a tile of the scan: see
-    :func:`scan`).  Per sub-ray energies follow the law
+    Beams are traced in chunks of whole beams (at most ``chunk_beams`` beams, ``[scan]
+    chunk_beams``, and at most ``chunk_rays`` sub-rays, at least one beam), so the trace's
+    memory stays bounded (the result holds every beam and echo); every step is per beam or
+    keyed by the global beam index, so results do not depend on the chunk size (nor on
+    ``rows``, a tile of the scan: see :func:`scan`).  Per sub-ray energies follow the law
     of :mod:`simlidar_mi.lidar.sensor`; echoes come from
     :func:`simlidar_mi.lidar.waveform.detect_echoes`, range noise from
     :mod:`simlidar_mi.lidar.noise` keyed by (``seed``, ``leg``, beam, return number).
@@ -447,7 +503,7 @@ def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPat
     N, M = pattern.n_rows, pattern.n_cols
     n_beams = N * M
     beam0 = rows[0] * M if rows is not None else 0  # a tile's first beam in the whole scan
-    per_chunk = max(1, int(chunk_rays) // n_sub)
+    per_chunk = max(1, min(int(chunk_beams), int(chunk_rays) // n_sub))
     energy = model.needs_energy
     rng = np.full(n_beams, pattern.escape_m, np.float32)
     cls = np.zeros(n_beams, np.uint8)
@@ -551,9 +607,34 @@ def _film(width: int, height: int) -> dict:
             "rfilter": {"type": "box"}}
 
 
-def read_scan_exr(path) -> tuple[dict[str, np.ndarray], dict]:
-    """Channels and header of a scan EXR; ``header['settings']`` is a ScanSettings."""
+def read_scan_exr(path, broadcast: bool = False) -> tuple[dict[str, np.ndarray], dict]:
+    """Channels and header of a scan EXR; ``header['settings']`` is a ScanSettings.
+
+    The broadcast constants are 1-D float64 header arrays (issue #8): the tractor's
+    ``header['theta_deg']`` (M,) and ``header['y_m']`` (N, real y), other platforms'
+    ``header['angle_deg']`` (M,) and ``header['row_coord']`` (N,).  ``broadcast=True`` also
+    gives them as the N × M float32 channels files stored before: ``theta_deg`` and ``y_m``
+    (y − origin_m[1]), or ``angle_deg`` and ``row_coord``.  Older files keep their channels.
+    """
+    from ..io.exr import CONSTANT_ATTRS  # noqa: PLC0415
     channels, header = read_exr(path)
     if "simlidar_settings" in header:
         header["settings"] = ScanSettings(**json.loads(header["simlidar_settings"]))
+    for name, attr in CONSTANT_ATTRS.items():
+        if attr in header:
+            header[name] = np.asarray(json.loads(header[attr]), np.float64)
+        elif name in channels:  # a file from before issue #8
+            c = channels[name]
+            header[name] = (c[0, :] if name in ("theta_deg", "angle_deg") else
+                            c[:, 0] + (header["origin_m"][1] if name == "y_m" else 0.0)).astype(np.float64)
+    if broadcast and "range" in channels:
+        n, m = channels["range"].shape
+        for name in CONSTANT_ATTRS:
+            if name in header and name not in channels:
+                v = header[name]
+                if name == "y_m":
+                    v = v - header["origin_m"][1]
+                col = name in ("theta_deg", "angle_deg")
+                channels[name] = np.ascontiguousarray(
+                    np.broadcast_to((v[None, :] if col else v[:, None]).astype(np.float32), (n, m)))
     return channels, header

@@ -342,6 +342,10 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     ``distributed.Client``, else ``DASK_SCHEDULER_ADDRESS``; ``"local"`` or none of them:
     this process) the scan runs as tiles of ``tile_rows`` rows on the cluster's workers and
     is merged here into the same result and files (:mod:`simlidar_mi.lidar.tiles`).
+
+    Without a cluster, a first-return scan of more than ``[scan] chunk_beams`` beams written
+    to ``out_dir`` is traced and written chunk by chunk (:mod:`simlidar_mi.lidar.stream`; the same bytes): ``run.result`` is then a
+    :class:`~simlidar_mi.lidar.stream.StreamedScan` (shape, counts, areas; no beams).
     """
     from .._dask import cluster_client  # noqa: PLC0415
     from .scan import scan  # noqa: PLC0415
@@ -369,6 +373,7 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     seconds["generate"] = time.perf_counter() - t
     bar(f"generated {len(geometry.branches)} branches, {len(geometry.leaves)} leaf triangles")
 
+    streamed = False  # a first-return scan written chunk by chunk (below)
     with cluster_client(scheduler) as client:
         if client is not None:  # tiles on the cluster's workers, each building the scene once
             from .tiles import scan_on_cluster  # noqa: PLC0415
@@ -387,19 +392,40 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
         bar(f"built {built.representation} scene")
 
         sensor = scene_sensor(cfg, geometry, patterns)
+        chunk = cfg["scan"]["chunk_beams"]
+        # More than one chunk to files: traced and written chunk by chunk (lidar/stream.py).
+        streamed = out_dir is not None and sensor is None and max(p.n_beams for p in patterns) > chunk
         t = time.perf_counter()
-        results = [scan(built, p, cfg["scene"]["variant"], sensor, seed=cfg.seed, leg=j)
-                   for j, p in enumerate(patterns)]
+        results = [] if streamed else [scan(built, p, cfg["scene"]["variant"], sensor, seed=cfg.seed, leg=j,
+                                            chunk_beams=chunk) for j, p in enumerate(patterns)]
         seconds["scan"] = time.perf_counter() - t
-        bar(f"scanned {n_beams} beams")
-
-    measures = scan_measures(cfg, geometry, built, results)
+        if not streamed:
+            bar(f"scanned {n_beams} beams")
+    if not streamed:
+        measures = scan_measures(cfg, geometry, built, results)
     files: dict[str, Path] = {}
     t = time.perf_counter()
     if out_dir is not None:
         from ..io.exr import write_scan_exr  # noqa: PLC0415
         with staged_dir(out_dir, SCAN_OUTPUTS) as stage:
-            for j, res in enumerate(results):
+            if streamed:
+                from .stream import stream_scan  # noqa: PLC0415
+                names: dict = {}
+                many = len(patterns) > 1
+                results, seconds["scan"] = stream_scan(
+                    built, patterns, stage, variant=cfg["scene"]["variant"], chunk_beams=chunk,
+                    exr_kwargs={"seed": cfg.seed, "scene_sha256": cfg.sha256,
+                                "extra": {"scene_file": cfg.source, "representation": built.representation,
+                                          "facets": built.facets}},
+                    png_titles=[f"{cfg['scene']['name']}: range image{f', leg {j}' if many else ''}"
+                                for j in range(len(patterns))] if write_png else None,
+                    las=write_las, crs=cfg["scene"]["crs"], progress=shown, files=names)
+                files.update({k: Path(out_dir) / v for k, v in names.items()})
+                if write_las:
+                    files["las"] = Path(out_dir) / "points.las"
+                bar(f"scanned and wrote {n_beams} beams in chunks of {chunk}")
+                measures = scan_measures(cfg, geometry, built, results)
+            for j, res in enumerate([] if streamed else results):
                 stem = "scan" if len(results) == 1 else f"scan_leg{j}"
                 write_scan_exr(res, stage / f"{stem}.exr", seed=cfg.seed, scene_sha256=cfg.sha256,
                                extra={"scene_file": cfg.source, "representation": built.representation,
@@ -410,12 +436,12 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
                     leg = "" if len(results) == 1 else f", leg {j}"
                     plot_scan_png(res, stage / f"{stem}.png", title=f"{cfg['scene']['name']}: range image{leg}")
                     files[f"png{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.png"
-            if write_las:
+            if write_las and not streamed:
                 from ..io.las import write_scan_las  # noqa: PLC0415
                 write_scan_las(results if len(results) > 1 else results[0], stage / "points.las",
                                crs=cfg["scene"]["crs"])
                 files["las"] = Path(out_dir) / "points.las"
-            seconds["write"] = time.perf_counter() - t
+            seconds["write"] = time.perf_counter() - t - (seconds["scan"] if streamed else 0.0)
             measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}
             with atomic_file(stage / "measures.json") as tmp:
                 tmp.write_text(json.dumps(measures, indent=2, sort_keys=True) + "\n")

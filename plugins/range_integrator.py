@@ -122,33 +122,9 @@ class RangeIntegrator(mi.SamplingIntegrator):
         ray, _ = sensor.sample_ray(0.0, 0.0, pos, aperture)
         pi = scene.ray_intersect_preliminary(ray, coherent=True)
         hit = pi.is_valid()
-        sid = dr.reinterpret_array(mi.UInt32, pi.shape)
-        cls = dr.gather(mi.UInt32, self._class, sid, hit)
-        base = dr.gather(mi.UInt32, self._base, sid, hit)
-        tree = None
-        if self._instanced:  # only scenes with instances pay for these lookups
-            iid = dr.reinterpret_array(mi.UInt32, pi.instance)
-            in_inst = hit & (iid != 0)
-            row = dr.gather(mi.UInt32, self._inst_proto, iid, in_inst) + pi.shape_index
-            cls = dr.select(in_inst, dr.gather(mi.UInt32, self._group_class, row, in_inst), cls)
-            base = dr.select(in_inst, dr.gather(mi.UInt32, self._group_base, row, in_inst), base)
-            if self._inst_has_tree:
-                tree = dr.select(in_inst, dr.gather(mi.UInt32, self._inst_tree, iid, in_inst), NO_ID)
-        cls = dr.select(hit, cls, ESCAPE)
-        elem = dr.select(hit, dr.gather(mi.UInt32, self._prim, base + pi.prim_index, hit), NO_ID)
-        if self._prim_tree is not None:
-            tree = dr.select(hit, dr.gather(mi.UInt32, self._prim_tree, base + pi.prim_index, hit), NO_ID)
+        cls, elem, tree, _, _, _ = self._classify(pi, hit)
         t = dr.select(hit, pi.t, dr.inf)
-        if self.ground:
-            # Ground after vegetation: a beam that passes every shape meets the plane.
-            down = ray.d.z < 0.0
-            t_ground = dr.select(down, (self.ground_z - ray.o.z) / ray.d.z, dr.inf)
-            use_ground = down & (t_ground < t)
-            t = dr.select(use_ground, t_ground, t)
-            cls = dr.select(use_ground, GROUND, cls)
-            elem = dr.select(use_ground, NO_ID, elem)
-            if tree is not None:
-                tree = dr.select(use_ground, NO_ID, tree)
+        t, cls, elem, tree, _ = self._ground(ray, t, cls, elem, tree)
         veg = (cls == WOOD) | (cls == LEAF)
         if S > 1:
             t_min = dr.block_reduce(dr.ReduceOp.Min, t, S)
@@ -253,15 +229,8 @@ class RangeIntegrator(mi.SamplingIntegrator):
             if self._shape_rho is not None:
                 own = dr.gather(mi.Float, self._shape_rho, sid, hit & ~in_inst)
                 rho = dr.select(hit & ~in_inst & (own >= 0.0), own, rho)
+        t, cls, elem, tree, use_ground = self._ground(ray, t, cls, elem, tree)
         if self.ground:
-            down = ray.d.z < 0.0
-            t_ground = dr.select(down, (self.ground_z - ray.o.z) / ray.d.z, dr.inf)
-            use_ground = down & (t_ground < t)
-            t = dr.select(use_ground, t_ground, t)
-            cls = dr.select(use_ground, GROUND, cls)
-            elem = dr.select(use_ground, NO_ID, elem)
-            if tree is not None:
-                tree = dr.select(use_ground, NO_ID, tree)
             if normals:  # the ground's normal is +z
                 cos_i = dr.select(use_ground, dr.abs(ray.d.z), cos_i)
                 rho = dr.select(use_ground, dr.gather(mi.Float, self._class_rho, mi.UInt32(GROUND)), rho)
@@ -272,6 +241,21 @@ class RangeIntegrator(mi.SamplingIntegrator):
             out["cos_incidence"], out["reflectance"] = cos_i, rho
         dr.eval(out)  # one kernel for every output
         return out
+
+    def _ground(self, ray, t, cls, elem, tree):
+        """The analytic ground plane after vegetation: a beam that passes every shape meets
+        it.  Returns (t, cls, elem, tree, use_ground); use_ground is None without a ground."""
+        if not self.ground:
+            return t, cls, elem, tree, None
+        down = ray.d.z < 0.0
+        t_ground = dr.select(down, (self.ground_z - ray.o.z) / ray.d.z, dr.inf)
+        use_ground = down & (t_ground < t)
+        t = dr.select(use_ground, t_ground, t)
+        cls = dr.select(use_ground, GROUND, cls)
+        elem = dr.select(use_ground, NO_ID, elem)
+        if tree is not None:
+            tree = dr.select(use_ground, NO_ID, tree)
+        return t, cls, elem, tree, use_ground
 
     def _classify(self, pi, hit):
         """Class, element id, tree id (or None), shape registry id and in-instance mask of

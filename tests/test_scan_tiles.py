@@ -37,18 +37,6 @@ def _no_env_scheduler(monkeypatch):
     monkeypatch.delenv(_dask.ENV, raising=False)
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    distributed = pytest.importorskip("distributed")
-    try:
-        lc = distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1,
-                                      dashboard_address=None)
-    except Exception as exc:  # noqa: BLE001  (any failure to start means: no cluster here)
-        pytest.skip(f"cannot start a Dask LocalCluster of 2 worker processes here: "
-                    f"{type(exc).__name__}: {exc}")
-    with lc:
-        yield lc
-
 
 def _measures(out: Path) -> dict:
     m = json.loads((out / "measures.json").read_text())

@@ -32,17 +32,6 @@ GRID = [[f"orchard.tree.iterations={it}", "orchard.n_trees=1", "scan.dtheta_deg=
 VARYING = {"worker", "seconds", "scan_seconds"}  # who and how long: all else is the same bytes
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    try:
-        lc = distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1,
-                                      dashboard_address=None)
-    except Exception as exc:  # noqa: BLE001  (any failure to start means: no cluster here)
-        pytest.skip(f"cannot start a Dask LocalCluster of 2 worker processes here: "
-                    f"{type(exc).__name__}: {exc}")
-    with lc:
-        yield lc
-
 
 @pytest.fixture(scope="module")
 def local_run(tmp_path_factory):

@@ -396,3 +396,6 @@ ARRAY_SECTIONS: dict[str, dict[str, Key]] = {
     },
 }
 PRIMITIVE_NEEDS = {"cylinder": ("p0_m", "p1_m", "diameter_m"), "box": ("min_m", "max_m"), "obj": ("path",)}
+
+# Feature modules keep their keys in config_keys_<feature>.py (a dict SECTIONS, and
+# ARRAY_SECTIONS if any) and are merged here, one import line each.

@@ -46,7 +46,7 @@ def room(module: str) -> str:
     if len(parts) == 1:
         return "api"  # simlidar_mi/__init__.py re-exports the public API
     head = parts[1]
-    if head in BASE:
+    if head in BASE or head.startswith("config_keys"):  # config_keys_<feature>: one per feature
         return "base"
     if head == "cli":
         return "cli"

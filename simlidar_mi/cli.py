@@ -416,6 +416,39 @@ def _synthetic_photo_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _evaluate_args(p: argparse.ArgumentParser) -> None:
+    _scene_args(p)
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder: scores.csv/json, profiles.csv/png, scatter.png, truth.nc, "
+                        "estimates/*.nc, grid.nc, scan/")
+    p.add_argument("--estimator", action="append", default=[], metavar="MODULE:FUNC",
+                   help="also score f(scan_dir, grid) -> Dataset or dict with PAD_m2_m3 (repeatable; "
+                        "MODULE may be a .py path)")
+    p.add_argument("--estimator-cmd", action="append", default=[], metavar="CMD",
+                   help='also score a command writing a grid NetCDF, e.g. "python my.py {las} {grid} {out}" '
+                        "(placeholders {las} {exr} {grid} {out}; repeatable)")
+    p.add_argument("--voxel", type=float, default=None, metavar="M", help="voxel size in metres (default 0.1)")
+    p.add_argument("--row-spacing", type=float, default=None, metavar="M",
+                   help="row spacing in metres: adds TRV and LWA (truth and point cloud) to scores.json")
+    p.add_argument("--weights", choices=("equal", "energy"), default="equal",
+                   help="echo weights of the multi-return estimators (scans with a [sensor])")
+
+
+@command("evaluate", "Scan a scene, compute its canopy truth, run LiDAR estimators (built-in and "
+         "plug-in) and score them per voxel and per height bin", _evaluate_args)
+def _evaluate_run(args: argparse.Namespace) -> int:
+    from .truth.evaluate import evaluate
+
+    run = evaluate(args.scene, args.out, _overrides(args), estimators=args.estimator,
+                   commands=args.estimator_cmd, voxel_m=args.voxel, row_spacing_m=args.row_spacing,
+                   weights=args.weights, progress=True)
+    print(f"{'estimator':<22} {'scale':<8} {'n':>7} {'R2':>7} {'RMSE':>8} {'bias':>8}  (PAD m2/m3)")
+    for r in run.scores:
+        print(f"{r['estimator']:<22} {r['scale']:<8} {r['n']:>7} {r['r2']:7.3f} {r['rmse']:8.3f} {r['bias']:+8.3f}")
+    print(f"wrote {args.out}/scores.csv and {len(run.files) - 1} more outputs")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from ._version import __version__
     p = argparse.ArgumentParser(prog="simlidar-mi", description=__doc__.splitlines()[0])

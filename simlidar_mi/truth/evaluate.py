@@ -1,0 +1,280 @@
+"""``simlidar-mi evaluate``: scan a scene, compute its truth, run the estimators, score them.
+
+:func:`evaluate` is the whole run; :func:`evaluate_beams` the part after the scan and
+the truth (any beams, any truth Dataset on a grid), which tests and benchmarks call.
+
+Output folder (written atomically: every file appears together when all are done):
+
+``scores.csv``, ``scores.json``
+    per estimator and scale (``voxel``, ``profile``): n, R², RMSE, bias, means
+    (definitions in :mod:`simlidar_mi.truth.scoring`), the seconds it took; the JSON adds
+    the z profiles, the canopy envelope (height, width, TRV and LWA when a row spacing is
+    given) of the truth and of the point cloud, and the run's settings.
+``profiles.csv``, ``profiles.png``, ``scatter.png``
+    truth vs estimate per height bin, and per voxel.
+``truth.nc``, ``estimates/<name>.nc``, ``grid.nc``
+    the truth, each estimate and the empty grid (coordinates only, what a command
+    plug-in receives as ``{grid}``), NetCDF (:mod:`simlidar_mi.truth.grid`).
+``scan/``
+    the scan's scan.exr, points.las and measures.json (what plug-ins read).
+"""
+from __future__ import annotations
+
+import json
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .._progress import make_progress
+from ..errors import ConfigError
+from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
+from .estimators import BUILTIN, G_SPHERICAL, estimate_all
+from .grid import VoxelGrid, grid_dataset, write_grid
+from .scoring import call_plugin, load_plugin, run_command, score
+
+__all__ = ["EvaluateRun", "evaluate", "evaluate_beams", "EVALUATE_OUTPUTS", "DEFAULT_VOXEL_M"]
+
+EVALUATE_OUTPUTS = (r"scores\.(csv|json)", r"profiles\.(csv|png)", r"scatter\.png", r"truth\.nc",
+                    r"grid\.nc", r"estimates", r"scan")
+DEFAULT_VOXEL_M = 0.1
+SCORE_FIELDS = ("estimator", "variable", "scale", "n", "r2", "rmse", "bias", "truth_mean",
+                "estimate_mean", "seconds")
+
+
+@dataclass
+class EvaluateRun:
+    """Scores (rows of scores.csv), the estimates (name → arrays), the summary and files."""
+
+    scores: list[dict]
+    estimates: dict[str, dict[str, np.ndarray]]
+    summary: dict
+    files: dict[str, Path] = field(default_factory=dict)
+
+    def get(self, estimator: str, scale: str = "voxel") -> dict:
+        for row in self.scores:
+            if row["estimator"] == estimator and row["scale"] == scale:
+                return row
+        raise KeyError(f"no score for {estimator!r} at scale {scale!r}")
+
+
+def _name(spec: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", spec.rpartition(":")[2] or spec)
+
+
+def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | None = None,
+                   scan_dir: Path | None = None, plugins=(), commands=(), G: float = G_SPHERICAL,
+                   min_points: int = 1, saturated: str = "cap", row_spacing_m: float | None = None,
+                   row_axis: str = "y", progress=None, title: str = "", extra: dict | None = None) -> EvaluateRun:
+    """Run the built-in estimators on ``first`` (and ``multi``) beams, the plug-ins
+    (``plugins``: "module:function" specs or callables; ``commands``: command templates,
+    which need ``scan_dir``), score all against ``truth`` (a Dataset on ``grid``) and,
+    with ``stage`` (a folder), write the files of the module docstring there."""
+    shown = make_progress(progress)
+    walked = shown.stage("evaluate: beams through the grid", len(first) + (len(multi) if multi is not None else 0),
+                         "beam")
+    estimates, seconds = estimate_all(grid, first, multi, G=G, min_points=min_points,
+                                      saturated=saturated, progress=walked.update)
+    walked.close()
+    observed = estimates["beer_lambert"]["n_in"] > 0  # ≥ 1 first-return beam entered
+    if stage is not None:
+        grid_file = write_grid(grid_dataset(grid, {}, attrs={"title": "the evaluation's voxel grid"}),
+                               Path(stage) / "grid.nc")
+    for j, spec in enumerate(plugins):
+        f = spec if callable(spec) else load_plugin(spec)
+        label = spec if isinstance(spec, str) else getattr(f, "__name__", f"plugin{j}")
+        if scan_dir is None:
+            raise ConfigError("plug-in estimators need the scan's folder", key="--estimator", value=label)
+        t = time.perf_counter()
+        name = _unique(_name(label), estimates)
+        estimates[name] = call_plugin(f, label, scan_dir, grid)
+        seconds[name] = time.perf_counter() - t
+    for j, cmd in enumerate(commands):
+        if scan_dir is None or stage is None:
+            raise ConfigError("command estimators need the scan's files", key="--estimator-cmd", value=cmd)
+        t = time.perf_counter()
+        name = _unique(f"cmd{j + 1}", estimates)
+        scan_dir = Path(scan_dir)
+        out = Path(stage) / f".{name}.nc"
+        estimates[name] = run_command(cmd, las=scan_dir / "points.las", exr=scan_dir / "scan.exr",
+                                      grid_file=grid_file, out=out, grid=grid)
+        out.unlink(missing_ok=True)
+        seconds[name] = time.perf_counter() - t
+    rows, profiles = [], []
+    z = grid.centres(2)
+    bar = shown.stage("evaluate: scoring", len(estimates), "estimator")
+    for name, arrays in estimates.items():
+        var = "PAD_m2_m3" if "PAD_m2_m3" in arrays else "LAD_m2_m3"
+        if var not in truth:
+            raise ConfigError(f"the truth has no {var}", key=var)
+        s = score(np.asarray(truth[var].values), arrays[var], observed)
+        for scale in ("voxel", "profile"):
+            rows.append({"estimator": name, "variable": var, "scale": scale, **s[scale],
+                         "seconds": round(seconds.get(name, float("nan")), 4)})
+        profiles += [{"estimator": name, "variable": var, "z_m": float(zk), "truth": float(a), "estimate": float(b)}
+                     for zk, a, b in zip(z, s["z_truth"], s["z_estimate"])]
+        bar.update()
+    bar.close()
+    summary = {"grid": grid.attrs(), "G": G, "min_points": min_points, "saturated": saturated,
+               "n_beams": len(first), "n_observed_voxels": int(observed.sum()),
+               "n_voxels": int(np.prod(grid.shape)), "estimators": {k: BUILTIN.get(k, "plug-in") for k in estimates},
+               "envelope": _envelope(grid, truth, estimates["vcp"]["occupied"], row_spacing_m, row_axis)}
+    summary.update(extra or {})
+    run = EvaluateRun(rows, estimates, summary)
+    if stage is not None:
+        _write(run, Path(stage), grid, truth, profiles, title)
+    return run
+
+
+def _unique(name: str, taken) -> str:
+    out, k = name, 2
+    while out in taken:
+        out, k = f"{name}_{k}", k + 1
+    return out
+
+
+def _envelope(grid, truth, occupied_points, row_spacing_m, row_axis) -> dict:
+    """Canopy height/width per slice along the row (and TRV, LWA with a row spacing) of the
+    truth (voxels holding plant area) and of the point cloud (occupied voxels)."""
+    try:
+        from .row_metrics import canopy_profiles, lwa_m2_ha, trv_m3_ha  # noqa: PLC0415
+    except ImportError:  # row_metrics arrives with the truth branch
+        return {"note": "simlidar_mi.truth.row_metrics is not available"}
+    var = "plant_area_m2" if "plant_area_m2" in truth else "PAD_m2_m3"
+    out = {}
+    for label, occ in (("truth", np.asarray(truth[var].values) > 0), ("points", occupied_points > 0)):
+        p = canopy_profiles(occ, grid, row_axis=row_axis)
+        e = {"mean_height_m": p["mean_height_m"], "mean_width_m": p["mean_width_m"]}
+        if row_spacing_m is not None:
+            e["TRV_m3_ha"] = float(trv_m3_ha(p["mean_height_m"], p["mean_width_m"], row_spacing_m))
+            e["LWA_m2_ha"] = float(lwa_m2_ha(p["mean_height_m"], row_spacing_m))
+        out[label] = e
+    out["row_axis"], out["row_spacing_m"] = row_axis, row_spacing_m
+    return out
+
+
+def _write(run: EvaluateRun, stage: Path, grid, truth, profiles, title) -> None:
+    write_csv(stage / "scores.csv", SCORE_FIELDS, [{k: r[k] for k in SCORE_FIELDS} for r in run.scores])
+    write_csv(stage / "profiles.csv", ("estimator", "variable", "z_m", "truth", "estimate"), profiles)
+    with atomic_file(stage / "scores.json") as tmp:
+        tmp.write_text(json.dumps({"scores": run.scores, "summary": run.summary, "profiles": profiles},
+                                  indent=2, default=_plain) + "\n")
+    write_grid(truth, stage / "truth.nc")
+    (stage / "estimates").mkdir(exist_ok=True)
+    for name, arrays in run.estimates.items():
+        arr = {k: np.asarray(v, np.float64 if np.asarray(v).dtype.kind == "f" else np.asarray(v).dtype)
+               for k, v in arrays.items() if np.shape(v) == tuple(grid.shape)}
+        write_grid(grid_dataset(grid, arr, attrs={"estimator": name,
+                                                  "description": run.summary["estimators"][name]}),
+                   stage / "estimates" / f"{name}.nc")
+    _plots(run, stage, truth, profiles, title)
+
+
+def _plain(v):
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    return str(v)
+
+
+def _plots(run: EvaluateRun, stage: Path, truth, profiles, title) -> None:
+    import matplotlib  # noqa: PLC0415
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+    names = list(run.estimates)
+    fig, ax = plt.subplots(figsize=(6, 5), dpi=110)
+    first = [p for p in profiles if p["estimator"] == names[0]]
+    ax.plot([p["truth"] for p in first], [p["z_m"] for p in first], "k-", lw=2.5, label="truth")
+    for name in names:
+        pr = [p for p in profiles if p["estimator"] == name]
+        ax.plot([p["estimate"] for p in pr], [p["z_m"] for p in pr], lw=1.2, label=name)
+    ax.set_xlabel("mean PAD over observed voxels (m²/m³)")
+    ax.set_ylabel("height z (m)")
+    ax.set_title(f"{title}: profiles".strip(": "))
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_file(stage / "profiles.png") as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    n = len(names)
+    cols = min(3, n)
+    fig, axes = plt.subplots((n + cols - 1) // cols, cols, figsize=(4 * cols, 3.8 * ((n + cols - 1) // cols)),
+                             dpi=100, squeeze=False)
+    observed = run.estimates["beer_lambert"]["n_in"] > 0
+    for ax, name in zip(axes.ravel(), names):
+        arrays = run.estimates[name]
+        var = "PAD_m2_m3" if "PAD_m2_m3" in arrays else "LAD_m2_m3"
+        t = np.asarray(truth[var].values)
+        e = arrays[var]
+        m = observed & np.isfinite(e)
+        ax.scatter(t[m], e[m], s=3, alpha=0.4)
+        hi = float(max(np.nanmax(t[m], initial=0), np.nanmax(e[m], initial=0), 1e-9))
+        ax.plot([0, hi], [0, hi], "k--", lw=0.8)
+        r = run.get(name)
+        ax.set_title(f"{name}\nR² {r['r2']:.2f}, RMSE {r['rmse']:.2f}, bias {r['bias']:+.2f}", fontsize=9)
+        ax.set_xlabel(f"truth {var}")
+        ax.set_ylabel("estimate")
+    for ax in axes.ravel()[n:]:
+        ax.set_visible(False)
+    fig.tight_layout()
+    with atomic_file(stage / "scatter.png") as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+@writes_output("out_dir")
+def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_m: float | None = None,
+             G: float = G_SPHERICAL, min_points: int = 1, saturated: str = "cap",
+             row_spacing_m: float | None = None, weights: str = "equal", progress=False) -> EvaluateRun:
+    """Scan ``scene``, compute its truth on a ``voxel_m`` grid over the geometry's bounds,
+    run the built-in estimators (multi-return ones when the scan has echoes, with echo
+    ``weights``), the plug-ins ``estimators`` ("module:function") and ``commands``, and
+    write the files of the module docstring to ``out_dir``."""
+    from ..config import SceneConfig, load_scene  # noqa: PLC0415
+    from ..lidar.survey import generate, run_scan, scan_patterns  # noqa: PLC0415
+    from .estimators import beams_from_exr, beams_from_scan  # noqa: PLC0415
+    from .voxelize import compute_truth  # noqa: PLC0415
+    cfg = scene if isinstance(scene, SceneConfig) else load_scene(scene, overrides)
+    voxel_m = float(voxel_m if voxel_m is not None else DEFAULT_VOXEL_M)
+    if not (np.isfinite(voxel_m) and voxel_m > 0):
+        raise ConfigError("the voxel size must be a number > 0 metres", key="--voxel", value=voxel_m)
+    shown = make_progress(progress)
+    with staged_dir(out_dir, EVALUATE_OUTPUTS) as stage:
+        t = time.perf_counter()
+        run = run_scan(cfg, stage / "scan", write_png=False, progress=shown)
+        scan_s = time.perf_counter() - t
+        geometry = generate(cfg)
+        lo, hi = geometry.bounds_m()
+        grid = VoxelGrid.covering(lo, hi, voxel_m)
+        t = time.perf_counter()
+        truth = compute_truth(geometry, grid, progress=shown)
+        truth_s = time.perf_counter() - t
+        results = run.result if isinstance(run.result, list) else [run.result]
+        if all(hasattr(r, "range_m") for r in results):
+            first = beams_from_scan(results)
+            multi = beams_from_scan(results, weights) if results[0].echoes is not None else None
+        else:  # streamed to files: rebuild the rays from the patterns and read the EXRs
+            patterns = scan_patterns(cfg, lo, hi, geometry.near_x_m)
+            exrs = sorted((stage / "scan").glob("scan*.exr"))
+            parts = [beams_from_exr(p, pat) for p, pat in zip(exrs, patterns)]
+            first = parts[0] if len(parts) == 1 else _concat(parts)
+            multi = None
+        extra = {"scene": cfg.source, "scene_sha256": cfg.sha256, "seed": cfg.seed,
+                 "multi_return_weights": weights if multi is not None else None,
+                 "seconds": {"scan": round(scan_s, 3), "truth": round(truth_s, 3)}}
+        out = evaluate_beams(grid, truth, first, multi, stage=stage, scan_dir=stage / "scan",
+                             plugins=estimators, commands=commands, G=G, min_points=min_points,
+                             saturated=saturated, row_spacing_m=row_spacing_m, progress=shown,
+                             title=cfg["scene"]["name"], extra=extra)
+    out.files = {n: Path(out_dir) / n for n in ("scores.csv", "scores.json", "profiles.csv", "profiles.png",
+                                                "scatter.png", "truth.nc", "grid.nc", "estimates", "scan")}
+    return out
+
+
+def _concat(parts):
+    from .traverse import Beams  # noqa: PLC0415
+    return Beams(*(np.concatenate([getattr(b, f) for b in parts]) for f in
+                   ("origin_m", "dir", "t_end_m", "ret_range_m", "ret_weight", "ret_veg")))

@@ -1,0 +1,173 @@
+"""Scores of estimated voxel grids against the truth, and user estimators (plug-ins).
+
+Scores (:func:`score`), per estimator, against the truth variable of the same name
+(``PAD_m2_m3``, or ``LAD_m2_m3`` for an estimator that gives only leaf area):
+
+per voxel
+    over the voxels that at least one first-return beam entered (the traversal's
+    N ≥ 1; a voxel no beam reached is unobserved for every estimator alike, so all are
+    scored on one voxel set) and where the estimate is finite. ``n`` counts them.
+per height bin (z profile)
+    the mean truth and mean estimate over those same voxels in each horizontal layer
+    of one voxel; scored over the layers that hold any.
+
+``r2`` = 1 − Σ(e − t)²/Σ(t − t̄)² (the coefficient of determination of the estimate
+taken as a prediction of the truth, not of a fitted line: it is negative when the
+estimate is worse than the truth's mean), ``rmse`` = √mean (e − t)², ``bias`` =
+mean (e − t).
+
+Plug-ins: a Python callable ``f(scan_dir: Path, grid: VoxelGrid)`` returning an
+xarray Dataset or a dict of arrays on ``grid`` (:func:`call_plugin`), or a shell command
+with ``{las}``, ``{exr}``, ``{grid}``, ``{out}`` placeholders that reads our files and
+writes a grid NetCDF to ``{out}`` (:func:`run_command`). Both are checked the same way
+(:func:`check_estimate`): a ``PAD_m2_m3`` or ``LAD_m2_m3`` variable of ``grid.shape`` on
+the same voxel centres.
+"""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import shlex
+import subprocess
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError
+from .grid import VoxelGrid, read_grid
+
+__all__ = ["score", "layer_profile", "load_plugin", "call_plugin", "run_command", "check_estimate",
+           "SCORED"]
+
+SCORED = ("PAD_m2_m3", "LAD_m2_m3")
+
+
+def _stats(t: np.ndarray, e: np.ndarray) -> dict:
+    n = int(len(t))
+    if n == 0:
+        return {"n": 0, "r2": float("nan"), "rmse": float("nan"), "bias": float("nan"),
+                "truth_mean": float("nan"), "estimate_mean": float("nan")}
+    d = e - t
+    ss = float(np.sum((t - t.mean()) ** 2))
+    return {"n": n, "r2": 1.0 - float(np.sum(d ** 2)) / ss if ss > 0 else float("nan"),
+            "rmse": float(np.sqrt(np.mean(d ** 2))), "bias": float(np.mean(d)),
+            "truth_mean": float(t.mean()), "estimate_mean": float(e.mean())}
+
+
+def layer_profile(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Mean of ``values`` over ``mask`` in each z layer (NaN where the layer has none)."""
+    n = mask.sum(axis=(0, 1))
+    s = np.where(mask, values, 0.0).sum(axis=(0, 1))
+    return np.divide(s, n, out=np.full(n.shape, np.nan), where=n > 0)
+
+
+def score(truth: np.ndarray, estimate: np.ndarray, observed: np.ndarray) -> dict:
+    """{"voxel": stats, "profile": stats, "z_truth": (nz,), "z_estimate": (nz,)} (module docstring)."""
+    t = np.asarray(truth, np.float64)
+    e = np.asarray(estimate, np.float64)
+    mask = np.asarray(observed, bool) & np.isfinite(e) & np.isfinite(t)
+    zt, ze = layer_profile(t, mask), layer_profile(e, mask)
+    ok = np.isfinite(zt)
+    return {"voxel": _stats(t[mask], e[mask]), "profile": _stats(zt[ok], ze[ok]),
+            "z_truth": zt, "z_estimate": ze, "n_voxels": int(mask.sum())}
+
+
+def load_plugin(spec: str):
+    """``module:function`` → the callable (the module on ``sys.path``, or a ``.py`` file path)."""
+    mod_name, sep, func = spec.rpartition(":")
+    if not sep or not mod_name or not func:
+        raise ConfigError("an estimator is 'module:function' (e.g. examples.my_estimator:contact_frequency)",
+                          key="--estimator", value=spec)
+    try:
+        if mod_name.endswith(".py"):
+            path = Path(mod_name)
+            s = importlib.util.spec_from_file_location(path.stem, path)
+            if s is None or not path.is_file():
+                raise ImportError(f"no file {path}")
+            module = importlib.util.module_from_spec(s)
+            s.loader.exec_module(module)
+        else:
+            module = importlib.import_module(mod_name)
+    except ImportError as exc:
+        raise ConfigError(f"cannot import the estimator's module: {exc}", key="--estimator", value=spec) from None
+    f = getattr(module, func, None)
+    if not callable(f):
+        raise ConfigError(f"module {mod_name!r} has no function {func!r}", key="--estimator", value=spec)
+    return f
+
+
+def check_estimate(out, grid: VoxelGrid, source: str) -> dict[str, np.ndarray]:
+    """The scored variables of a plug-in's result as float64 arrays of ``grid.shape``;
+    a clear error naming ``source`` (plug-in or file), the variable and its shape otherwise."""
+    if hasattr(out, "data_vars"):  # an xarray Dataset
+        for ax, i in zip("xyz", range(3)):
+            if ax in out.coords:
+                c = np.asarray(out[ax].values, np.float64)
+                if c.shape != (grid.shape[i],) or not np.allclose(c, grid.centres(i), rtol=0,
+                                                                    atol=1e-6 * grid.voxel_m):
+                    raise ConfigError(f"'{ax}' voxel centres differ from the grid's ({grid.shape[i]} centres "
+                                      f"from {grid.centres(i)[0]:.6g} m, step {grid.voxel_m:g} m)",
+                                      file=source, key=ax, value=_short(c))
+        if set("xyz") <= set(out.dims):
+            out = out.transpose("x", "y", "z", ...)
+        arrays = {k: out[k].values for k in out.data_vars}
+    elif isinstance(out, dict):
+        arrays = out
+    else:
+        raise ConfigError(f"an estimator returns an xarray Dataset or a dict of arrays, not "
+                          f"{type(out).__name__}", file=source, key="return", value=type(out).__name__)
+    got = {k: arrays[k] for k in SCORED if k in arrays}
+    if not got:
+        raise ConfigError(f"no {' or '.join(SCORED)} variable (has: {', '.join(map(str, arrays)) or 'none'})",
+                          file=source, key=SCORED[0])
+    for k, a in got.items():
+        a = np.asarray(a)
+        if a.shape != tuple(grid.shape):
+            raise ConfigError(f"shape {a.shape} is not the grid's {tuple(grid.shape)} (x, y, z)",
+                              file=source, key=k, value=list(a.shape))
+        if not np.issubdtype(a.dtype, np.number):
+            raise ConfigError(f"values must be numbers, not {a.dtype}", file=source, key=k, value=str(a.dtype))
+        got[k] = a.astype(np.float64)
+    return got
+
+
+def _short(c) -> str:
+    c = np.asarray(c).ravel()
+    return f"{len(c)} values {c[0]:.6g}…{c[-1]:.6g}" if len(c) else "none"
+
+
+def call_plugin(f, spec: str, scan_dir: Path, grid: VoxelGrid) -> dict[str, np.ndarray]:
+    """Run a callable plug-in and check its result (:func:`check_estimate`)."""
+    return check_estimate(f(Path(scan_dir), grid), grid, spec)
+
+
+def run_command(template: str, *, las: Path, exr: Path, grid_file: Path, out: Path,
+                grid: VoxelGrid, timeout_s: float | None = None) -> dict[str, np.ndarray]:
+    """Run a command plug-in: placeholders filled with quoted paths, run without a shell,
+    then its ``{out}`` NetCDF read (:func:`~simlidar_mi.truth.grid.read_grid`) and checked
+    against ``grid`` (origin, voxel size, shape)."""
+    if "{out}" not in template:
+        raise ConfigError("the command must write its grid to {out}", key="--estimator-cmd", value=template)
+    try:
+        argv = [a.format(las=las, exr=exr, grid=grid_file, out=out) for a in shlex.split(template)]
+    except (KeyError, IndexError, ValueError) as exc:
+        raise ConfigError(f"bad placeholder {exc} (use {{las}}, {{exr}}, {{grid}}, {{out}})",
+                          key="--estimator-cmd", value=template) from None
+    try:
+        proc = subprocess.run(argv, capture_output=True, text=True, timeout=timeout_s, check=False)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise ConfigError(f"cannot run the estimator command: {exc}", key="--estimator-cmd", value=template) from None
+    if proc.returncode != 0:
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+        raise ConfigError(f"the estimator command exited with status {proc.returncode}: {' | '.join(tail)}",
+                          key="--estimator-cmd", value=template)
+    if not Path(out).is_file():
+        raise ConfigError(f"the estimator command wrote no file {out}", key="--estimator-cmd", value=template)
+    their_grid, ds = read_grid(out)
+    if their_grid.shape != grid.shape or not np.isclose(their_grid.voxel_m, grid.voxel_m, rtol=1e-9) \
+            or not np.allclose(their_grid.origin_m, grid.origin_m, rtol=0, atol=1e-6 * grid.voxel_m):
+        raise ConfigError(f"its grid (origin {their_grid.origin_m}, voxel {their_grid.voxel_m:g} m, shape "
+                          f"{their_grid.shape}) is not the one given in {grid_file} (origin {grid.origin_m}, "
+                          f"voxel {grid.voxel_m:g} m, shape {grid.shape})", file=str(out), key="x, y, z",
+                          value=list(their_grid.shape))
+    return check_estimate(ds, grid, str(out))

@@ -35,11 +35,10 @@ from .estimators import BUILTIN, G_SPHERICAL, estimate_all
 from .grid import VoxelGrid, grid_dataset, write_grid
 from .scoring import call_plugin, load_plugin, run_command, score
 
-__all__ = ["EvaluateRun", "evaluate", "evaluate_beams", "EVALUATE_OUTPUTS", "DEFAULT_VOXEL_M"]
+__all__ = ["EvaluateRun", "evaluate", "evaluate_beams", "EVALUATE_OUTPUTS"]
 
 EVALUATE_OUTPUTS = (r"scores\.(csv|json)", r"profiles\.(csv|png)", r"scatter\.png", r"truth\.nc",
                     r"grid\.nc", r"estimates", r"scan")
-DEFAULT_VOXEL_M = 0.1
 SCORE_FIELDS = ("estimator", "variable", "scale", "n", "r2", "rmse", "bias", "truth_mean",
                 "estimate_mean", "seconds")
 
@@ -67,7 +66,8 @@ def _name(spec: str) -> str:
 def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | None = None,
                    scan_dir: Path | None = None, plugins=(), commands=(), G: float = G_SPHERICAL,
                    min_points: int = 1, saturated: str = "cap", row_spacing_m: float | None = None,
-                   row_axis: str = "y", progress=None, title: str = "", extra: dict | None = None) -> EvaluateRun:
+                   row_axis: str = "y", canopy_base: str = "ground", progress=None, title: str = "",
+                   extra: dict | None = None) -> EvaluateRun:
     """Run the built-in estimators on ``first`` (and ``multi``) beams, the plug-ins
     (``plugins``: "module:function" specs or callables; ``commands``: command templates,
     which need ``scan_dir``), score all against ``truth`` (a Dataset on ``grid``) and,
@@ -120,7 +120,8 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
     summary = {"grid": grid.attrs(), "G": G, "min_points": min_points, "saturated": saturated,
                "n_beams": len(first), "n_observed_voxels": int(observed.sum()),
                "n_voxels": int(np.prod(grid.shape)), "estimators": {k: BUILTIN.get(k, "plug-in") for k in estimates},
-               "envelope": _envelope(grid, truth, estimates["vcp"]["occupied"], row_spacing_m, row_axis)}
+               "envelope": _envelope(grid, truth, estimates["vcp"]["occupied"], row_spacing_m, row_axis,
+                                     canopy_base)}
     summary.update(extra or {})
     run = EvaluateRun(rows, estimates, summary)
     if stage is not None:
@@ -135,7 +136,7 @@ def _unique(name: str, taken) -> str:
     return out
 
 
-def _envelope(grid, truth, occupied_points, row_spacing_m, row_axis) -> dict:
+def _envelope(grid, truth, occupied_points, row_spacing_m, row_axis, base) -> dict:
     """Canopy height/width per slice along the row (and TRV, LWA with a row spacing) of the
     truth (voxels holding plant area) and of the point cloud (occupied voxels)."""
     try:
@@ -145,13 +146,16 @@ def _envelope(grid, truth, occupied_points, row_spacing_m, row_axis) -> dict:
     var = "plant_area_m2" if "plant_area_m2" in truth else "PAD_m2_m3"
     out = {}
     for label, occ in (("truth", np.asarray(truth[var].values) > 0), ("points", occupied_points > 0)):
-        p = canopy_profiles(occ, grid, row_axis=row_axis)
+        p = canopy_profiles(occ, grid, row_axis=row_axis, base=base)
         e = {"mean_height_m": p["mean_height_m"], "mean_width_m": p["mean_width_m"]}
         if row_spacing_m is not None:
             e["TRV_m3_ha"] = float(trv_m3_ha(p["mean_height_m"], p["mean_width_m"], row_spacing_m))
             e["LWA_m2_ha"] = float(lwa_m2_ha(p["mean_height_m"], row_spacing_m))
         out[label] = e
-    out["row_axis"], out["row_spacing_m"] = row_axis, row_spacing_m
+    out.update({"row_axis": row_axis, "row_spacing_m": row_spacing_m, "canopy_base": base,
+                "definition": "canopy height and width per slice along the row from occupied voxels "
+                              "(truth: plant area > 0; points: ≥ min_points returns), "
+                              "TRV = H·W·10000/D, LWA = 2·H·10000/D (simlidar_mi.truth.row_metrics)"})
     return out
 
 
@@ -229,46 +233,55 @@ def _plots(run: EvaluateRun, stage: Path, truth, profiles, title) -> None:
 def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_m: float | None = None,
              G: float = G_SPHERICAL, min_points: int = 1, saturated: str = "cap",
              row_spacing_m: float | None = None, weights: str = "equal", progress=False) -> EvaluateRun:
-    """Scan ``scene``, compute its truth on a ``voxel_m`` grid over the geometry's bounds,
-    run the built-in estimators (multi-return ones when the scan has echoes, with echo
-    ``weights``), the plug-ins ``estimators`` ("module:function") and ``commands``, and
-    write the files of the module docstring to ``out_dir``."""
+    """Scan ``scene``, compute its truth (:func:`simlidar_mi.truth.compute.compute_truth`) on
+    the ``[truth]`` grid (``voxel_m`` overrides ``[truth] voxel_m``), run the built-in
+    estimators (multi-return ones when the scan has echoes, with echo ``weights``), the
+    plug-ins ``estimators`` ("module:function") and ``commands``, and write the files of
+    the module docstring to ``out_dir``. TRV and LWA use ``row_spacing_m``, else the
+    scene's (:func:`simlidar_mi.truth.run.row_spacing_of`)."""
     from ..config import SceneConfig, load_scene  # noqa: PLC0415
-    from ..lidar.survey import generate, run_scan, scan_patterns  # noqa: PLC0415
+    from ..lidar.survey import run_scan, scan_patterns  # noqa: PLC0415
+    from .compute import compute_truth, default_grid  # noqa: PLC0415
     from .estimators import beams_from_exr, beams_from_scan  # noqa: PLC0415
-    from .voxelize import compute_truth  # noqa: PLC0415
+    from .run import row_spacing_of, truth_geometry  # noqa: PLC0415
     cfg = scene if isinstance(scene, SceneConfig) else load_scene(scene, overrides)
-    voxel_m = float(voxel_m if voxel_m is not None else DEFAULT_VOXEL_M)
+    tc = cfg["truth"]
+    voxel_m = float(voxel_m if voxel_m is not None else tc["voxel_m"])
     if not (np.isfinite(voxel_m) and voxel_m > 0):
         raise ConfigError("the voxel size must be a number > 0 metres", key="--voxel", value=voxel_m)
+    if weights not in ("equal", "energy"):
+        raise ConfigError("echo weights must be 'equal' or 'energy'", key="--weights", value=weights)
     shown = make_progress(progress)
     with staged_dir(out_dir, EVALUATE_OUTPUTS) as stage:
         t = time.perf_counter()
         run = run_scan(cfg, stage / "scan", write_png=False, progress=shown)
         scan_s = time.perf_counter() - t
-        geometry = generate(cfg)
-        lo, hi = geometry.bounds_m()
-        grid = VoxelGrid.covering(lo, hi, voxel_m)
+        geometry, ground_area = truth_geometry(cfg)
+        grid = default_grid(geometry, voxel_m, tc["margin_m"])
         t = time.perf_counter()
-        truth = compute_truth(geometry, grid, progress=shown)
+        truth = compute_truth(geometry, grid, progress=shown, ground_area_m2=tc["ground_area_m2"] or ground_area)
         truth_s = time.perf_counter() - t
         results = run.result if isinstance(run.result, list) else [run.result]
         if all(hasattr(r, "range_m") for r in results):
             first = beams_from_scan(results)
             multi = beams_from_scan(results, weights) if results[0].echoes is not None else None
         else:  # streamed to files: rebuild the rays from the patterns and read the EXRs
+            lo, hi = geometry.bounds_m()
             patterns = scan_patterns(cfg, lo, hi, geometry.near_x_m)
-            exrs = sorted((stage / "scan").glob("scan*.exr"))
+            exrs = [stage / "scan" / ("scan.exr" if len(patterns) == 1 else f"scan_leg{j}.exr")
+                    for j in range(len(patterns))]
             parts = [beams_from_exr(p, pat) for p, pat in zip(exrs, patterns)]
             first = parts[0] if len(parts) == 1 else _concat(parts)
             multi = None
         extra = {"scene": cfg.source, "scene_sha256": cfg.sha256, "seed": cfg.seed,
                  "multi_return_weights": weights if multi is not None else None,
                  "seconds": {"scan": round(scan_s, 3), "truth": round(truth_s, 3)}}
+        spacing = row_spacing_m if row_spacing_m is not None else row_spacing_of(cfg)
         out = evaluate_beams(grid, truth, first, multi, stage=stage, scan_dir=stage / "scan",
                              plugins=estimators, commands=commands, G=G, min_points=min_points,
-                             saturated=saturated, row_spacing_m=row_spacing_m, progress=shown,
-                             title=cfg["scene"]["name"], extra=extra)
+                             saturated=saturated, row_spacing_m=spacing, row_axis=tc["row_axis"],
+                             canopy_base=tc["canopy_base"], progress=shown, title=cfg["scene"]["name"],
+                             extra=extra)
     out.files = {n: Path(out_dir) / n for n in ("scores.csv", "scores.json", "profiles.csv", "profiles.png",
                                                 "scatter.png", "truth.nc", "grid.nc", "estimates", "scan")}
     return out

@@ -1,0 +1,170 @@
+"""LiDAR estimators against the truth (BENCHMARKS.md §10d): accuracy vs cost.
+
+    .venv/bin/python bench/bench_estimators.py [--quick] [--out bench_estimators.json]
+
+1. Turbid medium (simlidar_mi.truth.synthetic.turbid_beams: PAD = 2 m²/m³ in 64 voxels of
+   0.25 m, spherical elements): per-voxel RMS error and bias of Beer–Lambert and the MLE
+   against beams per voxel, 5 seeds; the beam count for 5 % RMS error.
+2. Random spherical leaves in a 1 m cube, scanned by Mitsuba (synthetic.leaf_box_scan),
+   exact truth (compute_truth): each estimator against voxel size and angular step.
+3. ``evaluate`` end to end on a scene (default scenes/apple_orchard.toml) at voxel sizes
+   0.05/0.1/0.25 m and two angular steps: scan, truth and estimator seconds, R², RMSE, bias.
+4. Multi-return: a [sensor] scene (scenes/orchard_lms511.toml, coarsened) first return vs
+   every echo, equal vs energy weights.
+Prints markdown tables.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "bench"))
+from _machine import machine  # noqa: E402
+
+from simlidar_mi.truth.estimators import beer_lambert_pad, contact_mle_pad, point_occupancy, vcp_pad  # noqa: E402
+from simlidar_mi.truth.grid import VoxelGrid  # noqa: E402
+from simlidar_mi.truth.scoring import score  # noqa: E402
+from simlidar_mi.truth.synthetic import leaf_box_scan, turbid_beams  # noqa: E402
+from simlidar_mi.truth.traverse import traverse  # noqa: E402
+
+
+def turbid(quick: bool) -> list[dict]:
+    g = VoxelGrid((0.0, 0.0, 0.0), 0.25, (4, 4, 4))
+    rows = []
+    for n in ([4_000, 64_000] if quick else [1_000, 4_000, 16_000, 64_000, 256_000, 1_024_000]):
+        acc = []
+        for seed in range(3 if quick else 5):
+            t = time.perf_counter()
+            c = traverse(g, turbid_beams(n, 2.0, seed))
+            walk_s = time.perf_counter() - t
+            bl, ml = beer_lambert_pad(c), contact_mle_pad(c)
+            acc.append([np.mean(bl) / 2 - 1, np.mean(ml) / 2 - 1, np.sqrt(np.mean((bl - 2) ** 2)) / 2,
+                        np.sqrt(np.mean((ml - 2) ** 2)) / 2, np.median(c.n_in), walk_s])
+        a = np.mean(acc, axis=0)
+        rows.append({"beams": n, "beams_per_voxel": float(a[4]), "bias_BL": float(a[0]), "bias_MLE": float(a[1]),
+                     "rms_BL": float(a[2]), "rms_MLE": float(a[3]), "walk_s": float(a[5])})
+    print("\n| beams | entering / voxel (median) | bias BL | bias MLE | RMS err BL | RMS err MLE | walk s |")
+    print("|---:|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        print(f"| {r['beams']:,} | {r['beams_per_voxel']:.0f} | {100 * r['bias_BL']:+.2f} % | {100 * r['bias_MLE']:+.2f} % | "
+              f"{100 * r['rms_BL']:.1f} % | {100 * r['rms_MLE']:.1f} % | {r['walk_s']:.2f} |")
+    return rows
+
+
+def leaf_box(quick: bool) -> list[dict]:
+    from simlidar_mi.geometry import Branches
+    from simlidar_mi.lidar.survey import SceneGeometry
+    from simlidar_mi.truth.compute import compute_truth
+    rows = []
+    steps = [(0.02, 0.4), (0.01, 0.2)] if quick else [(0.02, 0.4), (0.01, 0.2), (0.005, 0.1)]
+    for dy, dth in steps:
+        for voxel in (0.05, 0.1, 0.25):
+            t = time.perf_counter()
+            beams, grid, _, canopy = leaf_box_scan(dy_m=dy, dtheta_deg=dth, voxel_m=voxel)
+            scan_s = time.perf_counter() - t
+            truth = compute_truth(SceneGeometry(Branches.empty(), canopy.leaves, []), grid, progress=False)
+            pad_t = truth["PAD_m2_m3"].values
+            t = time.perf_counter()
+            c = traverse(grid, beams)
+            walk_s = time.perf_counter() - t
+            occ = point_occupancy(grid, beams)["occupied"]
+            for name, est in (("beer_lambert", beer_lambert_pad(c)), ("contact_mle", contact_mle_pad(c)),
+                              ("vcp", vcp_pad(c, occ))):
+                s = score(pad_t, est, c.n_in > 0)
+                rows.append({"dy_m": dy, "dtheta_deg": dth, "beams": len(beams), "voxel_m": voxel,
+                             "estimator": name, "n_in_median": float(np.median(c.n_in[c.n_in > 0])),
+                             **{f"{k}": s["voxel"][k] for k in ("n", "r2", "rmse", "bias")},
+                             "profile_bias": s["profile"]["bias"], "profile_rmse": s["profile"]["rmse"],
+                             "truth_mean": s["voxel"]["truth_mean"], "scan_s": scan_s, "walk_s": walk_s})
+    print("\n| Δθ (°) / Δy (m) | beams | voxel (m) | beams in / voxel | estimator | R² | RMSE | bias | profile RMSE | walk s |")
+    print("|---|---:|---:|---:|---|---:|---:|---:|---:|---:|")
+    for r in rows:
+        print(f"| {r['dtheta_deg']} / {r['dy_m']} | {r['beams']:,} | {r['voxel_m']} | {r['n_in_median']:.0f} | "
+              f"{r['estimator']} | {r['r2']:.3f} | {r['rmse']:.3f} | {r['bias']:+.3f} | {r['profile_rmse']:.3f} | "
+              f"{r['walk_s']:.2f} |")
+    return rows
+
+
+def end_to_end(scene: str, quick: bool, sets: list[str]) -> list[dict]:
+    from simlidar_mi.truth.evaluate import evaluate
+    rows = []
+    runs = [(0.25, None)] if quick else [(0.25, None), (0.1, None), (0.05, None), (0.1, "coarse")]
+    base = _dtheta(scene)
+    for voxel, step in runs:
+        over = list(sets) + ([f"scan.dtheta_deg={2 * base}", f"scan.dy_m={2 * _dy(scene)}"] if step else [])
+        with tempfile.TemporaryDirectory() as tmp:
+            t = time.perf_counter()
+            run = evaluate(scene, Path(tmp) / "ev", over, voxel_m=voxel)
+            total = time.perf_counter() - t
+        sec = run.summary["seconds"]
+        for r in run.scores:
+            rows.append({"scene": scene, "voxel_m": voxel, "sampling": "2× coarser Δθ, Δy" if step else "scene's",
+                         "beams": run.summary["n_beams"], "total_s": total, "scan_s": sec["scan"],
+                         "truth_s": sec["truth"], **r})
+    print(f"\n`evaluate {scene}`")
+    print("\n| voxel (m) | sampling | beams | total s | scan s | truth s | estimator | est. s | R² voxel | RMSE | bias | R² profile | profile RMSE |")
+    print("|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|")
+    by = {(r["voxel_m"], r["sampling"], r["estimator"], r["scale"]): r for r in rows}
+    for r in rows:
+        if r["scale"] != "voxel":
+            continue
+        p = by[(r["voxel_m"], r["sampling"], r["estimator"], "profile")]
+        print(f"| {r['voxel_m']} | {r['sampling']} | {r['beams']:,} | {r['total_s']:.1f} | {r['scan_s']:.1f} | "
+              f"{r['truth_s']:.1f} | {r['estimator']} | {r['seconds']:.1f} | {r['r2']:.3f} | {r['rmse']:.3f} | "
+              f"{r['bias']:+.3f} | {p['r2']:.3f} | {p['rmse']:.3f} |")
+    return rows
+
+
+def multi_return(scene: str, sets: list[str]) -> list[dict]:
+    from simlidar_mi.truth.evaluate import evaluate
+    rows = []
+    for weights in ("equal", "energy"):
+        with tempfile.TemporaryDirectory() as tmp:
+            run = evaluate(scene, Path(tmp) / "ev", sets, voxel_m=0.1, weights=weights)
+        rows += [{"weights": weights, **r} for r in run.scores if r["scale"] == "voxel"]
+    print(f"\n`evaluate {scene} {' '.join('--set ' + s for s in sets)} --voxel 0.1`")
+    print("\n| echo weights | estimator | R² | RMSE | bias | truth mean | estimate mean |")
+    print("|---|---|---:|---:|---:|---:|---:|")
+    for r in rows:
+        print(f"| {r['weights']} | {r['estimator']} | {r['r2']:.3f} | {r['rmse']:.4f} | {r['bias']:+.4f} | "
+              f"{r['truth_mean']:.4f} | {r['estimate_mean']:.4f} |")
+    return rows
+
+
+def _scan_key(scene: str, key: str) -> float:
+    from simlidar_mi.config import load_scene
+    return float(load_scene(scene)["scan"][key])
+
+
+def _dtheta(scene):
+    return _scan_key(scene, "dtheta_deg")
+
+
+def _dy(scene):
+    return _scan_key(scene, "dy_m")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--scene", default=str(REPO / "scenes" / "apple_orchard.toml"))
+    ap.add_argument("--multi-scene", default=str(REPO / "scenes" / "orchard_lms511.toml"))
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args()
+    print(machine())
+    out = {"turbid": turbid(args.quick), "leaf_box": leaf_box(args.quick),
+           "end_to_end": end_to_end(args.scene, args.quick, []),
+           "multi_return": multi_return(args.multi_scene, ["scan.dy_m=0.04", "sensor.beam_samples=8"])}
+    if args.out:
+        Path(args.out).write_text(json.dumps(out, indent=1, default=float) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -217,3 +217,48 @@ def test_real_leaves_in_a_box():
     assert truth[inner].mean() == pytest.approx(2.0, rel=0.01)
     assert np.nanmean(contact_mle_pad(c)[inner]) == pytest.approx(truth[inner].mean(), rel=0.05)
     assert np.nanmean(beer_lambert_pad(c)[inner]) == pytest.approx(truth[inner].mean(), rel=0.05)
+
+
+def test_multi_return_beams_from_exr_equal_the_scan(tmp_path):
+    """Echo layers of scan.exr (float32 ranges) rebuild the weighted beams of the scan."""
+    from simlidar_mi.lidar.survey import load_scene, run_scan
+    cfg = load_scene(REPO / "scenes" / "orchard_lms511.toml", ["scan.dy_m=0.2", "sensor.beam_samples=8"])
+    res = run_scan(cfg, tmp_path / "scan", write_png=False).result
+    assert res.echoes is not None and res.echoes.return_number.max() >= 2
+    for w in ("equal", "energy"):
+        a, b = beams_from_scan(res, w), beams_from_exr(tmp_path / "scan" / "scan.exr", weights=w)
+        assert a.ret_range_m.shape == b.ret_range_m.shape
+        np.testing.assert_array_equal(np.isfinite(a.ret_range_m), np.isfinite(b.ret_range_m))
+        fin = np.isfinite(a.ret_range_m)
+        np.testing.assert_allclose(a.ret_range_m[fin], b.ret_range_m[fin], rtol=1e-6)
+        np.testing.assert_allclose(a.ret_weight, b.ret_weight, rtol=1e-6)
+        np.testing.assert_allclose(a.ret_weight.sum(axis=1)[fin[:, 0]], 1.0)
+        np.testing.assert_array_equal(a.ret_veg, b.ret_veg)
+    with pytest.raises(ConfigError):
+        beams_from_scan(res, "loudest")
+
+
+def test_bad_plugins_are_refused_naming_what_is_wrong(tmp_path):
+    from simlidar_mi.truth.grid import write_grid
+    from simlidar_mi.truth.scoring import check_command, load_plugin, run_command
+    for spec in ("no_colon", "examples/none.py:f", "json:no_such_function"):
+        with pytest.raises(ConfigError) as e:
+            load_plugin(spec)
+        assert e.value.key == "--estimator" and e.value.value == spec
+    for cmd in ("python x.py {las}", "python x.py {bogus} {out}"):
+        with pytest.raises(ConfigError) as e:
+            check_command(cmd)
+        assert e.value.key == "--estimator-cmd"
+    grid = VoxelGrid((0.0, 0.0, 0.0), 0.5, (2, 3, 4))
+    other = VoxelGrid((0.0, 0.0, 0.0), 0.5, (2, 3, 5))
+    theirs = write_grid(grid_dataset(other, {"PAD_m2_m3": np.zeros(other.shape)}), tmp_path / "theirs.nc")
+    out = tmp_path / "out.nc"
+    cmd = f"{sys.executable} -c \"import shutil, sys; shutil.copy(sys.argv[1], sys.argv[2])\" {theirs} {{out}}"
+    with pytest.raises(ConfigError) as e:
+        run_command(cmd, las=tmp_path / "p.las", exr=tmp_path / "s.exr", grid_file=tmp_path / "g.nc",
+                    out=out, grid=grid)
+    assert e.value.file == str(out) and e.value.value == [2, 3, 5]
+    with pytest.raises(ConfigError) as e:
+        run_command(f"{sys.executable} -c \"raise SystemExit('boom')\" {{out}}", las=out, exr=out,
+                    grid_file=out, out=tmp_path / "none.nc", grid=grid)
+    assert "status 1" in str(e.value) and "boom" in str(e.value)

@@ -33,7 +33,7 @@ from ..errors import ConfigError
 from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
 from .estimators import BUILTIN, G_SPHERICAL, estimate_all
 from .grid import VoxelGrid, grid_dataset, write_grid
-from .scoring import call_plugin, load_plugin, run_command, score
+from .scoring import call_plugin, check_command, load_plugin, run_command, score
 
 __all__ = ["EvaluateRun", "evaluate", "evaluate_beams", "EVALUATE_OUTPUTS"]
 
@@ -251,6 +251,11 @@ def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_
         raise ConfigError("the voxel size must be a number > 0 metres", key="--voxel", value=voxel_m)
     if weights not in ("equal", "energy"):
         raise ConfigError("echo weights must be 'equal' or 'energy'", key="--weights", value=weights)
+    for spec in estimators:  # refuse a bad plug-in before minutes of scanning
+        if isinstance(spec, str):
+            load_plugin(spec)
+    for cmd in commands:
+        check_command(cmd)
     shown = make_progress(progress)
     with staged_dir(out_dir, EVALUATE_OUTPUTS) as stage:
         t = time.perf_counter()

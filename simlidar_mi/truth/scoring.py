@@ -36,7 +36,7 @@ import numpy as np
 from ..errors import ConfigError
 from .grid import VoxelGrid, read_grid
 
-__all__ = ["score", "layer_profile", "load_plugin", "call_plugin", "run_command", "check_estimate",
+__all__ = ["score", "layer_profile", "load_plugin", "call_plugin", "check_command", "run_command", "check_estimate",
            "SCORED"]
 
 SCORED = ("PAD_m2_m3", "LAD_m2_m3")
@@ -141,18 +141,28 @@ def call_plugin(f, spec: str, scan_dir: Path, grid: VoxelGrid) -> dict[str, np.n
     return check_estimate(f(Path(scan_dir), grid), grid, spec)
 
 
+def check_command(template: str, **paths) -> list[str]:
+    """The argument list of a command plug-in with its placeholders filled (with dummies when
+    ``paths`` are not given); a clear error for a bad template."""
+    if "{out}" not in template:
+        raise ConfigError("the command must write its grid to {out}", key="--estimator-cmd", value=template)
+    fill = {k: paths.get(k, k) for k in ("las", "exr", "grid", "out")}
+    try:
+        argv = [a.format(**fill) for a in shlex.split(template)]
+    except (KeyError, IndexError, ValueError) as exc:
+        raise ConfigError(f"bad placeholder {exc} (use {{las}}, {{exr}}, {{grid}}, {{out}})",
+                          key="--estimator-cmd", value=template) from None
+    if not argv:
+        raise ConfigError("empty command", key="--estimator-cmd", value=template)
+    return argv
+
+
 def run_command(template: str, *, las: Path, exr: Path, grid_file: Path, out: Path,
                 grid: VoxelGrid, timeout_s: float | None = None) -> dict[str, np.ndarray]:
     """Run a command plug-in: placeholders filled with quoted paths, run without a shell,
     then its ``{out}`` NetCDF read (:func:`~simlidar_mi.truth.grid.read_grid`) and checked
     against ``grid`` (origin, voxel size, shape)."""
-    if "{out}" not in template:
-        raise ConfigError("the command must write its grid to {out}", key="--estimator-cmd", value=template)
-    try:
-        argv = [a.format(las=las, exr=exr, grid=grid_file, out=out) for a in shlex.split(template)]
-    except (KeyError, IndexError, ValueError) as exc:
-        raise ConfigError(f"bad placeholder {exc} (use {{las}}, {{exr}}, {{grid}}, {{out}})",
-                          key="--estimator-cmd", value=template) from None
+    argv = check_command(template, las=las, exr=exr, grid=grid_file, out=out)
     try:
         proc = subprocess.run(argv, capture_output=True, text=True, timeout=timeout_s, check=False)
     except (OSError, subprocess.TimeoutExpired) as exc:

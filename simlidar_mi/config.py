@@ -37,8 +37,11 @@ from pathlib import Path
 from typing import Any
 
 from .config_keys import ARRAY_SECTIONS, FLOAT, PRIMITIVE_NEEDS, SECTIONS, Key
+from .config_keys_vineyard import SECTIONS as _VINEYARD_KEYS  # merged here: config_keys importing it would be a cycle
 from .errors import ConfigError, SimlidarWarning
 from .sensor_presets import apply_preset
+
+SECTIONS.update(_VINEYARD_KEYS)
 
 
 @dataclass

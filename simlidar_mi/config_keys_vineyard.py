@@ -49,9 +49,9 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "shoot_diameter_m": Key(FLOAT, 0.009, positive),
         "shoot_inclination_sd_deg": Key(FLOAT, 12.0, _angle(0, 60),
                                         "SD of each internode's tilt from the vertical"),
-        "shoot_azimuth_spread_deg": Key(FLOAT, 360.0, _angle(0, 360),
-                                        "internode tilt azimuths uniform in ±spread/2 about +x "
-                                        "(360: any direction)"),
+        "shoot_azimuth_spread_deg": Key(FLOAT, 90.0, _angle(0, 180),
+                                        "internode tilt azimuths uniform in ±spread/2 about the "
+                                        "row direction, +y or −y (180: any direction)"),
         "leaf_area_mean_m2": Key(FLOAT, 0.013, positive, "one-sided area of a leaf blade, mean "
                                  "(100–200 cm² typical, Robinson 2006)"),
         "leaf_area_sd_m2": Key(FLOAT, 0.004, nonneg, "SD of the log-normal leaf area (unverified)"),

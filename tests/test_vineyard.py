@@ -139,6 +139,25 @@ def test_same_seed_same_bytes_and_vines_are_independent():
     np.testing.assert_array_equal(more.leaves.vertices[keep], a.leaves.vertices)
 
 
+def test_api_checks_match_the_keys():
+    with pytest.raises(ConfigError, match="degrees") as err:
+        VineyardParams(leaf_inclination_mean_deg=95.0)
+    assert err.value.key == "vineyard.canopy.leaf_inclination_mean_deg"
+    with pytest.raises(ConfigError) as err:
+        VineyardParams(vines_per_row=2.5)
+    assert err.value.key == "vineyard.vines_per_row"
+
+
+def test_the_vineyard_stands_on_the_ground_plane():
+    P = VineyardParams(vines_per_row=2, clusters=True)
+    a, b = vineyard(P, seed=4), vineyard(P, seed=4, ground_z_m=-3.5)
+    np.testing.assert_allclose(b.leaves.vertices[..., 2], a.leaves.vertices[..., 2] - 3.5, atol=1e-12)
+    np.testing.assert_allclose(b.branches.p0[:, 2], a.branches.p0[:, 2] - 3.5, atol=1e-12)
+    np.testing.assert_allclose(b.leaf_table.centre_m[:, 2], a.leaf_table.centre_m[:, 2] - 3.5, atol=1e-12)
+    assert b.clusters[0].params["p1_m"][2] == pytest.approx(a.clusters[0].params["p1_m"][2] - 3.5)
+    assert b.branches.p0[b.branches.order == ORDER_TRUNK, 2] == pytest.approx(-3.5)
+
+
 def test_clusters_are_primitives_outside_leaves_and_branches():
     off = vineyard(VineyardParams(vines_per_row=2), seed=3)
     on = vineyard(VineyardParams(vines_per_row=2, clusters=True, clusters_per_shoot=2), seed=3)
@@ -163,6 +182,7 @@ def test_clusters_are_primitives_outside_leaves_and_branches():
     ("vineyard.vine_spacing_m=-1", "vineyard.vine_spacing_m"),
     ("vineyard.canopy.leaf_area_mean_m2=0.2", "vineyard.canopy.leaf_area_mean_m2"),
     ("vineyard.canopy.shoot_inclination_sd_deg=70", "vineyard.canopy.shoot_inclination_sd_deg"),
+    ("vineyard.canopy.shoot_azimuth_spread_deg=200", "vineyard.canopy.shoot_azimuth_spread_deg"),
     ("platform.scan_legs=[2, 0]", "platform.scan_legs"),
     ("platform.scan_legs=[0, 3]", "platform.scan_legs"),
 ])

@@ -1,7 +1,7 @@
 """Vertical-shoot-positioned (VSP) vineyards: trellis, vines, shoots, leaves and clusters.
 
-Frame and layout (all heights above z = 0)
-------------------------------------------
+Frame and layout (all heights above the ground plane z = ``ground_z_m``, [ground] z_m)
+------------------------------------------------------------------------------------
 Rows run along +y.  Row r's centreline is x_r = ``first_row_x_m`` + r·``row_spacing_m``;
 it is L = ``vines_per_row``·``vine_spacing_m`` long, from y₀ = ``y_start_m`` to y₀ + L.
 Vine k of row r stands at y₀ + (k + ½)·``vine_spacing_m`` (``tree_id`` = r·vines_per_row + k).
@@ -24,8 +24,10 @@ Vine wood (``order`` 1 trunk, 2 cordon, 3 shoot, 4 petiole; class wood)
 
 Shoots (VSP: trained upwards between the catch wires, hedged at the top)
     A shoot has ``leaves_per_shoot`` internodes.  Internode i leans θ_i from the vertical,
-    |θ_i| half-normal with SD ``shoot_inclination_sd_deg``, towards an azimuth uniform in
-    ±``shoot_azimuth_spread_deg``/2 about +x; the internode lengths are equal and set so
+    |θ_i| half-normal with SD ``shoot_inclination_sd_deg`` (capped at 80°), towards an
+    azimuth within ±``shoot_azimuth_spread_deg``/2 of the row direction, +y or −y with
+    equal odds (180°: any direction; the default 90° is an assumption, not a measured
+    figure: the catch wires hold shoots in the row plane); the internode lengths are equal and set so
     the shoot tip reaches the hedge, z_b + ``canopy_height_m`` − shoot radius.  The
     catch wires then hold every node within the shoot zone: node x is clamped to
     x_r ± (``canopy_width_m`` − shoot diameter)/2.
@@ -83,6 +85,12 @@ CANOPY_KEYS = ("canopy_height_m", "canopy_width_m", "shoots_per_m", "leaves_per_
                "clusters", "clusters_per_shoot", "cluster_length_m", "cluster_diameter_m")
 
 
+#: Largest accepted value of the angle keys (as [vineyard.canopy] checks them).
+_ANGLE_MAX_DEG = {"shoot_inclination_sd_deg": 60.0, "shoot_azimuth_spread_deg": 180.0,
+                  "leaf_inclination_mean_deg": 90.0, "leaf_inclination_sd_deg": 90.0,
+                  "leaf_azimuth_sd_deg": 180.0, "leaf_roll_sd_deg": 180.0, "petiole_elevation_deg": 90.0}
+
+
 def _key(name: str) -> str:
     return f"vineyard.canopy.{name}" if name in CANOPY_KEYS else f"vineyard.{name}"
 
@@ -114,7 +122,7 @@ class VineyardParams:
     leaves_per_shoot: int = 15
     shoot_diameter_m: float = 0.009
     shoot_inclination_sd_deg: float = 12.0
-    shoot_azimuth_spread_deg: float = 360.0
+    shoot_azimuth_spread_deg: float = 90.0
     leaf_area_mean_m2: float = 0.013
     leaf_area_sd_m2: float = 0.004
     leaf_inclination_mean_deg: float = 60.0
@@ -176,8 +184,9 @@ class VineyardParams:
             bad("leaf_area_mean_m2", f"a blade this large does not fit the shoot zone (at most "
                 f"{self.leaf_area_max_m2:.4g} m² for canopy width {self.canopy_width_m:g} m and height "
                 f"{self.canopy_height_m:g} m)")
-        if self.leaf_inclination_mean_deg > 90:
-            bad("leaf_inclination_mean_deg", "must lie in [0, 90] degrees")
+        for name, hi in _ANGLE_MAX_DEG.items():
+            if abs(getattr(self, name)) > hi:
+                bad(name, f"must lie in [{0 if name != 'petiole_elevation_deg' else -hi}, {hi}] degrees")
 
     # --- derived quantities (module docstring) ---------------------------------------
     @property
@@ -285,7 +294,9 @@ def vine(P: VineyardParams, r: int, k: int, seed: int) -> tuple[Branches, Leaves
     base = np.column_stack([np.full(n_sh, x), by, bz])
     th = np.abs(rng.normal(0.0, math.radians(P.shoot_inclination_sd_deg), (n_sh, n_in)))
     th = np.minimum(th, math.radians(80.0))  # trained upwards: never below 10° from horizontal
-    ph = np.deg2rad(rng.uniform(-0.5, 0.5, (n_sh, n_in)) * P.shoot_azimuth_spread_deg)
+    # lean along the row, either way (±y), within ±spread/2 (the catch wires hold shoots in the row plane)
+    ph = (0.5 * np.pi + np.pi * rng.integers(0, 2, (n_sh, n_in))
+          + np.deg2rad(rng.uniform(-0.5, 0.5, (n_sh, n_in)) * P.shoot_azimuth_spread_deg))
     d = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=2)
     rise = zt - 0.5 * P.shoot_diameter_m - bz                                   # tip at the hedge
     seg = rise / d[..., 2].sum(1)
@@ -334,8 +345,10 @@ def _clusters(P: VineyardParams, node: np.ndarray, psi: np.ndarray, n_sh: int, n
             for p0, p1 in zip(top, bottom)]
 
 
-def vineyard(params: VineyardParams, seed: int = 0) -> Vineyard:
-    """All rows: trellis of each row, then its vines in order (module docstring)."""
+def vineyard(params: VineyardParams, seed: int = 0, ground_z_m: float = 0.0) -> Vineyard:
+    """All rows: trellis of each row, then its vines in order (module docstring), standing
+    on the ground plane z = ``ground_z_m`` (built at z = 0 and moved, so heights never
+    depend on it)."""
     seed = int(seed)
     wood, leaves, tables, clusters = [], [], [], []
     for r in range(params.n_rows):
@@ -346,7 +359,17 @@ def vineyard(params: VineyardParams, seed: int = 0) -> Vineyard:
             leaves.append(lv)
             tables.append(tb)
             clusters += cl
-    return Vineyard(Branches.concat(wood), merge_leaves(leaves), LeafTable.concat(tables), clusters)
+    out = Vineyard(Branches.concat(wood), merge_leaves(leaves), LeafTable.concat(tables), clusters)
+    return out if ground_z_m == 0 else _raised(out, float(ground_z_m))
+
+
+def _raised(v: Vineyard, dz: float) -> Vineyard:
+    off = np.array([0.0, 0.0, dz])
+    lv = Leaves(v.leaves.vertices + off, v.leaves.leaf_id, v.leaves.plant_id)
+    cl = [Primitive(c.kind, {**c.params, "p0_m": [c.params["p0_m"][0], c.params["p0_m"][1], c.params["p0_m"][2] + dz],
+                             "p1_m": [c.params["p1_m"][0], c.params["p1_m"][1], c.params["p1_m"][2] + dz]}, c.label)
+          for c in v.clusters]
+    return Vineyard(v.branches.translated(off), lv, v.leaf_table.placed(off), cl)
 
 
 def merge_leaves(parts: list) -> Leaves:
@@ -365,7 +388,7 @@ def vineyard_from_config(cfg) -> Vineyard:
         params = VineyardParams(**keys)
     except ConfigError as exc:
         raise cfg.relabel(ConfigError(exc.reason, file=cfg.source, key=exc.key, value=exc.value)) from None
-    return vineyard(params, cfg.seed)
+    return vineyard(params, cfg.seed, cfg["ground"]["z_m"])
 
 
 def trellis_mask(branches: Branches) -> np.ndarray:

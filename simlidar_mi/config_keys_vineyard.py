@@ -64,6 +64,8 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "petiole_length_ratio": Key(FLOAT, 0.7, positive, "petiole length / blade midrib length"),
         "petiole_diameter_m": Key(FLOAT, 0.003, positive),
         "petiole_elevation_deg": Key(FLOAT, 30.0, _angle(-90, 90), "petiole above the horizontal"),
+        "confine_leaves": Key(BOOL, True, None, "move blades that would leave the shoot zone back "
+                              "into it (a hedged, positioned wall); false: they hang freely"),
         "clusters": Key(BOOL, False, None, "grape clusters as cylinder primitives labelled wood "
                         "(neither leaf area nor Branches wood in a ground truth)"),
         "clusters_per_shoot": Key(INT, 2, at_least(0), "on the basal nodes 2, 3, …"),

@@ -101,6 +101,18 @@ def test_canopy_stays_in_the_shoot_zone(small):
     assert vert[:, 2].max() > P.canopy_top_z_m - 0.02
 
 
+def test_free_leaves_leave_the_envelope_with_the_same_draws():
+    kw = dict(vines_per_row=2)
+    hedged = vineyard(VineyardParams(**kw), seed=2)
+    free = vineyard(VineyardParams(**kw, confine_leaves=False), seed=2)
+    P = VineyardParams(**kw)
+    assert free.leaves.vertices[..., 2].max() > P.canopy_top_z_m + 0.01
+    assert free.leaf_table.area_m2.tobytes() == hedged.leaf_table.area_m2.tobytes()
+    assert free.leaf_table.normal.tobytes() == hedged.leaf_table.normal.tobytes()
+    moved = np.any(free.leaves.vertices != hedged.leaves.vertices, axis=(1, 2)).reshape(-1, 8).all(1)
+    assert 0.02 < moved.mean() < 0.5  # the hedge moves the top leaves, not the wall
+
+
 def test_leaf_area_per_leaf_is_the_outline_closed_form(small):
     P, v = small
     tab, lv = v.leaf_table, v.leaves

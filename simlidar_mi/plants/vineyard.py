@@ -44,7 +44,15 @@ microclimate", Am. J. Enol. Vitic. 39(4):325–333, 1988, doi:10.5344/ajev.1988.
 Wine*, Winetitles 1991.  A blade that would cross the shoot zone's box
 (|x − x_r| ≤ width/2, z_b ≤ z ≤ z_b + height) is moved (not turned or scaled) back into
 it, and its petiole ends at the moved blade: the leaf wall has the configured height
-and width exactly, like a hedged, positioned canopy.
+and width exactly, like a hedged, positioned canopy.  In the default scene this moves
+12 % of the blades, by 5 cm on average, nearly all of them top leaves moved down under
+the hedge (0.3 % are moved across the row).  ``confine_leaves = false`` lets the blades
+hang freely from their nodes (areas and orientations are the same draws either way).
+
+The cylinders overlap where they meet: the arms start on the trunk's axis (half their
+section inside the trunk's top), petioles start on the shoot's axis, and wires pass
+through posts and trunks.  A volume summed over cylinders counts those parts twice:
+about 2.5e-5 m³ a vine, 0.7 % of a default vine's 3.6e-3 m³ of wood.
 
 Clusters (``clusters = true``; off by default) hang leaf-opposed from nodes 3, 4, …
 (``clusters_per_shoot`` of them) as vertical cylinder :class:`~simlidar_mi.geometry.Primitive`
@@ -82,7 +90,7 @@ CANOPY_KEYS = ("canopy_height_m", "canopy_width_m", "shoots_per_m", "leaves_per_
                "shoot_inclination_sd_deg", "shoot_azimuth_spread_deg", "leaf_area_mean_m2", "leaf_area_sd_m2",
                "leaf_inclination_mean_deg", "leaf_inclination_sd_deg", "leaf_azimuth_sd_deg",
                "leaf_roll_sd_deg", "petiole_length_ratio", "petiole_diameter_m", "petiole_elevation_deg",
-               "clusters", "clusters_per_shoot", "cluster_length_m", "cluster_diameter_m")
+               "confine_leaves", "clusters", "clusters_per_shoot", "cluster_length_m", "cluster_diameter_m")
 
 
 #: Largest accepted value of the angle keys (as [vineyard.canopy] checks them).
@@ -132,6 +140,7 @@ class VineyardParams:
     petiole_length_ratio: float = 0.7
     petiole_diameter_m: float = 0.003
     petiole_elevation_deg: float = 30.0
+    confine_leaves: bool = True
     clusters: bool = False
     clusters_per_shoot: int = 2
     cluster_length_m: float = 0.15
@@ -144,7 +153,7 @@ class VineyardParams:
             if f.name in ints:
                 if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < ints[f.name]:
                     raise ConfigError(f"must be a whole number ≥ {ints[f.name]}", key=_key(f.name), value=v)
-            elif f.name == "clusters":
+            elif f.name in ("clusters", "confine_leaves"):
                 flag(_key(f.name), v)
             elif f.name == "catch_wire_heights_m":
                 hs = [real(_key(f.name), h, positive=True) for h in v]
@@ -325,7 +334,8 @@ def vine(P: VineyardParams, r: int, k: int, seed: int) -> tuple[Branches, Leaves
     shift = np.zeros((nl, 3))
     shift[:, 0] = _fit(v[..., 0].min(1), v[..., 0].max(1), x - hw, x + hw)
     shift[:, 2] = _fit(v[..., 2].min(1), v[..., 2].max(1), zb, zt)
-    tri = tri + shift[:, None, None, :]
+    if P.confine_leaves:
+        tri = tri + shift[:, None, None, :]
     wood.append(_cyl(node, tri[:, 0, 0], P.petiole_diameter_m, ORDER_PETIOLE, tid))
     leaves, table = leaf_records(tri, normal, heading, length, np.full(nl, tid), np.arange(nl))
     return Branches.concat(wood), leaves, table, _clusters(P, node, psi, n_sh, n_in)

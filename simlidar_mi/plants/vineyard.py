@@ -12,7 +12,10 @@ scanner reports no plant for them, 0xFFFFFFFF)
     cylinders (end posts included) from z = 0 to ``post_height_m`` at
     y₀ + i·L/n_bays; wires: one cylinder per wire from y₀ to y₀ + L (length L), the
     fruiting wire at (x_r, ``fruiting_wire_height_m``) and one catch-wire pair per height
-    in ``catch_wire_heights_m`` at x_r ± ``catch_wire_spacing_m``/2.
+    in ``catch_wire_heights_m`` at x_r ± ``catch_wire_spacing_m``/2.  When the post
+    spacing is a whole number of vine spacings (the default scene's 4 m), posts stand
+    where two vines' arms meet, as in the field; arm tips and a bay's outermost shoots
+    may then touch a post.
 
 Vine wood (``order`` 1 trunk, 2 cordon, 3 shoot, 4 petiole; class wood)
     The cordon lies on the fruiting wire: its axis is at z_c = fruiting wire height +

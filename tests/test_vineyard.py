@@ -247,3 +247,12 @@ def test_two_side_scan_one_las(tmp_path):
     assert np.asarray(head.y)[src3 == 1].max() < 5.0  # the headland leg looks at the row from its end
     # the two passes are the same scans with or without the headland between them
     assert np.sum(src3 == 0) == np.sum(src == 0) and np.sum(src3 == 2) == np.sum(src == 1)
+
+
+def test_the_two_side_scan_is_the_same_bytes_twice(tmp_path):
+    fast = ["platform.step_m=0.2", "platform.elevation_deg=[-55.0, 55.0, 2.0]", "vineyard.vines_per_row=2",
+            "platform.waypoints_m=[[-1.1, -1.0, 1.4], [-1.1, 3.0, 1.4], [1.1, 3.0, 1.4], [1.1, -1.0, 1.4]]"]
+    for name in ("a", "b"):
+        run_scan(SCENE, tmp_path / name, fast, write_png=False)
+    for f in ("points.las", "scan_leg0.exr", "scan_leg1.exr"):
+        assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f

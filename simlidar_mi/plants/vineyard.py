@@ -175,7 +175,8 @@ class VineyardParams:
 
     def _check_rules(self) -> None:
         def bad(name, why):
-            raise ConfigError(why, key=_key(name), value=getattr(self, name))
+            v = getattr(self, name)
+            raise ConfigError(why, key=_key(name), value=list(v) if isinstance(v, tuple) else v)
         if self.fruiting_wire_height_m >= self.post_height_m:
             bad("fruiting_wire_height_m", f"must be below the post top, post_height_m = {self.post_height_m:g}")
         for h in self.catch_wire_heights_m:

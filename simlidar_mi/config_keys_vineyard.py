@@ -44,17 +44,19 @@ SECTIONS: dict[str, dict[str, Key]] = {
     "vineyard.canopy": {
         "canopy_height_m": Key(FLOAT, 1.1, positive, "shoot zone: from the cordon's top to the hedge"),
         "canopy_width_m": Key(FLOAT, 0.45, positive, "shoot zone width across the row (x)"),
-        "shoots_per_m": Key(FLOAT, 15.0, positive, "shoots per metre of cordon (Smart 1988: ~15 optimal)"),
-        "leaves_per_shoot": Key(INT, 15, at_least(1), "main leaves per shoot, one per node"),
+        "shoots_per_m": Key(FLOAT, 14.0, positive, "shoots per metre of cordon (Kliewer & Dokoozlian "
+                            "2005, VSP: 14.0)"),
+        "leaves_per_shoot": Key(INT, 24, at_least(1), "primary leaves per shoot, one per node (Kliewer & "
+                                "Dokoozlian 2005, VSP: 24.0 nodes)"),
         "shoot_diameter_m": Key(FLOAT, 0.009, positive),
         "shoot_inclination_sd_deg": Key(FLOAT, 12.0, _angle(0, 60),
                                         "SD of each internode's tilt from the vertical"),
         "shoot_azimuth_spread_deg": Key(FLOAT, 90.0, _angle(0, 180),
                                         "internode tilt azimuths uniform in ±spread/2 about the "
                                         "row direction, +y or −y (180: any direction)"),
-        "leaf_area_mean_m2": Key(FLOAT, 0.013, positive, "one-sided area of a leaf blade, mean "
-                                 "(100–200 cm² typical, Robinson 2006)"),
-        "leaf_area_sd_m2": Key(FLOAT, 0.004, nonneg, "SD of the log-normal leaf area (unverified)"),
+        "leaf_area_mean_m2": Key(FLOAT, 0.0095, positive, "one-sided area of a leaf blade, mean "
+                                 "(Kliewer & Dokoozlian 2005, VSP: 2280 cm² / 24 leaves)"),
+        "leaf_area_sd_m2": Key(FLOAT, 0.00285, nonneg, "SD of the log-normal leaf area (30 %, unverified)"),
         "leaf_inclination_mean_deg": Key(FLOAT, 60.0, _angle(0, 90),
                                          "blade normal's angle from the vertical, mean"),
         "leaf_inclination_sd_deg": Key(FLOAT, 15.0, _angle(0, 90)),

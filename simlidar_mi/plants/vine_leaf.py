@@ -17,7 +17,7 @@ and its width across the midrib is 2·0.85·sin 60°·L = 1.47·L.  The numbers 
 ampelographic shape (five lobes, a U-shaped open petiolar sinus, OIV descriptors
 067/068/079 in OIV 2009, *Descriptor list for grape varieties and Vitis species*, 2nd
 ed.) as a schematic outline; they are not fitted to a cultivar.  With the default mean
-area 0.013 m², L = 12.4 cm.
+area 0.0095 m², L = 10.6 cm.
 
 Placement
 ---------

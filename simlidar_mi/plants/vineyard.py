@@ -37,25 +37,35 @@ Shoots (VSP: trained upwards between the catch wires, hedged at the top)
 
 Leaves (:mod:`simlidar_mi.plants.vine_leaf`): one per node, 8 triangles, blade area
 log-normal with mean ``leaf_area_mean_m2`` and SD ``leaf_area_sd_m2`` (capped so a blade
-fits the shoot zone).  The default mean, 130 cm², is the middle of "normally the area of
-a human hand (100 to 200 cm²)" (J. Robinson (ed.), *The Oxford Companion to Wine*, 3rd ed.,
-Oxford University Press 2006, entry "leaf"); the SD (a 30 % coefficient of variation)
-is an assumption, not a measured figure (unverified).  The default shoot density, 15
-per metre of cordon, is the optimum of R. E. Smart, "Shoot spacing and canopy light
-microclimate", Am. J. Enol. Vitic. 39(4):325–333, 1988, doi:10.5344/ajev.1988.39.4.325;
-15 nodes per shoot lies in the 10–20 node shoots of Smart & Robinson, *Sunlight into
-Wine*, Winetitles 1991.  A blade that would cross the shoot zone's box
+fits the shoot zone).  The defaults are the measured vertically shoot-positioned
+("Vertical") vines of W. M. Kliewer & N. K. Dokoozlian, "Leaf area/crop weight ratios of
+grapevines: influence on fruit composition and wine quality", Am. J. Enol. Vitic.
+56(2):170–181, 2005 (doi:10.5344/ajev.2005.56.2.170), Table 3 (Cabernet Sauvignon,
+Oakville, 1993–1995): 14.0 shoots per metre of canopy, 24.0 nodes per shoot, and
+2280 cm² of primary leaf area per shoot, so a mean primary leaf of 2280/24 = 95 cm².
+Their laterals (28.5 % of the leaf area, 4.72 m² per metre of canopy in all) are not
+modelled: the default wall holds the primary leaves, 14 × 0.0095 × 24 = 3.2 m² per
+metre of row.  The SD (a 30 % coefficient of variation) is an assumption, not a
+measured figure (unverified).  For comparison, the shoot density is close to the
+optimum of ~15 shoots/m of R. E. Smart, "Shoot spacing and canopy light microclimate",
+Am. J. Enol. Vitic. 39(4):325–333, 1988 (doi:10.5344/ajev.1988.39.4.325), and 95 cm² lies
+at the small end of "normally … 100 to 200 cm²" (J. Robinson (ed.), *The Oxford
+Companion to Wine*, 3rd ed., 2006, "leaf").  A blade that would cross the shoot zone's box
 (|x − x_r| ≤ width/2, z_b ≤ z ≤ z_b + height) is moved (not turned or scaled) back into
-it, and its petiole ends at the moved blade: the leaf wall has the configured height
-and width exactly, like a hedged, positioned canopy.  In the default scene this moves
-12 % of the blades, by 5 cm on average, nearly all of them top leaves moved down under
-the hedge (0.3 % are moved across the row).  ``confine_leaves = false`` lets the blades
-hang freely from their nodes (areas and orientations are the same draws either way).
+it, and its petiole ends at the moved blade: the leaf wall stays within the configured
+width and height, like a hedged, positioned canopy.  It reaches the hedge; its width
+follows from the shoots and leaves (default scene: 99 % of leaf vertices within ±0.14 m
+of the centreline, the widest at ±0.225 m).  In the default scene the confinement moves
+11 % of the blades, by 3.9 cm on average: top leaves down under the hedge (8 %), basal
+leaves up above the cordon (2 %), hardly any across the row (0.02 %).
+``confine_leaves = false`` lets the blades hang freely from their nodes (areas and
+orientations are the same draws either way).
 
 The cylinders overlap where they meet: the arms start on the trunk's axis (half their
 section inside the trunk's top), petioles start on the shoot's axis, and wires pass
 through posts and trunks.  A volume summed over cylinders counts those parts twice:
-about 2.5e-5 m³ a vine, 0.7 % of a default vine's 3.6e-3 m³ of wood.
+about 2.9e-5 m³ a vine (arms in the trunk 1.8e-5, petioles in shoots 1.1e-5), 0.8 % of
+a default vine's 3.6e-3 m³ of wood.
 
 Clusters (``clusters = true``; off by default) hang leaf-opposed from nodes 3, 4, …
 (``clusters_per_shoot`` of them) as vertical cylinder :class:`~simlidar_mi.geometry.Primitive`
@@ -129,13 +139,13 @@ class VineyardParams:
     cordon_gap_m: float = 0.06
     canopy_height_m: float = 1.1
     canopy_width_m: float = 0.45
-    shoots_per_m: float = 15.0
-    leaves_per_shoot: int = 15
+    shoots_per_m: float = 14.0
+    leaves_per_shoot: int = 24
     shoot_diameter_m: float = 0.009
     shoot_inclination_sd_deg: float = 12.0
     shoot_azimuth_spread_deg: float = 90.0
-    leaf_area_mean_m2: float = 0.013
-    leaf_area_sd_m2: float = 0.004
+    leaf_area_mean_m2: float = 0.0095
+    leaf_area_sd_m2: float = 0.00285
     leaf_inclination_mean_deg: float = 60.0
     leaf_inclination_sd_deg: float = 15.0
     leaf_azimuth_sd_deg: float = 30.0

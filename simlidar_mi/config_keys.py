@@ -205,6 +205,11 @@ SECTIONS: dict[str, dict[str, Key]] = {
                            "between points (z = mount height)"),
         "step_m": Key(FLOAT, 0.01, positive, "path: distance between sweeps"),
         "side": Key(STR, "right", one_of("right", "left"), "path: side the scanner looks to"),
+        "scan_legs": Key(LIST, None, lambda v: None if v and all(
+                         isinstance(j, int) and not isinstance(j, bool) and j >= 0 for j in v)
+                         and v == sorted(set(v)) else "must be a non-empty list of increasing leg indices ≥ 0",
+                         "path: legs scanned (leg j: waypoint j → j+1; default all); the others "
+                         "are driven unscanned (headland turns); point_source_id = position in this list"),
         "start_xy_m": Key(LIST, None, vec2, "airborne: start of the flight line"),
         "end_xy_m": Key(LIST, None, vec2, "airborne: end of the flight line"),
         "altitude_m": Key(FLOAT, 100.0, positive, "airborne: height above the ground"),

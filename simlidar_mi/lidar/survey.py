@@ -182,6 +182,12 @@ def generate(cfg: SceneConfig) -> SceneGeometry:
     for p in cfg.arrays["primitive"]:
         params = {k: v for k, v in p.items() if k not in ("type", "label") and v is not None}
         prims.append(Primitive(p["type"], params, p["label"]))
+    if cfg.has("vineyard") or cfg.has("vineyard.canopy"):  # VSP vineyard (plants/vineyard.py)
+        from ..plants.vineyard import merge_leaves, vineyard_from_config  # noqa: PLC0415
+        vy = vineyard_from_config(cfg)
+        parts.append(vy.branches)
+        leaves = merge_leaves([leaves, vy.leaves])
+        prims += vy.clusters  # grape clusters: cylinder primitives after the file's own
     return SceneGeometry(Branches.concat(parts), leaves, prims, time.perf_counter() - t0, instances,
                          cfg.source)
 
@@ -301,7 +307,7 @@ def _patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m) -> list:
                                escape_m=sc["escape_m"], **common)]
     if kind == "path":
         return path_patterns(need("waypoints_m"), pf["step_m"], tuple(pf["elevation_deg"]),
-                             side=pf["side"], escape_m=sc["escape_m"], **common)
+                             side=pf["side"], escape_m=sc["escape_m"], scan_legs=pf["scan_legs"], **common)
     if kind == "rotating":  # timing from the block period; a [sensor] pulse rate does not enter
         return rotating_patterns(pf["channels_deg"], pf["channel_offsets_us"], pf["block_period_us"],
                                  pf["rotation_hz"], position_m=pf["position_m"], waypoints_m=pf["waypoints_m"],

@@ -1,17 +1,16 @@
 """Scene-file keys of leafy apple orchards: ``[orchard.leaves]`` and the row spacing in ``[orchard]``.
 
-Merged into :data:`simlidar_mi.config_keys.SECTIONS` by this module's last line, which the
-one import line at the end of config_keys.py runs (it works in either import order, unlike a
-``from .config_keys_orchard import SECTIONS`` there, which fails when this module is imported
-first); ``[orchard]`` keeps its own keys and gains ``row_spacing_m``. The laws behind the keys are
+Merged section by section into :data:`simlidar_mi.config_keys.SECTIONS` at the end of that
+file: ``[orchard]`` keeps its own keys and gains ``row_spacing_m``. Key and the checks come
+from :mod:`simlidar_mi.config_keys_base`, so this module does not import config_keys (no
+import cycle, either import order works). The laws behind the keys are
 documented in :mod:`simlidar_mi.plants.apple_leaves` and :mod:`simlidar_mi.plants.leaf_angles`.
 """
 from __future__ import annotations
 
 import math
 
-from .config_keys import FLOAT, INT, STR, Key, at_least, nonneg, one_of, positive, unit_interval
-from .config_keys import SECTIONS as _BASE
+from .config_keys_base import FLOAT, INT, STR, Key, at_least, nonneg, one_of, positive, unit_interval
 
 #: de Wit's (1965) named leaf inclination laws (plus the uniform one).
 LEAF_ANGLE_LAWS = ("spherical", "uniform", "planophile", "erectophile", "plagiophile", "extremophile")
@@ -38,8 +37,7 @@ def _even_sides(v) -> str | None:
 
 
 SECTIONS: dict[str, dict[str, Key]] = {
-    "orchard": {
-        **_BASE["orchard"],
+    "orchard": {  # added to the [orchard] keys of config_keys.py
         "row_spacing_m": Key(FLOAT, 4.0, positive, "distance between rows; the row's ground area "
                              "n_trees × spacing_m × row_spacing_m is the LAI's denominator"),
     },
@@ -67,5 +65,3 @@ SECTIONS: dict[str, dict[str, Key]] = {
                                   "[class upper edge in degrees, frequency]"),
     },
 }
-
-_BASE.update(SECTIONS)  # the merge (see the module docstring)

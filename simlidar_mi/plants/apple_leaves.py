@@ -55,7 +55,7 @@ from typing import Any
 import numpy as np
 
 from .._validate import real as _real
-from ..config_keys_orchard import SECTIONS as _KEYS
+from ..config_keys import SECTIONS as _KEYS
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
 from .laws import TruncNormal

@@ -36,12 +36,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..config_keys_orchard import LEAF_ANGLE_LAWS
 from ..errors import ConfigError
 
 __all__ = ["LEAF_ANGLE_LAWS", "leaf_angle_cdf", "leaf_angle_table", "sample_leaf_angles"]
-
-LEAF_ANGLE_LAWS = ("spherical", "uniform", "planophile", "erectophile", "plagiophile",
-                   "extremophile")
 
 # law → (a, k): F(θ) = (2/π)(θ + a·sin(kθ)/k)
 _TRIG = {"planophile": (1.0, 2.0), "erectophile": (-1.0, 2.0), "plagiophile": (-1.0, 4.0),

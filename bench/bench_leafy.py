@@ -6,7 +6,8 @@ Each row runs in a fresh process: generate (L-system wood + leaves), build (Mits
 then the scene's tractor scan timed after one warm-up scan; the median of ``--repeats``
 fresh processes is printed. Rows: dormant (wood only), leaf-on with 4, 8 (default) and 12
 triangles a leaf, at the scene's grid (Δy = 1 cm, Δθ = 0.5°) and at the paper's (2 mm, 0.25°).
-Prints a markdown table.
+Prints a markdown table. ``--sensitivity``: instead, how the leaf-angle law and the
+outer-crown weight β move what the scene's scan sees (leaf and wood hits, A_IM), one process.
 """
 from __future__ import annotations
 
@@ -45,13 +46,33 @@ ROWS = [("dormant", ["orchard.leaves.season=dormant"]),
 GRIDS = [("scene grid 1 cm × 0.5°", []), ("paper grid 2 mm × 0.25°", ["scan.dy_m=0.002", "scan.dtheta_deg=0.25"])]
 
 
+SENSITIVITY = r"""
+import sys
+from simlidar_mi.config import load_scene
+from simlidar_mi.lidar.survey import run_scan
+print("| angle law | β (outer_weight) | leaves | leaf hits | wood hits | wood hits / dormant | A_IM (m²) |")
+print("|---|---:|---:|---:|---:|---:|---:|")
+dormant = run_scan(load_scene(sys.argv[1], ["orchard.leaves.season=dormant"])).measures["hits"]["wood"]
+for law in ("planophile", "spherical", "erectophile"):
+    for beta in (0.0, 1.0, 3.0):
+        m = run_scan(load_scene(sys.argv[1], [f"orchard.leaves.angle_distribution='{law}'",
+                                              f"orchard.leaves.outer_weight={beta}"])).measures
+        print(f"| {law} | {beta:g} | {m['n_leaves']:,} | {m['hits']['leaf']:,} | {m['hits']['wood']:,} | "
+              f"{m['hits']['wood'] / dormant:.3f} | {m['A_IM_m2']:.4f} |", flush=True)
+"""
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--scene", default=str(REPO / "scenes" / "orchard_leafy.toml"))
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--set", action="append", default=[])
+    ap.add_argument("--sensitivity", action="store_true")
     args = ap.parse_args()
     print(f"**Machine:** {machine()}\n")
+    if args.sensitivity:
+        subprocess.run([sys.executable, "-c", SENSITIVITY, args.scene], check=True, cwd=REPO)
+        return
     print("| grid | trees | leaves | leaf triangles | triangles built | generate (s) | build (s) | scan (s) "
           "| beams | leaf hits | wood hits |")
     print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")

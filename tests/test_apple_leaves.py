@@ -208,8 +208,18 @@ def test_leaf_on_scan_sees_leaves_and_measures_lai(tmp_path):
     assert hits["leaf"] > 0 and hits["wood"] > 0
     assert (run.result.cls == CLASS_CODES["leaf"]).sum() == hits["leaf"]
     import laspy
+
+    from simlidar_mi.io.exr import read_exr
+    from simlidar_mi.io.las import LAS_CLASS
     las = laspy.read(tmp_path / "s" / "points.las")
     assert len(las.points) == hits["leaf"] + hits["wood"] + hits["ground"]
+    assert (np.asarray(las.classification) == LAS_CLASS[CLASS_CODES["leaf"]]).sum() == hits["leaf"]
+    channels, _ = read_exr(tmp_path / "s" / "scan.exr")
+    assert (channels["class"] == CLASS_CODES["leaf"]).sum() == hits["leaf"]
+    again = run_scan(cfg, tmp_path / "t")  # same seed, same bytes
+    for name in ("scan.exr", "points.las"):
+        assert (tmp_path / "s" / name).read_bytes() == (tmp_path / "t" / name).read_bytes()
+    assert again.measures["LAI_row"] == run.measures["LAI_row"]
     geo = generate(cfg)
     m = run.measures
     per_tree = np.bincount(geo.leaves.plant_id, weights=geo.leaves.triangle_area)

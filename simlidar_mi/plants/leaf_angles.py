@@ -1,11 +1,12 @@
 """Leaf inclination laws: de Wit's named distributions and measured tables, sampled exactly.
 
 The leaf inclination ``θ_L`` is the angle between a leaf's upper normal and the zenith
-(0° = a horizontal blade, 90° = a vertical one), in ``[0, π/2]``. Densities and CDFs
-(de Wit 1965, *Photosynthesis of leaf canopies*, Agric. Res. Rep. 663, Pudoc, Wageningen;
-in the form tabulated by Goel & Strebel 1984, Agron. J. 76:800–802,
-doi:10.2134/agronj1984.00021962007600050021x, and Wang, Li & Su 2007, Agric. For. Meteorol.
-143:106–122, doi:10.1016/j.agrformet.2006.12.003):
+(0° = a horizontal blade, 90° = a vertical one), in ``[0, π/2]``. de Wit's (1965) canopy
+types (*Photosynthesis of leaf canopies*, Agric. Res. Rep. 663, Pudoc, Wageningen), used here
+in their exact trigonometric form; Goel & Strebel (1984, Agron. J. 76:800–802,
+doi:10.2134/agronj1984.00021962007600050021x) represent the same types by two-parameter beta
+distributions, and Wang, Li & Su (2007, Agric. For. Meteorol. 143:106–122,
+doi:10.1016/j.agrformet.2006.12.003) compare both forms. Densities and CDFs:
 
 =============  ===========================  ==================================
 law            density f(θ)                 CDF F(θ)

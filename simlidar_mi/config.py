@@ -37,13 +37,9 @@ from pathlib import Path
 from typing import Any
 
 from .config_keys import ARRAY_SECTIONS, FLOAT, PRIMITIVE_NEEDS, SECTIONS, Key
-from .config_keys_vineyard import SECTIONS as _VINEYARD_KEYS
 from .errors import ConfigError, SimlidarWarning
 from .sensor_presets import apply_preset
 
-# Feature keys (config_keys_<feature>.py import Key and the checks from config_keys) are merged
-# here: an import at the end of config_keys.py would be the import cycle tests/test_layout.py refuses.
-SECTIONS.update(_VINEYARD_KEYS)
 
 
 @dataclass

@@ -93,7 +93,7 @@ from .vine_leaf import OUTLINE_AREA_FACTOR, blades, leaf_records, lognormal_area
 
 __all__ = ["VineyardParams", "Vineyard", "vineyard", "ORDER_TRELLIS", "ORDER_TRUNK", "ORDER_CORDON",
            "ORDER_SHOOT", "ORDER_PETIOLE", "TRELLIS_TREE_ID",
-           "vineyard_from_config", "merge_leaves", "trellis_mask"]
+           "vineyard_from_config", "trellis_mask"]
 
 ORDER_TRELLIS, ORDER_TRUNK, ORDER_CORDON, ORDER_SHOOT, ORDER_PETIOLE = 0, 1, 2, 3, 4
 #: tree_id of posts and wires (no plant).
@@ -383,7 +383,7 @@ def vineyard(params: VineyardParams, seed: int = 0, ground_z_m: float = 0.0) -> 
             leaves.append(lv)
             tables.append(tb)
             clusters += cl
-    out = Vineyard(Branches.concat(wood), merge_leaves(leaves), LeafTable.concat(tables), clusters)
+    out = Vineyard(Branches.concat(wood), Leaves.concat(leaves), LeafTable.concat(tables), clusters)
     return out if ground_z_m == 0 else _raised(out, float(ground_z_m))
 
 
@@ -394,14 +394,6 @@ def _raised(v: Vineyard, dz: float) -> Vineyard:
                              "p1_m": [c.params["p1_m"][0], c.params["p1_m"][1], c.params["p1_m"][2] + dz]}, c.label)
           for c in v.clusters]
     return Vineyard(v.branches.translated(off), lv, v.leaf_table.placed(off), cl)
-
-
-def merge_leaves(parts: list) -> Leaves:
-    """The triangles of several ``Leaves`` in order (ids kept)."""
-    parts = [p for p in parts if len(p)]
-    if not parts:
-        return Leaves.empty()
-    return Leaves(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("vertices", "leaf_id", "plant_id")))
 
 
 def vineyard_from_config(cfg) -> Vineyard:

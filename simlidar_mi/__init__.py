@@ -5,7 +5,7 @@ The package is laid out by workflow over a shared base (imports point down only)
     config, errors, geometry, _llvm, _mitsuba, _validate   shared base
     io/        writers and readers (EXR, LAS, PNG, CSV, meshes)
     lsystem/   grammars, derivation, turtles
-    plants/    generators -> plain geometry (apple, strawberry, random leaves and trees)
+    plants/    generators -> plain geometry (apple, strawberry, random leaves and trees, vineyards)
     scene/     geometry -> Mitsuba shapes
     forest/    Poisson placement, stands and their outputs
     lidar/     platforms, scans, surveys, the SIMLIDAR study, the float64 reference
@@ -71,6 +71,7 @@ _API = {
     "AppleTreeParams": "plants.apple", "apple_tree": "plants.apple", "orchard": "plants.apple",
     "wood_measures": "plants.measures", "preset_geometry": "plants.presets",
     "build_scene": "scene.build",
+    "VineyardParams": "plants.vineyard", "vineyard": "plants.vineyard",
     "gap_images": "canopy.gapfraction", "run_gapfraction": "canopy.gapfraction",
     "photo_gap": "canopy.photo", "compare": "canopy.compare",
     "make_forest": "forest.stand", "run_forest": "forest.run",

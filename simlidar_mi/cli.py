@@ -180,10 +180,16 @@ def _measure_run(args: argparse.Namespace) -> int:
         return 0
     per_tree = m.get("per_tree", [])
     keys = [k for k in ("n_branches", "V_L_m3", "A_L_m2", "A_PR_m2", "A_PR_exact_m2") if k in m]
-    print("tree    " + "  ".join(f"{k:>14}" for k in keys))
-    for row in per_tree:
-        print(f"{row.get('tree_id', ''):<6}  " + "  ".join(f"{row[k]:>14.6g}" for k in keys))
-    print("total   " + "  ".join(f"{m[k]:>14.6g}" for k in keys))
+    leaf = m.get("leaf_area_per_tree_m2")  # a leaf-on orchard: one more column
+    print("tree    " + "  ".join(f"{k:>14}" for k in keys) + (f"  {'leaf_area_m2':>14}" if leaf else ""))
+    for j, row in enumerate(per_tree):
+        print(f"{row.get('tree_id', ''):<6}  " + "  ".join(f"{row[k]:>14.6g}" for k in keys)
+              + (f"  {leaf[j]:>14.6g}" if leaf and j < len(leaf) else ""))
+    print("total   " + "  ".join(f"{m[k]:>14.6g}" for k in keys) + (f"  {m['leaf_area_m2']:>14.6g}" if leaf else ""))
+    if leaf:
+        print(f"{m['n_leaves']} leaves, one-sided leaf area {m['leaf_area_m2']:.6g} m²; LAI of the row "
+              f"{m['LAI_row']:.4g} = leaf area / {m['row_ground_area_m2']:.6g} m² "
+              "(n_trees × spacing_m × row_spacing_m)")
     return 0
 
 

@@ -8,101 +8,12 @@ at the end of this file.
 from __future__ import annotations
 
 import math
-import re
-from dataclasses import dataclass
-from typing import Any, Callable
 
-Check = Callable[[Any], str | None]  # returns a complaint, or None when the value is fine
-
-
-@dataclass(frozen=True)
-class Key:
-    """One scene-file key: accepted Python types, default, and an extra check."""
-
-    types: tuple
-    default: Any = None
-    check: Check | None = None
-    doc: str = ""
-
-
-def _finite(v):
-    return None if math.isfinite(v) else "must be a finite number"
-
-
-def positive(v):
-    return _finite(v) or (None if v > 0 else "must be > 0")
-
-
-def nonneg(v):
-    return _finite(v) or (None if v >= 0 else "must be ≥ 0")
-
-
-def unit_interval(v):
-    return _finite(v) or (None if 0 <= v <= 1 else "must lie in [0, 1]")
-
-
-def at_least(n):
-    return lambda v: None if v >= n else f"must be ≥ {n}"
-
-
-def one_of(*choices):
-    return lambda v: None if v in choices else f"must be one of {', '.join(map(repr, choices))}"
-
-
-def vec3(v):
-    if len(v) != 3 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
-        return "must be a list of three numbers [x, y, z] in metres"
-    return None if all(math.isfinite(x) for x in v) else "must hold finite numbers"
-
-
-def _numbers(v, n=None):
-    return (isinstance(v, list) and (n is None or len(v) == n)
-            and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v))
-
-
-def range3(v):
-    if not _numbers(v, 3):
-        return "must be [min, max, step] in degrees"
-    return None if v[2] > 0 and v[1] > v[0] else "needs max > min and step > 0"
-
-
-def vec2(v):
-    return None if _numbers(v, 2) else "must be a list of two numbers [x, y] in metres"
-
-
-def azimuth(v):
-    if isinstance(v, list):
-        return range3(v)
-    return None if math.isfinite(v) else "must be a finite number"
-
-
-def _epsg(v):
-    """'EPSG:<code>' naming a CRS whose horizontal axes are in metres (the scene's units)."""
-    m = re.fullmatch(r"EPSG:(\d{1,6})", v.strip(), flags=re.IGNORECASE)
-    if m is None:
-        return 'must look like "EPSG:<code>", e.g. "EPSG:25832"'
-    import pyproj  # noqa: PLC0415 - only scenes that declare a CRS pay for it
-    try:
-        crs = pyproj.CRS.from_epsg(int(m.group(1)))
-    except pyproj.exceptions.CRSError:
-        return "is not an EPSG code that PROJ knows"
-    units = {a.unit_name for a in crs.axis_info[:2]}
-    if not crs.is_projected or units != {"metre"}:
-        return (f"is {crs.name}, not a projected CRS in metres; scene coordinates are metres "
-                "(use e.g. the UTM zone's EPSG code)")
-    return None
-
-
-def waypoints(v):
-    ok = isinstance(v, list) and len(v) >= 2 and all(_numbers(p, 3) for p in v)
-    return None if ok else "must be a list of at least two [x, y, z] points"
-
-
-FLOAT = (int, float)
-INT = (int,)
-BOOL = (bool,)
-STR = (str,)
-LIST = (list,)
+# Key, the value types and the checks live in config_keys_base (feature key modules import
+# them from there without importing this module); re-exported here for config.py and others.
+from .config_keys_base import (BOOL, FLOAT, INT, LIST, STR, Check, Key, _epsg,  # noqa: F401
+                               _finite, _numbers, at_least, azimuth, nonneg, one_of, positive,
+                               range3, unit_interval, vec2, vec3, waypoints)
 
 SECTIONS: dict[str, dict[str, Key]] = {
     "scene": {
@@ -205,6 +116,11 @@ SECTIONS: dict[str, dict[str, Key]] = {
                            "between points (z = mount height)"),
         "step_m": Key(FLOAT, 0.01, positive, "path: distance between sweeps"),
         "side": Key(STR, "right", one_of("right", "left"), "path: side the scanner looks to"),
+        "scan_legs": Key(LIST, None, lambda v: None if v and all(
+                         isinstance(j, int) and not isinstance(j, bool) and j >= 0 for j in v)
+                         and v == sorted(set(v)) else "must be a non-empty list of increasing leg indices ≥ 0",
+                         "path: legs scanned (leg j: waypoint j → j+1; default all); the others "
+                         "are driven unscanned (headland turns); point_source_id = position in this list"),
         "start_xy_m": Key(LIST, None, vec2, "airborne: start of the flight line"),
         "end_xy_m": Key(LIST, None, vec2, "airborne: end of the flight line"),
         "altitude_m": Key(FLOAT, 100.0, positive, "airborne: height above the ground"),
@@ -397,5 +313,19 @@ ARRAY_SECTIONS: dict[str, dict[str, Key]] = {
 }
 PRIMITIVE_NEEDS = {"cylinder": ("p0_m", "p1_m", "diameter_m"), "box": ("min_m", "max_m"), "obj": ("path",)}
 
-# Feature modules keep their keys in config_keys_<feature>.py (a dict SECTIONS, and
-# ARRAY_SECTIONS if any) and are merged here, one import line each.
+# Feature modules keep their keys in config_keys_<feature>.py (a dict SECTIONS whose keys
+# come from config_keys_base, so there is no import cycle) and are merged here: a new
+# section is added, an existing one (e.g. [orchard]) gains the feature's keys.
+def _merge(feature: dict[str, dict[str, Key]]) -> None:
+    for name, keys in feature.items():
+        clash = set(keys) & set(SECTIONS.get(name, {}))
+        if clash:  # a programming error, caught by any test that imports the package
+            raise RuntimeError(f"[{name}] keys defined twice: {sorted(clash)}")
+        SECTIONS.setdefault(name, {}).update(keys)
+
+
+from .config_keys_orchard import SECTIONS as _ORCHARD  # noqa: E402  ([orchard.leaves]; [orchard] row_spacing_m)
+from .config_keys_vineyard import SECTIONS as _VINEYARD  # noqa: E402
+
+_merge(_ORCHARD)
+_merge(_VINEYARD)

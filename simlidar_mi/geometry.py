@@ -95,6 +95,14 @@ class Leaves:
     def empty(cls) -> "Leaves":
         return cls(np.zeros((0, 3, 3)), np.zeros(0, np.int32), np.zeros(0, np.int32))
 
+    @classmethod
+    def concat(cls, parts: "list[Leaves]") -> "Leaves":
+        """The triangles of several ``Leaves`` in order (ids kept)."""
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            return cls.empty()
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("vertices", "leaf_id", "plant_id")))
+
     @property
     def triangle_area(self) -> np.ndarray:
         """One-sided area of each triangle in m²."""

@@ -174,3 +174,20 @@ def test_no_warning_for_the_shipped_scanner_positions():
         from simlidar_mi.lidar.survey import scan_patterns, warn_scanner_inside_wood
         lo, hi = g.bounds_m()
         assert warn_scanner_inside_wood(g, scan_patterns(cfg, lo, hi, g.near_x_m)) == 0
+
+
+def test_one_obj_parser_for_primitives_and_exports(tmp_path):
+    """Scene primitives and export round trips read OBJ through the same parser: quads become
+    fans, negative indices count back, and objects keep their own vertices."""
+    from simlidar_mi.io.mesh_export import read_obj as read_export
+    obj = tmp_path / "two.obj"
+    obj.write_text("o a\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n"
+                   "o b\nv 0 0 1\nv 1 0 1\nv 0 1 1\nf -3 -2 -1\n")
+    v, f = read_obj(str(obj))
+    assert f.tolist() == [[0, 1, 2], [0, 2, 3], [4, 5, 6]] and v.shape == (7, 3)
+    parts = read_export(obj)
+    assert parts["a"][1].tolist() == [[0, 1, 2], [0, 2, 3]]
+    assert parts["b"][1].tolist() == [[0, 1, 2]] and parts["b"][0][:, 2].tolist() == [1, 1, 1]
+    (tmp_path / "bad.obj").write_text("v 0 0 0\nf 1 2\n")
+    with pytest.raises(ConfigError, match="line 2: a face needs three vertices"):
+        read_export(tmp_path / "bad.obj")

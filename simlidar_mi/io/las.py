@@ -23,7 +23,8 @@ coordinates are the scene's own, so the CRS only says what they mean.
   row i and column k, each leg of a path following the rows of the legs before it.
   It orders the points as they were scanned; it is not a measured time.
 
-``point_source_id`` is the leg index j of a multi-leg path (0, 1, …); a one-leg scan
+``point_source_id`` is the leg index j of a multi-leg path (0, 1, …; with ``[platform]
+scan_legs``, the position in that list: legs driven without scanning get none); a one-leg scan
 (every other platform) has a single source, so it is 0 for every point, and
 ``scan_position`` holds the row.  A ``simlidar-mi`` VLR (record 1) repeats the
 ``gps_time`` definition used, as text.  A pattern that knows each beam's emission time

@@ -229,9 +229,18 @@ def static_pattern(position_m, elevation_deg: tuple[float, float, float],
 
 def path_patterns(waypoints_m, step_m: float, elevation_deg: tuple[float, float, float], *,
                   side: str = "right", footprint: int = 0, escape_m: float = 1000.0,
-                  ground: bool = True, ground_z_m: float = 0.0, source=None) -> list[BeamPattern]:
+                  ground: bool = True, ground_z_m: float = 0.0, scan_legs=None,
+                  source=None) -> list[BeamPattern]:
     """A ground vehicle along straight legs between waypoints (x, y, z), sweeping elevations in
-    the vertical plane perpendicular to its travel, on its ``side`` ('right' or 'left')."""
+    the vertical plane perpendicular to its travel, on its ``side`` ('right' or 'left').
+
+    Leg j runs from waypoint j to j + 1.  ``scan_legs`` (increasing leg indices; default
+    all) lists the legs the scanner fires on; the others are driven without scanning (a
+    headland turn between two passes).  The patterns returned are the scanned legs in
+    order, so pattern s (``point_source_id`` s in points.las, scan_leg{s}.exr) is leg
+    ``scan_legs[s]``; ``meta['leg']`` keeps the leg index.  Both passes of a U-turn around a
+    row look at the row with the same ``side``: right of the heading is +x going +y and −x
+    coming back."""
     wp = np.asarray(waypoints_m, np.float64)
     if wp.ndim != 2 or wp.shape[1] != 3 or len(wp) < 2:
         raise ConfigError("waypoints must be a list of at least two [x, y, z] points", file=source,
@@ -239,10 +248,22 @@ def path_patterns(waypoints_m, step_m: float, elevation_deg: tuple[float, float,
     if side not in ("right", "left"):
         raise ConfigError("side must be 'right' or 'left'", file=source, key="platform.side", value=side)
     el = _steps(*elevation_deg, "platform.elevation_deg", source)
+    n_legs = len(wp) - 1
+    if scan_legs is None:
+        scan_legs = list(range(n_legs))
+    if (not scan_legs or any(isinstance(j, bool) or not isinstance(j, (int, np.integer)) for j in scan_legs)
+            or list(scan_legs) != sorted(set(scan_legs)) or scan_legs[0] < 0 or scan_legs[-1] >= n_legs):
+        raise ConfigError(f"must be increasing leg indices in 0 … {n_legs - 1} (leg j runs from "
+                          "waypoint j to j + 1)", file=source, key="platform.scan_legs", value=scan_legs)
     legs = []
-    for j in range(len(wp) - 1):
+    for j in range(n_legs):
         a, b = wp[j], wp[j + 1]
         length = float(np.linalg.norm(b - a))
+        if j not in scan_legs:  # driven, not scanned
+            if length <= 0:
+                raise ConfigError(f"leg {j} has zero length", file=source, key="platform.waypoints_m",
+                                  value=[a.tolist(), b.tolist()])
+            continue
         if length < step_m:
             raise ConfigError(f"leg {j} is shorter than one step", file=source,
                               key="platform.waypoints_m", value=[a.tolist(), b.tolist()])

@@ -159,7 +159,8 @@ def generate(cfg: SceneConfig) -> SceneGeometry:
     """Build the plants and primitives a scene file asks for (no Mitsuba)."""
     t0 = time.perf_counter()
     parts: list[Branches] = []
-    if cfg.has("orchard") or cfg.has("orchard.tree"):
+    leaves, instances = Leaves.empty(), None
+    if cfg.has("orchard") or cfg.has("orchard.tree") or cfg.has("orchard.leaves"):
         from ..plants.apple import AppleTreeParams, orchard  # noqa: PLC0415
         try:
             params = AppleTreeParams(**cfg["orchard.tree"])
@@ -168,7 +169,9 @@ def generate(cfg: SceneConfig) -> SceneGeometry:
         o = cfg["orchard"]
         parts.append(orchard(params, n_trees=o["n_trees"], spacing_m=o["spacing_m"],
                              row_x_m=o["row_x_m"], y_start_m=o["y_start_m"], seed=cfg.seed))
-    leaves, instances = Leaves.empty(), None
+        if cfg["orchard.leaves"]["season"] != "dormant":  # dormant: the wood alone, as before
+            from ..plants.apple_leaves import orchard_leaves_from_config  # noqa: PLC0415
+            leaves = orchard_leaves_from_config(cfg, parts[-1])
     if cfg.has("forest") or cfg.arrays.get("species"):
         from ..forest.stand import make_forest  # noqa: PLC0415
         forest = make_forest(cfg)
@@ -176,12 +179,19 @@ def generate(cfg: SceneConfig) -> SceneGeometry:
             from ..scene.build import Instances  # noqa: PLC0415  (a plain dataclass; no Mitsuba import)
             instances = Instances(**forest.instance_arrays())
         else:
-            fb, leaves = forest.geometry()
+            fb, forest_leaves = forest.geometry()
             parts.append(fb)
+            leaves = Leaves.concat([leaves, forest_leaves])
     prims = []
     for p in cfg.arrays["primitive"]:
         params = {k: v for k, v in p.items() if k not in ("type", "label") and v is not None}
         prims.append(Primitive(p["type"], params, p["label"]))
+    if cfg.has("vineyard") or cfg.has("vineyard.canopy"):  # VSP vineyard (plants/vineyard.py)
+        from ..plants.vineyard import vineyard_from_config  # noqa: PLC0415
+        vy = vineyard_from_config(cfg)
+        parts.append(vy.branches)
+        leaves = Leaves.concat([leaves, vy.leaves])
+        prims += vy.clusters  # grape clusters: cylinder primitives after the file's own
     return SceneGeometry(Branches.concat(parts), leaves, prims, time.perf_counter() - t0, instances,
                          cfg.source)
 
@@ -241,10 +251,12 @@ def warn_scanner_inside_wood(geometry: SceneGeometry, patterns: list) -> int:
 
 
 def measure(cfg: SceneConfig, geometry: SceneGeometry | None = None) -> dict:
-    """Geometry measures (V_L, A_L, A_PR, A_PR_exact) in total and per tree, from geometry alone."""
+    """Geometry measures (V_L, A_L, A_PR, A_PR_exact) in total and per tree, from geometry alone;
+    a leaf-on orchard adds its leaf area per tree and the row's LAI (plants/apple_leaves.py)."""
     from ..plants.measures import wood_measures  # noqa: PLC0415
+    from ..plants.apple_leaves import orchard_leaf_measures  # noqa: PLC0415
     geometry = geometry or generate(cfg)
-    return wood_measures(geometry.branches).to_dict()
+    return {**wood_measures(geometry.branches).to_dict(), **orchard_leaf_measures(cfg, geometry.leaves)}
 
 
 @dataclass
@@ -301,7 +313,7 @@ def _patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m) -> list:
                                escape_m=sc["escape_m"], **common)]
     if kind == "path":
         return path_patterns(need("waypoints_m"), pf["step_m"], tuple(pf["elevation_deg"]),
-                             side=pf["side"], escape_m=sc["escape_m"], **common)
+                             side=pf["side"], escape_m=sc["escape_m"], scan_legs=pf["scan_legs"], **common)
     if kind == "rotating":  # timing from the block period; a [sensor] pulse rate does not enter
         return rotating_patterns(pf["channels_deg"], pf["channel_offsets_us"], pf["block_period_us"],
                                  pf["rotation_hz"], position_m=pf["position_m"], waypoints_m=pf["waypoints_m"],
@@ -517,6 +529,8 @@ def scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results) -> 
     for key in ("V_L_m3", "A_L_m2", "A_PR_m2", "A_PR_exact_m2", "per_tree"):
         if key in wm:
             out[key] = wm[key]
+    from ..plants.apple_leaves import orchard_leaf_measures  # noqa: PLC0415
+    out.update(orchard_leaf_measures(cfg, geometry.leaves))  # leaf area per tree, LAI (leaf-on)
     return out
 
 

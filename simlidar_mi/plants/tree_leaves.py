@@ -22,7 +22,7 @@ import numpy as np
 from ..geometry import Leaves
 from .tree_params import RandomTreeParams, leaf_polygon_area_factor
 
-__all__ = ["LeafTable"]
+__all__ = ["LeafTable", "ellipse_fan"]
 
 _Z = np.array([0.0, 0.0, 1.0])
 
@@ -43,6 +43,22 @@ def _rotate(v: np.ndarray, axis: np.ndarray, angle_rad: np.ndarray) -> np.ndarra
     """Rodrigues: rotate rows of ``v`` about unit rows of ``axis`` (right-handed)."""
     c, s = np.cos(angle_rad)[:, None], np.sin(angle_rad)[:, None]
     return v * c + np.cross(axis, v) * s + axis * (axis * v).sum(1, keepdims=True) * (1 - c)
+
+
+def ellipse_fan(centre: np.ndarray, head: np.ndarray, side: np.ndarray, half_l: np.ndarray,
+                half_w: np.ndarray, k: int) -> np.ndarray:
+    """(n, k, 3, 3) triangles of ``k``-gons inscribed in ellipses: a fan from each centre.
+
+    Vertex ``j`` is ``centre + cos(2πj/k)·half_l·head + sin(2πj/k)·half_w·side``
+    (``half_l``, ``half_w``: (n, 1, 1)); triangles are (centre, v_{j+1}, v_j), so their
+    normal is ``side × head``. Area ``(k/8)·sin(2π/k)·ℓw`` for ``ℓ = 2·half_l``, ``w = 2·half_w``.
+    """
+    n = len(centre)
+    a = 2 * np.pi * np.arange(k + 1) / k
+    ring = (centre[:, None, :] + np.cos(a)[None, :, None] * half_l * head[:, None, :]
+            + np.sin(a)[None, :, None] * half_w * side[:, None, :])   # (n, k+1, 3)
+    c = np.broadcast_to(centre[:, None, :], (n, k, 3))
+    return np.stack([c, ring[:, 1:], ring[:, :-1]], 2)   # (centre, v_{j+1}, v_j)
 
 
 # --- leaves ----------------------------------------------------------------------------
@@ -132,12 +148,7 @@ def _make_leaves(P: RandomTreeParams, b0, b1, br, H, U, tpos, phi, lang, ll, lw,
         # (base, right, tip), (base, tip, left): both wound so the normal is side × head
         tri = np.stack([np.stack([base, right, tip], 1), np.stack([base, tip, left], 1)], 1)
     else:
-        k = P.leaf_sides
-        a = 2 * np.pi * np.arange(k + 1) / k
-        ring = (centre[:, None, :] + np.cos(a)[None, :, None] * half_l * head[:, None, :]
-                + np.sin(a)[None, :, None] * half_w * side_r[:, None, :])   # (n, k+1, 3)
-        c = np.broadcast_to(centre[:, None, :], (n, k, 3))
-        tri = np.stack([c, ring[:, 1:], ring[:, :-1]], 2)   # (centre, v_{j+1}, v_j)
+        tri = ellipse_fan(centre, head, side_r, half_l, half_w, P.leaf_sides)
     ntri = tri.shape[1]
     area = leaf_polygon_area_factor(P.leaf_shape, P.leaf_sides) * ll * lw
     leaf_id = np.arange(n, dtype=np.int32)

@@ -36,6 +36,7 @@ import numpy as np
 from .._mitsuba import mitsuba
 from ..errors import ConfigError, SimlidarWarning
 from ..geometry import CLASS_CODES, Branches, Leaves, Primitive
+from ..io.mesh_export import parse_obj
 
 log = logging.getLogger(__name__)
 
@@ -319,29 +320,15 @@ def read_obj(path: str, source: str | None = None,
     if st.st_size > MAX_OBJ_BYTES:
         raise bad(f"{st.st_size} bytes exceed the limit for OBJ primitives, {MAX_OBJ_BYTES} bytes "
                   f"({MAX_OBJ_BYTES / 2**20:g} MiB)")
-    verts, faces = [], []
-    lineno = 0
     try:
         with open(path, encoding="utf-8") as fh:
-            for lineno, line in enumerate(fh, 1):
-                parts = line.split()
-                if not parts:
-                    continue
-                if parts[0] == "v":
-                    if len(parts) < 4:
-                        raise ValueError("a vertex needs three coordinates")
-                    verts.append([float(x) for x in parts[1:4]])
-                elif parts[0] == "f":
-                    idx = [int(x.split("/")[0]) for x in parts[1:]]
-                    idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
-                    faces += [[idx[0], idx[j], idx[j + 1]] for j in range(1, len(idx) - 1)]
+            v, f, _, _, _ = parse_obj(fh)
     except OSError as exc:
         raise bad(f"cannot read it: {exc.strerror or exc}") from exc
     except UnicodeDecodeError as exc:
         raise bad("not UTF-8 text") from exc
-    except (ValueError, IndexError) as exc:
-        raise bad(f"line {lineno}: {exc}") from exc
-    v, f = np.asarray(verts, float).reshape(-1, 3), np.asarray(faces, np.int64)
+    except ValueError as exc:
+        raise bad(str(exc)) from exc
     if len(f) == 0:
         raise bad("no faces")
     f = f.reshape(-1, 3)

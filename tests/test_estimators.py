@@ -13,6 +13,7 @@ from simlidar_mi.truth.estimators import (beams_from_exr, beams_from_scan, beer_
                                           contact_mle_pad, point_occupancy, vcp_pad)
 from simlidar_mi.truth.grid import VoxelGrid, grid_dataset
 from simlidar_mi.truth.synthetic import turbid_beams
+from simlidar_mi.truth.traverse import RANGE_TOL_M as TOL
 from simlidar_mi.truth.traverse import Beams, _slab, traverse, walk
 
 REPO = Path(__file__).resolve().parents[1]
@@ -97,9 +98,10 @@ def test_equal_chords_closed_form():
     c = traverse(g, Beams.first_return(o, d, r, cls))
     assert c.n_in.item() == 10 and c.hits.item() == 4
     assert c.chord_m.item() == pytest.approx(10 * 0.5)
-    assert c.path_m.item() == pytest.approx(6 * 0.5 + 1.0)
+    # returns are placed TOL before their range (traverse.RANGE_TOL_M)
+    assert c.path_m.item() == pytest.approx(6 * 0.5 + 1.0 - 4 * TOL, rel=1e-12)
     assert beer_lambert_pad(c).item() == pytest.approx(-np.log(0.6) / (0.5 * 0.5))
-    assert contact_mle_pad(c).item() == pytest.approx(4 / (0.5 * 4.0))
+    assert contact_mle_pad(c).item() == pytest.approx(4 / (0.5 * (4.0 - 4 * TOL)), rel=1e-12)
     # saturation: every beam intercepted → cap T = 1/(N + 1), or NaN
     cs = traverse(g, Beams.first_return(o, d, np.full(n, 1.25), np.full(n, 3)))
     assert beer_lambert_pad(cs).item() == pytest.approx(np.log(11) / (0.5 * 0.5))
@@ -111,11 +113,15 @@ def test_unobserved_voxels_are_nan_and_occupancy_counts_points():
     b = Beams.first_return([[-1.0, 0.5, 0.5]], [[1.0, 0.0, 0.0]], [2.5], [2])  # stops in voxel 1
     c = traverse(g, b)
     assert c.n_in.ravel().tolist() == [1.0, 1.0, 0.0]
-    for pad in (beer_lambert_pad(c), contact_mle_pad(c)):
+    for pad in (beer_lambert_pad(c, min_beams=1), contact_mle_pad(c, min_beams=1)):
         assert pad[0, 0, 0] == 0.0 and pad[1, 0, 0] > 0 and np.isnan(pad[2, 0, 0])
+    for pad in (beer_lambert_pad(c), contact_mle_pad(c)):  # default: ≥ 5 beams
+        assert np.isnan(pad).all()
     occ = point_occupancy(g, b, min_points=1)
     assert occ["point_count"].ravel().tolist() == [0.0, 1.0, 0.0]
-    assert vcp_pad(c, occ["occupied"]).ravel()[1] == pytest.approx(1 / (0.5 * 1.0))
+    assert vcp_pad(c, occ["occupied"], min_beams=1).ravel()[1] == pytest.approx(1 / (0.5 * 1.0))
+    # too few beams for a path: an occupied voxel's path is the voxel side (here the same)
+    assert vcp_pad(c, occ["occupied"]).ravel().tolist()[1] == pytest.approx(1 / (0.5 * 1.0))
     with pytest.raises(ConfigError):
         point_occupancy(g, b, min_points=0)
 
@@ -128,8 +134,8 @@ def test_multi_return_weights_split_the_beam():
     c = traverse(g, b)
     assert c.n_in.ravel().tolist() == [1.0, 0.5, 0.0]
     assert c.hits.ravel().tolist() == [0.5, 0.5, 0.0]
-    # path: voxel 0: 1·0.5 + 0.5·0.5; voxel 1: 0.5·0.75
-    assert c.path_m.ravel() == pytest.approx([0.75, 0.375, 0.0])
+    # path: voxel 0: 1·0.5 + 0.5·(0.5 − TOL); voxel 1: 0.5·(0.75 − TOL)
+    assert c.path_m.ravel() == pytest.approx([0.75 - TOL / 2, 0.375 - TOL / 2, 0.0], rel=1e-12)
 
 
 def test_turbid_medium_estimates_converge_to_the_truth():
@@ -188,7 +194,7 @@ def test_plugin_is_scored_like_the_builtin_and_bad_output_is_refused(cylinder_sc
         mine, builtin = run.get("contact_frequency", scale), run.get("contact_mle", scale)
         assert {k: mine[k] for k in ("n", "r2", "rmse", "bias")} == {k: builtin[k] for k in ("n", "r2", "rmse", "bias")}
     assert run.get("contact_mle")["n"] > 0
-    assert run.get("cmd1")["n"] == run.get("contact_mle")["n"]
+    assert run.get("cmd1")["n"] == run.summary["n_observed_voxels"] > run.get("contact_mle")["n"]
     for name in ("scores.csv", "scores.json", "profiles.csv", "profiles.png", "scatter.png", "truth.nc",
                  "grid.nc", "estimates/contact_mle.nc", "estimates/cmd1.nc"):
         assert (tmp_path / name).is_file(), name
@@ -262,3 +268,14 @@ def test_bad_plugins_are_refused_naming_what_is_wrong(tmp_path):
         run_command(f"{sys.executable} -c \"raise SystemExit('boom')\" {{out}}", las=out, exr=out,
                     grid_file=out, out=tmp_path / "none.nc", grid=grid)
     assert "status 1" in str(e.value) and "boom" in str(e.value)
+
+
+def test_a_return_on_a_voxel_face_counts_in_the_voxel_the_beam_came_from():
+    """A surface on the face z = 1 m met from above, its float32 range rounded one step (0.24 µm) long:
+    the hit belongs to the upper voxel, and the lower one is not entered at all."""
+    g = VoxelGrid((0.0, 0.0, 0.0), 1.0, (1, 1, 2))
+    r = float(np.nextafter(np.float32(2.0), np.float32(3.0)))  # one float32 step long
+    assert r > 2.0
+    c = traverse(g, Beams.first_return([[0.5, 0.5, 3.0]], [[0.0, 0.0, -1.0]], [r], [2]))
+    assert c.hits.ravel().tolist() == [0.0, 1.0]
+    assert c.n_in.ravel().tolist() == [0.0, 1.0]

@@ -2,7 +2,7 @@
 
 Every estimator maps a scan (its beams, :class:`~simlidar_mi.truth.traverse.Beams`) onto a
 :class:`~simlidar_mi.truth.grid.VoxelGrid` and returns arrays of ``grid.shape``, among
-them ``PAD_m2_m3`` (plant area density, m²/m³; NaN where no beam entered the voxel).
+them ``PAD_m2_m3`` (plant area density, m²/m³; NaN where too few beams entered the voxel).
 
 Point-based (where the returns are):
 
@@ -42,6 +42,10 @@ Beam-based (where the beams went, :func:`~simlidar_mi.truth.traverse.traverse`):
 G is the mean projection of unit leaf area, 0.5 for a spherical leaf-angle
 distribution (Ross 1981); pass the scene's own G when known.
 
+Voxels fewer than ``min_beams`` (default 5, :data:`MIN_BEAMS`) beams entered are NaN for the
+beam-based estimators: Pimont et al. (2018) find the MLE consistent from about 5 beams, and
+below that one grazing beam intercepted after a millimetre of path reads hundreds of m²/m³.
+
 Saturated voxels (I = N, T = 0) have no finite Beer–Lambert estimate. ``saturated =
 "cap"`` (default) sets T = 1/(N + 1), as if one more beam had passed: the estimate is
 then ln(N + 1)/(G·l̄), a lower bound that grows with N; ``"nan"`` leaves them NaN
@@ -66,7 +70,7 @@ from .grid import VoxelGrid
 from .traverse import BeamCounts, Beams, traverse
 
 __all__ = ["beams_from_scan", "beams_from_exr", "point_occupancy", "beer_lambert_pad",
-           "contact_mle_pad", "vcp_pad", "estimate_all", "G_SPHERICAL", "BUILTIN"]
+           "contact_mle_pad", "vcp_pad", "estimate_all", "G_SPHERICAL", "BUILTIN", "MIN_BEAMS"]
 
 G_SPHERICAL = 0.5
 #: Built-in estimators: name → (description, needs echoes).
@@ -199,15 +203,24 @@ def point_occupancy(grid: VoxelGrid, beams: Beams, min_points: int = 1) -> dict[
             "occupied": (count >= int(min_points)).astype(np.uint8)}
 
 
-def _observed(counts: BeamCounts) -> np.ndarray:
-    return counts.n_in > 0
+#: Fewest (weighted) beams entering a voxel for a beam-based estimate; fewer → NaN. Pimont et
+#: al. (2018) find their MLE consistent from about 5 beams; below that a single grazing beam
+#: intercepted after a millimetre of path gives PAD in the hundreds (BENCHMARKS §10d).
+MIN_BEAMS = 5
 
 
-def beer_lambert_pad(counts: BeamCounts, G: float = G_SPHERICAL, saturated: str = "cap") -> np.ndarray:
-    """PAD = −ln(1 − I/N)/(G·l̄), l̄ = chord_m / N (module docstring; NaN where N = 0)."""
+def _observed(counts: BeamCounts, min_beams: float = MIN_BEAMS) -> np.ndarray:
+    if not min_beams > 0:
+        raise ConfigError("must be a number of beams > 0", key="min_beams", value=min_beams)
+    return counts.n_in >= min_beams
+
+
+def beer_lambert_pad(counts: BeamCounts, G: float = G_SPHERICAL, saturated: str = "cap",
+                     min_beams: float = MIN_BEAMS) -> np.ndarray:
+    """PAD = −ln(1 − I/N)/(G·l̄), l̄ = chord_m / N (module docstring; NaN where N < min_beams)."""
     if saturated not in ("cap", "nan"):
         raise ConfigError("saturated must be 'cap' or 'nan'", key="saturated", value=saturated)
-    obs = _observed(counts)
+    obs = _observed(counts, min_beams)
     N = np.where(obs, counts.n_in, 1.0)
     rdi = np.clip(counts.hits / N, 0.0, 1.0)
     sat = obs & (rdi >= 1.0 - 1e-12)
@@ -219,28 +232,32 @@ def beer_lambert_pad(counts: BeamCounts, G: float = G_SPHERICAL, saturated: str 
     return np.where(obs & np.isfinite(pad), pad, np.nan)
 
 
-def contact_mle_pad(counts: BeamCounts, G: float = G_SPHERICAL) -> np.ndarray:
-    """PAD = I/(G·Σ free path) (Pimont et al. 2018 maximum likelihood; NaN where N = 0)."""
-    obs = _observed(counts)
+def contact_mle_pad(counts: BeamCounts, G: float = G_SPHERICAL, min_beams: float = MIN_BEAMS) -> np.ndarray:
+    """PAD = I/(G·Σ free path) (Pimont et al. 2018 maximum likelihood; NaN where N < min_beams)."""
+    obs = _observed(counts, min_beams)
     with np.errstate(divide="ignore", invalid="ignore"):
         pad = counts.hits / (G * counts.path_m)
     pad = np.where(counts.hits == 0, 0.0, pad)
     return np.where(obs & np.isfinite(pad), pad, np.nan)
 
 
-def vcp_pad(counts: BeamCounts, occupied: np.ndarray, G: float = G_SPHERICAL) -> np.ndarray:
+def vcp_pad(counts: BeamCounts, occupied: np.ndarray, G: float = G_SPHERICAL,
+            min_beams: float = MIN_BEAMS) -> np.ndarray:
     """Voxel canopy profiling per voxel: occupied / (G·l̄) over observed voxels (module
-    docstring; an occupied voxel no beam was traced into counts as observed)."""
-    obs = _observed(counts) | (occupied > 0)
-    N = np.where(counts.n_in > 0, counts.n_in, 1.0)
-    mean_chord = np.where(counts.n_in > 0, counts.chord_m / N, 0.0)
-    mean_chord = np.where(mean_chord > 0, mean_chord, counts.grid.voxel_m)  # no chord: the voxel side
+    docstring). A voxel is observed when it holds points or ``min_beams`` beams entered it;
+    with fewer beams than that, l̄ is the voxel side (a few grazing chords say nothing)."""
+    enough = _observed(counts, min_beams)
+    obs = enough | (occupied > 0)
+    N = np.where(enough, counts.n_in, 1.0)
+    mean_chord = np.where(enough, counts.chord_m / N, 0.0)
+    mean_chord = np.where(mean_chord > 0, mean_chord, counts.grid.voxel_m)
     pad = np.where(occupied > 0, 1.0 / (G * mean_chord), 0.0)
     return np.where(obs, pad, np.nan)
 
 
 def estimate_all(grid: VoxelGrid, first: Beams, multi: Beams | None = None, *, G: float = G_SPHERICAL,
-                 min_points: int = 1, saturated: str = "cap", chunk_beams: int | None = None,
+                 min_points: int = 1, saturated: str = "cap", min_beams: float = MIN_BEAMS,
+                 chunk_beams: int | None = None,
                  progress=None) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, float]]:
     """Every built-in estimator (:data:`BUILTIN`): (name → arrays on ``grid`` (``PAD_m2_m3``
     and the counts behind it), name → seconds including its traversal). ``multi``: the
@@ -257,19 +274,19 @@ def estimate_all(grid: VoxelGrid, first: Beams, multi: Beams | None = None, *, G
         sec[name] = walk_s + time.perf_counter() - t
 
     base = {"n_in": c1.n_in, "hits": c1.hits}
-    timed("vcp", lambda: (lambda occ: {"PAD_m2_m3": vcp_pad(c1, occ["occupied"], G), **occ,
+    timed("vcp", lambda: (lambda occ: {"PAD_m2_m3": vcp_pad(c1, occ["occupied"], G, min_beams), **occ,
                                        "n_in": c1.n_in})(point_occupancy(grid, first, min_points)))
-    timed("beer_lambert", lambda: {"PAD_m2_m3": beer_lambert_pad(c1, G, saturated), **base,
+    timed("beer_lambert", lambda: {"PAD_m2_m3": beer_lambert_pad(c1, G, saturated, min_beams), **base,
                                    "mean_chord_m": _mean(c1.chord_m, c1.n_in)})
-    timed("contact_mle", lambda: {"PAD_m2_m3": contact_mle_pad(c1, G), **base, "path_m": c1.path_m})
+    timed("contact_mle", lambda: {"PAD_m2_m3": contact_mle_pad(c1, G, min_beams), **base, "path_m": c1.path_m})
     if multi is not None:
         t0 = time.perf_counter()
         cm = traverse(grid, multi, progress=progress, **kw)
         walk_s = time.perf_counter() - t0
         bm = {"n_in": cm.n_in, "hits": cm.hits}
-        timed("beer_lambert_multi", lambda: {"PAD_m2_m3": beer_lambert_pad(cm, G, saturated), **bm,
+        timed("beer_lambert_multi", lambda: {"PAD_m2_m3": beer_lambert_pad(cm, G, saturated, min_beams), **bm,
                                              "mean_chord_m": _mean(cm.chord_m, cm.n_in)})
-        timed("contact_mle_multi", lambda: {"PAD_m2_m3": contact_mle_pad(cm, G), **bm, "path_m": cm.path_m})
+        timed("contact_mle_multi", lambda: {"PAD_m2_m3": contact_mle_pad(cm, G, min_beams), **bm, "path_m": cm.path_m})
     return out, sec
 
 

@@ -31,7 +31,7 @@ import numpy as np
 from .._progress import make_progress
 from ..errors import ConfigError
 from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
-from .estimators import BUILTIN, G_SPHERICAL, estimate_all
+from .estimators import BUILTIN, G_SPHERICAL, MIN_BEAMS, estimate_all
 from .grid import VoxelGrid, grid_dataset, write_grid
 from .scoring import call_plugin, check_command, load_plugin, run_command, score
 
@@ -65,8 +65,8 @@ def _name(spec: str) -> str:
 
 def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | None = None,
                    scan_dir: Path | None = None, plugins=(), commands=(), G: float = G_SPHERICAL,
-                   min_points: int = 1, saturated: str = "cap", row_spacing_m: float | None = None,
-                   row_axis: str = "y", canopy_base: str = "ground", progress=None, title: str = "",
+                   min_points: int = 1, saturated: str = "cap", min_beams: float = MIN_BEAMS,
+                   row_spacing_m: float | None = None, row_axis: str = "y", canopy_base: str = "ground", progress=None, title: str = "",
                    extra: dict | None = None) -> EvaluateRun:
     """Run the built-in estimators on ``first`` (and ``multi``) beams, the plug-ins
     (``plugins``: "module:function" specs or callables; ``commands``: command templates,
@@ -76,7 +76,7 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
     walked = shown.stage("evaluate: beams through the grid", len(first) + (len(multi) if multi is not None else 0),
                          "beam")
     estimates, seconds = estimate_all(grid, first, multi, G=G, min_points=min_points,
-                                      saturated=saturated, progress=walked.update)
+                                      saturated=saturated, min_beams=min_beams, progress=walked.update)
     walked.close()
     observed = estimates["beer_lambert"]["n_in"] > 0  # ≥ 1 first-return beam entered
     if stage is not None:
@@ -118,6 +118,7 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
         bar.update()
     bar.close()
     summary = {"grid": grid.attrs(), "G": G, "min_points": min_points, "saturated": saturated,
+               "min_beams": min_beams,
                "n_beams": len(first), "n_observed_voxels": int(observed.sum()),
                "n_voxels": int(np.prod(grid.shape)), "estimators": {k: BUILTIN.get(k, "plug-in") for k in estimates},
                "envelope": _envelope(grid, truth, estimates["vcp"]["occupied"], row_spacing_m, row_axis,
@@ -231,7 +232,7 @@ def _plots(run: EvaluateRun, stage: Path, truth, profiles, title) -> None:
 
 @writes_output("out_dir")
 def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_m: float | None = None,
-             G: float = G_SPHERICAL, min_points: int = 1, saturated: str = "cap",
+             G: float = G_SPHERICAL, min_points: int = 1, saturated: str = "cap", min_beams: float = MIN_BEAMS,
              row_spacing_m: float | None = None, weights: str = "equal", progress=False) -> EvaluateRun:
     """Scan ``scene``, compute its truth (:func:`simlidar_mi.truth.compute.compute_truth`) on
     the ``[truth]`` grid (``voxel_m`` overrides ``[truth] voxel_m``), run the built-in
@@ -284,7 +285,7 @@ def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_
         spacing = row_spacing_m if row_spacing_m is not None else row_spacing_of(cfg)
         out = evaluate_beams(grid, truth, first, multi, stage=stage, scan_dir=stage / "scan",
                              plugins=estimators, commands=commands, G=G, min_points=min_points,
-                             saturated=saturated, row_spacing_m=spacing, row_axis=tc["row_axis"],
+                             saturated=saturated, min_beams=min_beams, row_spacing_m=spacing, row_axis=tc["row_axis"],
                              canopy_base=tc["canopy_base"], progress=shown, title=cfg["scene"]["name"],
                              extra=extra)
     out.files = {n: Path(out_dir) / n for n in ("scores.csv", "scores.json", "profiles.csv", "profiles.png",

@@ -25,8 +25,11 @@ Per voxel v the walk accumulates (:class:`BeamCounts`), over beams b crossing v 
               did not stop it, whose mean is the "mean path length" of Beer–Lambert
               (Béland et al. 2011, 2014; Grau et al. 2017).
 
-Zero-length segments (a beam grazing an edge or a corner) enter nothing unless a
-return lies in them. Returns before the grid reduce the weight entering it; returns
+Returns are pulled back along their beam by :data:`RANGE_TOL_M` (10 µm) before they are
+placed, so a surface lying on a voxel face (the ground, a trunk's base, a post's foot) counts
+in the voxel the beam came from, not in the one a float32 range rounds it into (a beam that
+enters a voxel for 3 µm and "hits" there would read PAD ~10⁶ m²/m³). Zero-length segments (a
+beam grazing an edge or a corner) enter nothing unless a return lies in them. Returns before the grid reduce the weight entering it; returns
 beyond it are ignored.
 """
 from __future__ import annotations
@@ -38,7 +41,11 @@ import numpy as np
 from ..errors import ConfigError
 from .grid import VoxelGrid
 
-__all__ = ["Beams", "BeamCounts", "walk", "traverse", "DEFAULT_CHUNK_BEAMS"]
+__all__ = ["Beams", "BeamCounts", "walk", "traverse", "DEFAULT_CHUNK_BEAMS", "RANGE_TOL_M"]
+
+#: Returns are placed this far before their range (module docstring): above float32's
+#: rounding of ranges up to ~150 m (6e-8 relative), far below any voxel.
+RANGE_TOL_M = 1e-5
 
 #: Beams walked together: ~(chunk × 25 float64) per array of the walk, ≈ 100 MB at 2**18.
 DEFAULT_CHUNK_BEAMS = 1 << 18
@@ -94,9 +101,10 @@ class Beams:
                      self.ret_weight[sl], self.ret_veg[sl], self.meta)
 
     def vegetation_points_m(self) -> tuple[np.ndarray, np.ndarray]:
-        """(points (m, 3), weights (m,)) of every vegetation return."""
+        """(points (m, 3), weights (m,)) of every vegetation return, each :data:`RANGE_TOL_M`
+        before its range as the walk places it."""
         b, j = np.nonzero(self.ret_veg & np.isfinite(self.ret_range_m) & (self.ret_weight > 0))
-        p = self.origin_m[b] + self.ret_range_m[b, j][:, None] * self.dir[b]
+        p = self.origin_m[b] + (self.ret_range_m[b, j] - RANGE_TOL_M)[:, None] * self.dir[b]
         return p, self.ret_weight[b, j]
 
 
@@ -185,10 +193,12 @@ def traverse(grid: VoxelGrid, beams: Beams, counts: BeamCounts | None = None, *,
     acc = {k: getattr(counts, k).reshape(-1) for k in ("n_in", "hits", "path_m", "chord_m")}
     for a in range(0, len(beams), max(1, int(chunk_beams))):
         b = beams.take(slice(a, a + chunk_beams))
-        R, W, V = b.ret_range_m, b.ret_weight, b.ret_veg
-        for idx, flat, t0, t1 in walk(grid, b.origin_m, b.dir, b.t_end_m):
+        R, W, V = b.ret_range_m - RANGE_TOL_M, b.ret_weight, b.ret_veg
+        stops = np.any(np.isfinite(b.ret_range_m) & (b.ret_range_m >= b.t_end_m[:, None]), axis=1)
+        t_end = np.where(stops, b.t_end_m - RANGE_TOL_M, b.t_end_m)
+        for idx, flat, t0, t1 in walk(grid, b.origin_m, b.dir, t_end):
             r, w, veg = R[idx], W[idx], V[idx]
-            end = np.minimum(t1, b.t_end_m[idx])
+            end = np.minimum(t1, t_end[idx])
             w_in = 1.0 - np.sum(np.where(r < t0[:, None], w, 0.0), axis=1)
             inside = (r >= t0[:, None]) & (r < t1[:, None])
             w_here = np.where(inside, w, 0.0)

@@ -7,8 +7,9 @@
    against beams per voxel, 5 seeds; the beam count for 5 % RMS error.
 2. Random spherical leaves in a 1 m cube, scanned by Mitsuba (synthetic.leaf_box_scan),
    exact truth (compute_truth): each estimator against voxel size and angular step.
-3. ``evaluate`` end to end on a scene (default scenes/apple_orchard.toml) at voxel sizes
-   0.05/0.1/0.25 m and two angular steps: scan, truth and estimator seconds, R², RMSE, bias.
+3. ``evaluate`` end to end on scenes (default orchard_leafy, vineyard_vsp, apple_orchard) at voxel
+   sizes 0.05/0.1/0.25 m and at half the beam density: seconds, R², RMSE, bias; canopy envelope,
+   TRV and LWA of the truth and of the point cloud.
 4. Multi-return: a [sensor] scene (scenes/orchard_lms511.toml, coarsened) first return vs
    every echo, equal vs energy weights.
 Prints markdown tables.
@@ -92,34 +93,57 @@ def leaf_box(quick: bool) -> list[dict]:
     return rows
 
 
-def end_to_end(scene: str, quick: bool, sets: list[str]) -> list[dict]:
+def end_to_end(scenes: list[str], quick: bool) -> list[dict]:
     from simlidar_mi.truth.evaluate import evaluate
     rows = []
-    runs = [(0.25, None)] if quick else [(0.25, None), (0.1, None), (0.05, None), (0.1, "coarse")]
-    base = _dtheta(scene)
-    for voxel, step in runs:
-        over = list(sets) + ([f"scan.dtheta_deg={2 * base}", f"scan.dy_m={2 * _dy(scene)}"] if step else [])
-        with tempfile.TemporaryDirectory() as tmp:
-            t = time.perf_counter()
-            run = evaluate(scene, Path(tmp) / "ev", over, voxel_m=voxel)
-            total = time.perf_counter() - t
-        sec = run.summary["seconds"]
-        for r in run.scores:
-            rows.append({"scene": scene, "voxel_m": voxel, "sampling": "2× coarser Δθ, Δy" if step else "scene's",
-                         "beams": run.summary["n_beams"], "total_s": total, "scan_s": sec["scan"],
-                         "truth_s": sec["truth"], **r})
-    print(f"\n`evaluate {scene}`")
-    print("\n| voxel (m) | sampling | beams | total s | scan s | truth s | estimator | est. s | R² voxel | RMSE | bias | R² profile | profile RMSE |")
-    print("|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|")
-    by = {(r["voxel_m"], r["sampling"], r["estimator"], r["scale"]): r for r in rows}
+    runs = [(0.25, False)] if quick else [(0.25, False), (0.1, False), (0.05, False), (0.1, True)]
+    for scene in scenes:
+        for voxel, coarse in runs:
+            over = _coarser(scene) if coarse else []
+            with tempfile.TemporaryDirectory() as tmp:
+                t = time.perf_counter()
+                run = evaluate(scene, Path(tmp) / "ev", over, voxel_m=voxel)
+                total = time.perf_counter() - t
+            sec = run.summary["seconds"]
+            for r in run.scores:
+                rows.append({"scene": Path(scene).stem, "voxel_m": voxel, "sampling": "2× coarser" if coarse else "scene's",
+                             "beams": run.summary["n_beams"], "total_s": total, "scan_s": sec["scan"],
+                             "truth_s": sec["truth"], "envelope": run.summary["envelope"], **r})
+    print("\n| scene | voxel (m) | sampling | beams | total s | scan s | truth s | estimator | est. s | n | R² voxel | RMSE | bias | truth mean | R² profile | profile RMSE |")
+    print("|---|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    by = {(r["scene"], r["voxel_m"], r["sampling"], r["estimator"], r["scale"]): r for r in rows}
     for r in rows:
         if r["scale"] != "voxel":
             continue
-        p = by[(r["voxel_m"], r["sampling"], r["estimator"], "profile")]
-        print(f"| {r['voxel_m']} | {r['sampling']} | {r['beams']:,} | {r['total_s']:.1f} | {r['scan_s']:.1f} | "
-              f"{r['truth_s']:.1f} | {r['estimator']} | {r['seconds']:.1f} | {r['r2']:.3f} | {r['rmse']:.3f} | "
-              f"{r['bias']:+.3f} | {p['r2']:.3f} | {p['rmse']:.3f} |")
+        p = by[(r["scene"], r["voxel_m"], r["sampling"], r["estimator"], "profile")]
+        print(f"| {r['scene']} | {r['voxel_m']} | {r['sampling']} | {r['beams']:,} | {r['total_s']:.1f} | {r['scan_s']:.1f} | "
+              f"{r['truth_s']:.1f} | {r['estimator']} | {r['seconds']:.1f} | {r['n']} | {r['r2']:.3f} | {r['rmse']:.3f} | "
+              f"{r['bias']:+.3f} | {r['truth_mean']:.3f} | {p['r2']:.3f} | {p['rmse']:.3f} |")
+    print("\n| scene | voxel (m) | sampling | H truth (m) | H points | W truth (m) | W points | TRV truth (m³/ha) | TRV points | LWA truth (m²/ha) | LWA points |")
+    print("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    seen = set()
+    for r in rows:
+        key = (r["scene"], r["voxel_m"], r["sampling"])
+        e = r["envelope"]
+        if key in seen or "truth" not in e:
+            continue
+        seen.add(key)
+        t, q = e["truth"], e["points"]
+        f = lambda d, k: f"{d[k]:.0f}" if k in d else "–"  # noqa: E731
+        print(f"| {r['scene']} | {r['voxel_m']} | {r['sampling']} | {t['mean_height_m']:.3f} | {q['mean_height_m']:.3f} | "
+              f"{t['mean_width_m']:.3f} | {q['mean_width_m']:.3f} | {f(t, 'TRV_m3_ha')} | {f(q, 'TRV_m3_ha')} | "
+              f"{f(t, 'LWA_m2_ha')} | {f(q, 'LWA_m2_ha')} |")
     return rows
+
+
+def _coarser(scene: str) -> list[str]:
+    """Overrides that halve the beam density along both scan directions."""
+    from simlidar_mi.config import load_scene
+    cfg = load_scene(scene)
+    if cfg["platform"]["kind"] == "tractor":
+        return [f"scan.dtheta_deg={2 * cfg['scan']['dtheta_deg']}", f"scan.dy_m={2 * cfg['scan']['dy_m']}"]
+    lo, hi, step = cfg["platform"]["elevation_deg"]
+    return [f"platform.step_m={2 * cfg['platform']['step_m']}", f"platform.elevation_deg=[{lo}, {hi}, {2 * step}]"]
 
 
 def multi_return(scene: str, sets: list[str]) -> list[dict]:
@@ -138,29 +162,18 @@ def multi_return(scene: str, sets: list[str]) -> list[dict]:
     return rows
 
 
-def _scan_key(scene: str, key: str) -> float:
-    from simlidar_mi.config import load_scene
-    return float(load_scene(scene)["scan"][key])
-
-
-def _dtheta(scene):
-    return _scan_key(scene, "dtheta_deg")
-
-
-def _dy(scene):
-    return _scan_key(scene, "dy_m")
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--scene", default=str(REPO / "scenes" / "apple_orchard.toml"))
+    ap.add_argument("--scene", action="append", default=None,
+                    help="scenes for the end-to-end table (default: orchard_leafy, vineyard_vsp, apple_orchard)")
     ap.add_argument("--multi-scene", default=str(REPO / "scenes" / "orchard_lms511.toml"))
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
     print(machine())
     out = {"turbid": turbid(args.quick), "leaf_box": leaf_box(args.quick),
-           "end_to_end": end_to_end(args.scene, args.quick, []),
+           "end_to_end": end_to_end(args.scene or [str(REPO / "scenes" / f"{n}.toml") for n in
+                                                   ("orchard_leafy", "vineyard_vsp", "apple_orchard")], args.quick),
            "multi_return": multi_return(args.multi_scene, ["scan.dy_m=0.04", "sensor.beam_samples=8"])}
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=1, default=float) + "\n")

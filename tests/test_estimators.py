@@ -279,3 +279,33 @@ def test_a_return_on_a_voxel_face_counts_in_the_voxel_the_beam_came_from():
     c = traverse(g, Beams.first_return([[0.5, 0.5, 3.0]], [[0.0, 0.0, -1.0]], [r], [2]))
     assert c.hits.ravel().tolist() == [0.0, 1.0]
     assert c.n_in.ravel().tolist() == [0.0, 1.0]
+
+
+def test_evaluate_command_end_to_end(tmp_path):
+    """`simlidar-mi evaluate` on the leafy orchard, coarsely: every output, the plug-in scored
+    like its built-in, the truth from compute_truth, TRV/LWA of truth and points."""
+    pytest.importorskip("simlidar_mi.truth.compute", reason="compute_truth arrives with the truth branch")
+    import json
+
+    from simlidar_mi.cli import main
+    from simlidar_mi.truth.grid import read_grid
+    out = tmp_path / "ev"
+    rc = main(["evaluate", str(REPO / "scenes" / "orchard_leafy.toml"), "--out", str(out), "--voxel", "0.25",
+               "--set", "scan.dtheta_deg=1.0", "--set", "scan.dy_m=0.04",
+               "--estimator", f"{REPO / 'examples' / 'my_estimator.py'}:contact_frequency"])
+    assert rc == 0
+    d = json.loads((out / "scores.json").read_text())
+    rows = {(r["estimator"], r["scale"]): r for r in d["scores"]}
+    assert rows[("contact_frequency", "voxel")]["rmse"] == rows[("contact_mle", "voxel")]["rmse"]
+    assert rows[("beer_lambert", "profile")]["r2"] > 0.5
+    env = d["summary"]["envelope"]
+    assert env["row_spacing_m"] == 4.0 and env["truth"]["TRV_m3_ha"] > 0 and env["points"]["LWA_m2_ha"] > 0
+    grid, truth = read_grid(out / "truth.nc", "PAD_m2_m3")
+    _, est = read_grid(out / "estimates" / "beer_lambert.nc", "PAD_m2_m3")
+    assert est["PAD_m2_m3"].shape == truth["PAD_m2_m3"].shape == grid.shape
+    for name in ("scores.csv", "profiles.csv", "profiles.png", "scatter.png", "grid.nc", "scan/scan.exr",
+                 "scan/points.las"):
+        assert (out / name).is_file(), name
+    assert main(["evaluate", str(REPO / "scenes" / "orchard_leafy.toml"), "--out", str(tmp_path / "bad"),
+                 "--estimator", "no_colon"]) == 2
+    assert not (tmp_path / "bad" / "scan").exists()

@@ -440,6 +440,8 @@ def _evaluate_args(p: argparse.ArgumentParser) -> None:
                    help="echo weights of the multi-return estimators (scans with a [sensor])")
     p.add_argument("--min-beams", type=float, default=5.0, metavar="N",
                    help="beams that must enter a voxel for a beam-based estimate (default 5)")
+    p.add_argument("--G", dest="G", type=float, default=0.5, metavar="G",
+                   help="mean projection of unit plant area along the beams (default 0.5: spherical leaf angles)")
 
 
 @command("evaluate", "Scan a scene, compute its canopy truth, run LiDAR estimators (built-in and "
@@ -449,7 +451,7 @@ def _evaluate_run(args: argparse.Namespace) -> int:
 
     run = evaluate(args.scene, args.out, _overrides(args), estimators=args.estimator,
                    commands=args.estimator_cmd, voxel_m=args.voxel, row_spacing_m=args.row_spacing,
-                   weights=args.weights, min_beams=args.min_beams, progress=True)
+                   weights=args.weights, min_beams=args.min_beams, G=args.G, progress=True)
     print(f"{'estimator':<22} {'scale':<8} {'n':>7} {'R2':>7} {'RMSE':>8} {'bias':>8}  (PAD m2/m3)")
     for r in run.scores:
         print(f"{r['estimator']:<22} {r['scale']:<8} {r['n']:>7} {r['r2']:7.3f} {r['rmse']:8.3f} {r['bias']:+8.3f}")

@@ -252,6 +252,8 @@ def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_
         raise ConfigError("the voxel size must be a number > 0 metres", key="--voxel", value=voxel_m)
     if weights not in ("equal", "energy"):
         raise ConfigError("echo weights must be 'equal' or 'energy'", key="--weights", value=weights)
+    if not (np.isfinite(G) and 0 < G <= 1):
+        raise ConfigError("G (mean projection of unit plant area) must lie in (0, 1]", key="--G", value=G)
     for spec in estimators:  # refuse a bad plug-in before minutes of scanning
         if isinstance(spec, str):
             load_plugin(spec)

@@ -309,3 +309,11 @@ def test_evaluate_command_end_to_end(tmp_path):
     assert main(["evaluate", str(REPO / "scenes" / "orchard_leafy.toml"), "--out", str(tmp_path / "bad"),
                  "--estimator", "no_colon"]) == 2
     assert not (tmp_path / "bad" / "scan").exists()
+    # a scan streamed to files (more beams than chunk_beams) is read back from scan.exr: same scores
+    assert main(["evaluate", str(REPO / "scenes" / "orchard_leafy.toml"), "--out", str(tmp_path / "streamed"),
+                 "--voxel", "0.25", "--set", "scan.dtheta_deg=1.0", "--set", "scan.dy_m=0.04",
+                 "--set", "scan.chunk_beams=5000"]) == 0
+    d2 = json.loads((tmp_path / "streamed" / "scores.json").read_text())
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows  # noqa: E731
+                          if r["estimator"] != "contact_frequency"]
+    assert strip(d2["scores"]) == strip(d["scores"])

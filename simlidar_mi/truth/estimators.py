@@ -161,6 +161,8 @@ def beams_from_exr(path, pattern=None, weights: str | None = None) -> Beams:
                               "the scan's beam pattern (the scene file) to rebuild its rays",
                               file=str(path), key="simlidar_settings")
         pattern = header["settings"].pattern()
+    if not hasattr(pattern, "n_rows"):  # the tractor's ScanSettings (what scan_patterns gives)
+        pattern = pattern.pattern()
     n, m = channels["range"].shape
     if (pattern.n_rows, pattern.n_cols) != (n, m):
         raise ConfigError(f"the EXR holds {n}×{m} beams, the pattern {pattern.n_rows}×{pattern.n_cols}",

@@ -33,7 +33,7 @@ from ..errors import ConfigError
 from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
 from .estimators import BUILTIN, G_SPHERICAL, MIN_BEAMS, estimate_all
 from .grid import VoxelGrid, grid_dataset, write_grid
-from .scoring import call_plugin, check_command, load_plugin, run_command, score
+from .scoring import call_plugin, check_command, layer_profile, load_plugin, run_command, score
 
 __all__ = ["EvaluateRun", "evaluate", "evaluate_beams", "EVALUATE_OUTPUTS"]
 
@@ -191,8 +191,11 @@ def _plots(run: EvaluateRun, stage: Path, truth, profiles, title) -> None:
     import matplotlib.pyplot as plt  # noqa: PLC0415
     names = list(run.estimates)
     fig, ax = plt.subplots(figsize=(6, 5), dpi=110)
-    first = [p for p in profiles if p["estimator"] == names[0]]
-    ax.plot([p["truth"] for p in first], [p["z_m"] for p in first], "k-", lw=2.5, label="truth")
+    observed = run.estimates["beer_lambert"]["n_in"] > 0
+    var0 = "PAD_m2_m3"
+    z = np.unique([p["z_m"] for p in profiles])
+    ax.plot(layer_profile(np.asarray(truth[var0].values), observed), z, "k-", lw=2.5,
+            label="truth (voxels ≥ 1 beam entered)")
     for name in names:
         pr = [p for p in profiles if p["estimator"] == name]
         ax.plot([p["estimate"] for p in pr], [p["z_m"] for p in pr], lw=1.2, label=name)
@@ -208,7 +211,6 @@ def _plots(run: EvaluateRun, stage: Path, truth, profiles, title) -> None:
     cols = min(3, n)
     fig, axes = plt.subplots((n + cols - 1) // cols, cols, figsize=(4 * cols, 3.8 * ((n + cols - 1) // cols)),
                              dpi=100, squeeze=False)
-    observed = run.estimates["beer_lambert"]["n_in"] > 0
     for ax, name in zip(axes.ravel(), names):
         arrays = run.estimates[name]
         var = "PAD_m2_m3" if "PAD_m2_m3" in arrays else "LAD_m2_m3"

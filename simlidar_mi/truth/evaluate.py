@@ -66,8 +66,8 @@ def _name(spec: str) -> str:
 def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | None = None,
                    scan_dir: Path | None = None, plugins=(), commands=(), G: float = G_SPHERICAL,
                    min_points: int = 1, saturated: str = "cap", min_beams: float = MIN_BEAMS,
-                   row_spacing_m: float | None = None, row_axis: str = "y", canopy_base: str = "ground", progress=None, title: str = "",
-                   extra: dict | None = None) -> EvaluateRun:
+                   row_spacing_m: float | None = None, row_axis: str = "y", canopy_base: str = "ground",
+                   progress=None, title: str = "", extra: dict | None = None) -> EvaluateRun:
     """Run the built-in estimators on ``first`` (and ``multi``) beams, the plug-ins
     (``plugins``: "module:function" specs or callables; ``commands``: command templates,
     which need ``scan_dir``), score all against ``truth`` (a Dataset on ``grid``) and,
@@ -118,8 +118,7 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
         bar.update()
     bar.close()
     summary = {"grid": grid.attrs(), "G": G, "min_points": min_points, "saturated": saturated,
-               "min_beams": min_beams,
-               "n_beams": len(first), "n_observed_voxels": int(observed.sum()),
+               "min_beams": min_beams, "n_beams": len(first), "n_observed_voxels": int(observed.sum()),
                "n_voxels": int(np.prod(grid.shape)), "estimators": {k: BUILTIN.get(k, "plug-in") for k in estimates},
                "envelope": _envelope(grid, truth, estimates["vcp"]["occupied"], row_spacing_m, row_axis,
                                      canopy_base)}

@@ -67,7 +67,8 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
                    scan_dir: Path | None = None, plugins=(), commands=(), G: float = G_SPHERICAL,
                    min_points: int = 1, saturated: str = "cap", min_beams: float = MIN_BEAMS,
                    row_spacing_m: float | None = None, row_axis: str = "y", canopy_base: str = "ground",
-                   progress=None, title: str = "", extra: dict | None = None) -> EvaluateRun:
+                   ground_z_m: float = 0.0, progress=None, title: str = "",
+                   extra: dict | None = None) -> EvaluateRun:
     """Run the built-in estimators on ``first`` (and ``multi``) beams, the plug-ins
     (``plugins``: "module:function" specs or callables; ``commands``: command templates,
     which need ``scan_dir``), score all against ``truth`` (a Dataset on ``grid``) and,
@@ -121,7 +122,7 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
                "min_beams": min_beams, "n_beams": len(first), "n_observed_voxels": int(observed.sum()),
                "n_voxels": int(np.prod(grid.shape)), "estimators": {k: BUILTIN.get(k, "plug-in") for k in estimates},
                "envelope": _envelope(grid, truth, estimates["vcp"]["occupied"], row_spacing_m, row_axis,
-                                     canopy_base)}
+                                     canopy_base, ground_z_m)}
     summary.update(extra or {})
     run = EvaluateRun(rows, estimates, summary)
     if stage is not None:
@@ -136,7 +137,7 @@ def _unique(name: str, taken) -> str:
     return out
 
 
-def _envelope(grid, truth, occupied_points, row_spacing_m, row_axis, base) -> dict:
+def _envelope(grid, truth, occupied_points, row_spacing_m, row_axis, base, ground_z_m) -> dict:
     """Canopy height/width per slice along the row (and TRV, LWA with a row spacing) of the
     truth (voxels holding plant area) and of the point cloud (occupied voxels)."""
     try:
@@ -146,7 +147,7 @@ def _envelope(grid, truth, occupied_points, row_spacing_m, row_axis, base) -> di
     var = "plant_area_m2" if "plant_area_m2" in truth else "PAD_m2_m3"
     out = {}
     for label, occ in (("truth", np.asarray(truth[var].values) > 0), ("points", occupied_points > 0)):
-        p = canopy_profiles(occ, grid, row_axis=row_axis, base=base)
+        p = canopy_profiles(occ, grid, row_axis=row_axis, base=base, ground_z_m=ground_z_m)
         e = {"mean_height_m": p["mean_height_m"], "mean_width_m": p["mean_width_m"]}
         if row_spacing_m is not None:
             e["TRV_m3_ha"] = float(trv_m3_ha(p["mean_height_m"], p["mean_width_m"], row_spacing_m))
@@ -288,8 +289,9 @@ def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_
         spacing = row_spacing_m if row_spacing_m is not None else row_spacing_of(cfg)
         out = evaluate_beams(grid, truth, first, multi, stage=stage, scan_dir=stage / "scan",
                              plugins=estimators, commands=commands, G=G, min_points=min_points,
-                             saturated=saturated, min_beams=min_beams, row_spacing_m=spacing, row_axis=tc["row_axis"],
-                             canopy_base=tc["canopy_base"], progress=shown, title=cfg["scene"]["name"],
+                             saturated=saturated, min_beams=min_beams, row_spacing_m=spacing,
+                             row_axis=tc["row_axis"], canopy_base=tc["canopy_base"],
+                             ground_z_m=cfg["ground"]["z_m"], progress=shown, title=cfg["scene"]["name"],
                              extra=extra)
     out.files = {n: Path(out_dir) / n for n in ("scores.csv", "scores.json", "profiles.csv", "profiles.png",
                                                 "scatter.png", "truth.nc", "grid.nc", "estimates", "scan")}

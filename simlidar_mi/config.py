@@ -37,8 +37,13 @@ from pathlib import Path
 from typing import Any
 
 from .config_keys import ARRAY_SECTIONS, FLOAT, PRIMITIVE_NEEDS, SECTIONS, Key
+from .config_keys_truth import SECTIONS as _TRUTH
 from .errors import ConfigError, SimlidarWarning
 from .sensor_presets import apply_preset
+
+# Feature keys merge here, not at the end of config_keys.py: config_keys_<feature> imports
+# Key and the checks from config_keys, so merging there would be an import cycle.
+SECTIONS.update(_TRUTH)
 
 
 @dataclass

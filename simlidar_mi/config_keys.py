@@ -399,4 +399,3 @@ PRIMITIVE_NEEDS = {"cylinder": ("p0_m", "p1_m", "diameter_m"), "box": ("min_m", 
 
 # Feature modules keep their keys in config_keys_<feature>.py (a dict SECTIONS, and
 # ARRAY_SECTIONS if any) and are merged here, one import line each.
-from .config_keys_truth import SECTIONS as _TRUTH; SECTIONS.update(_TRUTH)  # noqa: E402

@@ -49,7 +49,13 @@ def default_grid(geometry, voxel_m: float = 0.1, margin_m: float = 0.0,
     if not (np.isfinite(margin_m) and margin_m >= 0):
         raise ConfigError("margin must be a finite number ≥ 0 metres", key="margin_m", value=margin_m)
     lo, hi = geometry.bounds_m()
-    return VoxelGrid.covering(lo - margin_m, hi + margin_m, voxel_m, max_voxels=max_voxels)
+    grid = VoxelGrid.covering(lo - margin_m, hi + margin_m, voxel_m, max_voxels=max_voxels)
+    # A facet lying in a voxel plane belongs to the voxel above it: when the geometry ends
+    # exactly on the grid's top plane (a box's face), one more layer keeps it inside.
+    top = (hi + margin_m - grid.hi_m) / voxel_m > -1e-9
+    if top.any():
+        grid = VoxelGrid(grid.origin_m, grid.voxel_m, tuple(np.asarray(grid.shape) + top))
+    return grid
 
 
 class Totals:

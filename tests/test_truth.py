@@ -254,3 +254,27 @@ def test_truth_command_writes_its_files(tmp_path):
     assert float(rows["LAI"]) == pytest.approx(1.0, rel=1e-12)  # the 1 m² plot
     h = float(rows["mean_canopy_height_m"])
     assert float(rows["LWA_m2_ha"]) == pytest.approx(2 * h * 1e4 / 2.0)
+
+
+def test_instances_are_expanded_like_the_scene_builder_places_them():
+    from simlidar_mi.scene.build import Instances
+    b = Branches(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.5]]), np.array([[0.0, 0.0, 0.5], [0.3, 0.0, 0.8]]),
+                 np.array([0.06, 0.03]), np.array([1, 2], np.int32), np.zeros(2, np.int32))
+    lv = _leaves([[[0.3, 0.0, 0.8], [0.4, 0.05, 0.85], [0.35, 0.1, 0.8]]])
+    inst = Instances([(b, lv)], np.array([0, 0]), np.array([[1.0, 2.0, 0.0], [3.3, 1.2, 0.0]]),
+                     np.array([0.0, 90.0]), np.array([1.0, 1.5]), np.array([0, 1]))
+    placed_b, placed_t = [], []
+    for t, yaw, s in zip(inst.translation_m, inst.yaw_deg, inst.scale):
+        c, sn = np.cos(np.deg2rad(yaw)), np.sin(np.deg2rad(yaw))
+        R = s * np.array([[c, -sn, 0], [sn, c, 0], [0, 0, 1]])
+        placed_b.append(Branches(b.p0 @ R.T + t, b.p1 @ R.T + t, b.diameter * s, b.order, b.tree_id))
+        placed_t.append(lv.vertices @ R.T + t)
+    flat = _geom(Branches.concat(placed_b), _leaves(np.concatenate(placed_t)))
+    g = SceneGeometry(Branches.empty(), Leaves.empty(), [], instances=inst)
+    grid = default_grid(flat, 0.1, margin_m=0.2)
+    d_inst = compute_truth(g, grid, progress=False)
+    d_flat = compute_truth(flat, grid, progress=False)
+    for name in ("leaf_area_m2", "wood_area_m2", "wood_volume_m3"):
+        np.testing.assert_allclose(d_inst[name].values, d_flat[name].values, rtol=1e-12, atol=1e-18)
+    assert d_inst.attrs["n_trees_expanded"] == 2
+    assert d_inst.attrs["wood_area_outside_m2"] == 0.0

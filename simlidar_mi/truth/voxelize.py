@@ -62,7 +62,8 @@ class Accumulator:
         self.outside += float(w[~inside].sum())
         if inside.any():
             flat = np.ravel_multi_index(ijk[inside].T, self.shape)
-            self.data.ravel()[:] += np.bincount(flat, w[inside], minlength=self.data.size)
+            uniq, inv = np.unique(flat, return_inverse=True)
+            self.data.reshape(-1)[uniq] += np.bincount(inv, w[inside], minlength=len(uniq))
 
     @property
     def total(self) -> float:
@@ -215,22 +216,35 @@ def _planes(lo, hi, budget_axes=(0, 1, 2)):
     return val, ax, ok
 
 
-def _line_pairs(lines):
-    """Radii (n, ·) where the (X, Y) lines are tangent to a circle or meet each other."""
+def _tau_ok(lines, X, Y, L):
+    """Whether the crossing the line stands for happens inside the segment, t ∈ [0, L]
+    (a swap of two crossings outside it changes no voxel's share)."""
+    t = lines[..., 3] + lines[..., 4] * X + lines[..., 5] * Y
+    tol = 1e-9 * (1.0 + L)
+    return (t >= -tol) & (t <= L + tol)
+
+
+def _line_pairs(lines, L):
+    """Radii (n, ·) where the (X, Y) lines are tangent to a circle or meet each other
+    (only where the crossings involved lie on the segment)."""
     c0, cx, cy = lines[..., 0], lines[..., 1], lines[..., 2]
-    R = np.hypot(cx, cy)
+    R2 = cx * cx + cy * cy
+    Lc = L[:, None]
     with np.errstate(invalid="ignore", divide="ignore"):
-        tang = np.abs(c0) / R
+        Xt, Yt = -c0 * cx / R2, -c0 * cy / R2
+        tang = np.where(_tau_ok(lines, Xt, Yt, Lc), np.hypot(Xt, Yt), np.nan)
         i, j = np.triu_indices(lines.shape[1], 1)
         det = cx[:, i] * cy[:, j] - cy[:, i] * cx[:, j]
         X = (-c0[:, i] * cy[:, j] + c0[:, j] * cy[:, i]) / det
         Y = (-cx[:, i] * c0[:, j] + cx[:, j] * c0[:, i]) / det
-        meet = np.hypot(X, Y)
+        ok = _tau_ok(lines[:, i], X, Y, Lc) & _tau_ok(lines[:, j], X, Y, Lc)
+        meet = np.where(ok, np.hypot(X, Y), np.nan)
     return np.concatenate([tang, meet], axis=1)
 
 
-def _phi_breaks(lines, rho):
-    """Sorted angles in [0, 2π] where circles of radius ``rho`` (n,) cross the lines (n, NL, 3)."""
+def _phi_breaks(lines, rho, L):
+    """Sorted angles in [0, 2π] where circles of radius ``rho`` (n,) cross the lines
+    (n, NL, 6) inside the segment; NaN-padded, trailing all-NaN columns dropped."""
     c0, cx, cy = lines[..., 0], lines[..., 1], lines[..., 2]
     R = np.hypot(cx, cy)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -240,10 +254,15 @@ def _phi_breaks(lines, rho):
         dphi = np.arccos(np.clip(q, -1.0, 1.0))
     two_pi = 2.0 * np.pi
     b = np.concatenate([np.mod(psi - dphi, two_pi), np.mod(psi + dphi, two_pi)], axis=1)
-    b[~np.concatenate([ok, ok], axis=1)] = np.nan
+    lines2 = np.concatenate([lines, lines], axis=1)
+    rr = rho[:, None]
+    ok = np.concatenate([ok, ok], axis=1) & _tau_ok(lines2, rr * np.cos(b), rr * np.sin(b), L[:, None])
+    b[~ok] = np.nan
     n = len(rho)
     b = np.concatenate([np.zeros((n, 1)), b, np.full((n, 1), two_pi)], axis=1)
-    return np.sort(b, axis=1)  # NaN last
+    b = np.sort(b, axis=1)  # NaN last
+    width = int(np.isfinite(b).sum(axis=1).max(initial=2))
+    return b[:, :width]
 
 
 def _gauss_rho(breaks, r):
@@ -271,7 +290,7 @@ def _measure(P, rho, lines, val, ax, ok, arc: bool, scale):
     arc=True: ∫ dφ of the circle centred at ``P['c']`` in the voxel (end discs).
     Each row's measure is multiplied by ``scale`` (n,). Returns ijk (m, 3) and weights (m,)."""
     c, a, u, v, L = P["c"], P["a"], P["u"], P["v"], P["L"]
-    br = _phi_breaks(lines, rho)
+    br = _phi_breaks(lines, rho, L)
     lo, hi = br[:, :-1], br[:, 1:]
     okI = np.isfinite(lo) & np.isfinite(hi) & (hi > lo)
     lo, hi = np.where(okI, lo, 0.0), np.where(okI, hi, 0.0)
@@ -323,30 +342,37 @@ def _take(P, idx):
 
 
 def _lines(P, val, ax, ok, ends):
-    """(X, Y) lines where crossings meet the ends (``ends``: list of end points) and, for
-    the lateral surface, where crossings on two different axes coincide."""
+    """(X, Y) lines where the structure of the per-voxel split can change, (n, NL, 6):
+    ``c0 + cX·X + cY·Y = 0`` and the crossing ``t = α + β·X + γ·Y`` the line stands for
+    (0 when it always matters). Lines: a plane's crossing meets an end (``ends``: list of
+    end points; for an axis parallel to the plane, the line where the surface lies in
+    it) and, with two ends (lateral surface), two crossings on different axes coincide."""
     c, a, u, v = P["c"], P["a"], P["u"], P["v"]
     ck = np.take_along_axis(c, ax, axis=1)
     ak = np.take_along_axis(a, ax, axis=1)
     uk = np.take_along_axis(u, ax, axis=1)
     vk = np.take_along_axis(v, ax, axis=1)
+    zero = np.zeros_like(val)
     out = []
     for e in ends:
         ek = np.take_along_axis(e, ax, axis=1)
-        out.append(np.stack([ek - val, uk, vk], axis=2))
+        blk = np.stack([ek - val, uk, vk, zero, zero, zero], axis=2)
+        blk[~ok] = np.nan
+        out.append(blk)
     if len(ends) == 2 and val.shape[1] > 1:
         i, j = np.triu_indices(val.shape[1], 1)
         c0 = ak[:, j] * (val[:, i] - ck[:, i]) - ak[:, i] * (val[:, j] - ck[:, j])
         cx = -ak[:, j] * uk[:, i] + ak[:, i] * uk[:, j]
         cy = -ak[:, j] * vk[:, i] + ak[:, i] * vk[:, j]
-        pair = np.stack([c0, cx, cy], axis=2)
+        both = (ak[:, i] != 0) & (ak[:, j] != 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ta = np.where(both, (val[:, i] - ck[:, i]) / ak[:, i], 0.0)
+            tb = np.where(both, -uk[:, i] / ak[:, i], 0.0)
+            tg = np.where(both, -vk[:, i] / ak[:, i], 0.0)
+        pair = np.stack([c0, cx, cy, ta, tb, tg], axis=2)
         pair[~(ok[:, i] & ok[:, j] & (ax[:, i] != ax[:, j]))] = np.nan
         out.append(pair)
-    lines = np.concatenate(out, axis=1)
-    for q in range(len(ends)):
-        blk = lines[:, q * val.shape[1]:(q + 1) * val.shape[1]]
-        blk[~ok] = np.nan
-    return lines
+    return np.concatenate(out, axis=1)
 
 
 def _chunks(n, per_row, budget=3_000_000):
@@ -388,12 +414,13 @@ def voxelize_cylinders(p0, p1, r, lateral: Accumulator, volume: Accumulator) -> 
     def group(rows, v_, a_, o_):
         sub = _take(P, rows)
         lines = _lines(sub, v_, a_, o_, [sub["c"], sub["c"] + sub["L"][:, None] * sub["a"]])
-        per = (2 * lines.shape[1] + 2) * (v_.shape[1] + 2) * 16
+        # rows per chunk: after dropping the lines a circle does not cross, about 4 breaks a plane
+        per = (8 * v_.shape[1] + 4) * (v_.shape[1] + 2) * 16
         for sl in _chunks(len(rows), per):
             S = _take(sub, sl)
             lateral.add(*_measure(S, S["r"], lines[sl], v_[sl], a_[sl], o_[sl], False, S["r"]))
         # volume = ∫ ρ Λ(ρ) dρ, Λ exact at each Gauss node
-        rho, wq = _gauss_rho(_line_pairs(lines), sub["r"])
+        rho, wq = _gauss_rho(_line_pairs(lines, sub["L"]), sub["r"])
         nr, nc = np.nonzero(wq > 0)
         for sl in _chunks(len(nr), per):
             idx, rq = nr[sl], rho[nr[sl], nc[sl]]
@@ -423,9 +450,9 @@ def voxelize_discs(centre, normal, r, acc: Accumulator) -> None:
     def group(rows, v_, a_, o_):
         sub = _take(P, rows)
         lines = _lines(sub, v_, a_, o_, [sub["c"]])
-        rho, wq = _gauss_rho(_line_pairs(lines), sub["r"])
+        rho, wq = _gauss_rho(_line_pairs(lines, sub["L"]), sub["r"])
         nr, nc = np.nonzero(wq > 0)
-        for sl in _chunks(len(nr), (2 * lines.shape[1] + 2) * 16):
+        for sl in _chunks(len(nr), (8 * v_.shape[1] + 4) * 16):
             idx, rq = nr[sl], rho[nr[sl], nc[sl]]
             acc.add(*_measure(_take(sub, idx), rq, lines[idx], v_[idx], a_[idx], o_[idx], True,
                               rq * wq[nr[sl], nc[sl]]))

@@ -278,3 +278,11 @@ def test_instances_are_expanded_like_the_scene_builder_places_them():
         np.testing.assert_allclose(d_inst[name].values, d_flat[name].values, rtol=1e-12, atol=1e-18)
     assert d_inst.attrs["n_trees_expanded"] == 2
     assert d_inst.attrs["wood_area_outside_m2"] == 0.0
+
+
+def test_truth_files_are_byte_identical_across_runs(tmp_path):
+    from simlidar_mi.truth.run import run_truth
+    for d in ("a", "b"):
+        run_truth("scenes/apple_orchard.toml", tmp_path / d, ["truth.voxel_m=0.25", "orchard.n_trees=1"])
+    for name in ("truth.nc", "truth_summary.csv"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()

@@ -27,8 +27,6 @@ bounded; time grows with the number of placed trees.
 """
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from .._progress import make_progress
@@ -205,7 +203,6 @@ def compute_truth(geometry, grid: VoxelGrid, progress=True, ground_area_m2: floa
     variables ``LAD_profile_m2_m3`` / ``PAD_profile_m2_m3`` (z) are leaf / plant area
     per height bin divided by the footprint area and the voxel height."""
     prog = make_progress(progress)
-    t0 = time.perf_counter()
     tot = Totals(grid)
     if len(geometry.leaves):
         with prog.stage("truth: leaf triangles", total=1, unit="step") as st:
@@ -220,10 +217,10 @@ def compute_truth(geometry, grid: VoxelGrid, progress=True, ground_area_m2: floa
         tot.primitive(prim, geometry.source, j)
     if geometry.instances is not None and len(geometry.instances):
         _instances(tot, geometry.instances, prog)
-    return _dataset(tot, grid, ground_area_m2, time.perf_counter() - t0)
+    return _dataset(tot, grid, ground_area_m2)
 
 
-def _dataset(tot: Totals, grid: VoxelGrid, ground_area_m2, seconds: float):
+def _dataset(tot: Totals, grid: VoxelGrid, ground_area_m2):
     arr = tot.arrays()
     vol = grid.voxel_volume_m3
     arr["plant_area_m2"] = arr["leaf_area_m2"] + 0.5 * arr["wood_area_m2"]
@@ -246,7 +243,7 @@ def _dataset(tot: Totals, grid: VoxelGrid, ground_area_m2, seconds: float):
         "ground_area_m2": ground, "footprint_area_m2": foot,
         "LAI": leaf_t / ground, "PAI": float(arr["plant_area_m2"].sum()) / ground,
         "wood_end_discs": "exposed ends only (scene.build.exposed_ends), as the scanned mesh caps them",
-        "seconds": seconds, **{f"n_{k}": int(v) for k, v in tot.n.items()},
+        **{f"n_{k}": int(v) for k, v in tot.n.items()},  # no timing: same scene → same bytes
     }
     ds = grid_dataset(grid, arr, attrs)
     dz = grid.voxel_m

@@ -88,8 +88,7 @@ def _summary(ds, grid, prof: dict, spacing: float | None, t: dict) -> list[dict]
             ("voxel_m", grid.voxel_m, "m"),
             ("origin_x_m", grid.origin_m[0], "m"), ("origin_y_m", grid.origin_m[1], "m"),
             ("origin_z_m", grid.origin_m[2], "m"),
-            ("nx", grid.shape[0], ""), ("ny", grid.shape[1], ""), ("nz", grid.shape[2], ""),
-            ("seconds", a["seconds"], "s")]
+            ("nx", grid.shape[0], ""), ("ny", grid.shape[1], ""), ("nz", grid.shape[2], "")]
     return [{"quantity": q, "value": v, "unit": u} for q, v, u in rows]
 
 

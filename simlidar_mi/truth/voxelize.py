@@ -197,11 +197,10 @@ def cylinder_pieces(p0, p1, r, max_len: float = 1.0):
             "owner": owner, "first": k == 0, "last": k == m[owner] - 1}
 
 
-def _planes(lo, hi, budget_axes=(0, 1, 2)):
+def _planes(lo, hi):
     """Integer planes strictly inside (lo, hi) per axis, padded: values (n, P), axis (n, P), valid."""
     first = np.floor(lo).astype(np.int64) + 1
     count = np.maximum(0, np.ceil(hi).astype(np.int64) - first)
-    count[:, [k for k in range(3) if k not in budget_axes]] = 0
     P = int(count.sum(axis=1).max(initial=0))
     n = len(lo)
     val = np.zeros((n, P))

@@ -239,6 +239,10 @@ def test_bad_voxel_size_is_refused_with_key_and_value(tmp_path):
     with pytest.raises(ConfigError) as e:
         VoxelGrid((0, 0, 0), float("nan"), (1, 1, 1))
     assert e.value.key == "voxel_m"
+    # too fine for the scene: refused before any array is made (the count does not wrap)
+    with pytest.raises(ConfigError) as e:
+        run_truth("scenes/random_leaves_spherical.toml", None, ["truth.voxel_m=1e-6"])
+    assert e.value.key == "truth.voxel_m" and "voxels" in str(e.value)
 
 
 def test_truth_command_writes_its_files(tmp_path):

@@ -40,10 +40,15 @@ __all__ = ["compute_truth", "default_grid", "Totals"]
 BATCH_ELEMENTS = 500_000  # triangles + cylinders expanded per batch of instanced trees
 
 
+# Truth holds 9 float64 values a voxel (3 accumulators, 6 Dataset variables): 100 M voxels ≈ 7 GB.
+MAX_VOXELS = 100_000_000
+
+
 def default_grid(geometry, voxel_m: float = 0.1, margin_m: float = 0.0,
-                 max_voxels: int = 200_000_000) -> VoxelGrid:
+                 max_voxels: int = MAX_VOXELS) -> VoxelGrid:
     """The grid of ``voxel_m`` voxels (snapped to multiples of ``voxel_m``) covering the
-    geometry's bounds plus ``margin_m`` on every side: nothing falls outside it."""
+    geometry's bounds plus ``margin_m`` on every side: nothing falls outside it. More
+    than ``max_voxels`` voxels is refused (about 72 bytes a voxel while computing)."""
     if not (np.isfinite(margin_m) and margin_m >= 0):
         raise ConfigError("margin must be a finite number ≥ 0 metres", key="margin_m", value=margin_m)
     lo, hi = geometry.bounds_m()

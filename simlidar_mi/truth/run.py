@@ -21,6 +21,7 @@ import numpy as np
 
 from .._progress import make_progress
 from ..config import SceneConfig, load_scene
+from ..errors import ConfigError
 from ..io.atomic import staged_dir, write_csv, writes_output
 from .compute import compute_truth, default_grid
 from .grid import write_grid
@@ -126,7 +127,11 @@ def run_truth(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     t = cfg["truth"]
     prog = make_progress(progress)
     geometry, plot_area = truth_geometry(cfg)
-    grid = default_grid(geometry, t["voxel_m"], t["margin_m"])
+    try:
+        grid = default_grid(geometry, t["voxel_m"], t["margin_m"])
+    except ConfigError as exc:  # name the scene key, not the function argument
+        key = "truth.margin_m" if exc.key == "margin_m" else "truth.voxel_m"
+        raise ConfigError(exc.reason, file=cfg.source, key=key, value=t[key[6:]]) from None
     spacing = row_spacing_of(cfg)
     ground = t["ground_area_m2"] if t["ground_area_m2"] is not None else plot_area
     if ground is None and spacing is not None:  # a row's ground: its length × the row spacing

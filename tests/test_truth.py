@@ -122,6 +122,13 @@ def test_vertical_cylinder_per_voxel_matches_closed_form():
                 dz = max(0.0, min(k + 1, z1) - max(k, z0))
                 assert vol.data[i, j, k] == pytest.approx(A * dz, abs=1e-10)
                 assert lat.data[i, j, k] == pytest.approx(r * th * dz, abs=1e-12)
+    # the top end disc, lying in no voxel plane (z = 3.7)
+    d = Accumulator((4, 4, 4))
+    voxelize_discs(np.array([[cx, cy, z1]]), np.array([[0.0, 0.0, 1.0]]), np.array([r]), d)
+    for i in range(4):
+        for j in range(4):
+            assert d.data[i, j, 3] == pytest.approx(_disc_cell_area(cx, cy, r, i, i + 1, j, j + 1), abs=1e-11)
+    assert d.data[:, :, :3].sum() == 0.0
 
 
 def test_cylinder_on_a_voxel_plane_splits_in_halves():

@@ -297,3 +297,14 @@ def test_truth_files_are_byte_identical_across_runs(tmp_path):
         run_truth("scenes/apple_orchard.toml", tmp_path / d, ["truth.voxel_m=0.25", "orchard.n_trees=1"])
     for name in ("truth.nc", "truth_summary.csv"):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+
+
+def test_leaf_labelled_primitives_count_as_leaf_area_without_volume():
+    box = Primitive("box", {"min_m": [0.0, 0.0, 0.0], "max_m": [0.2, 0.3, 0.05]}, "leaf")
+    cyl = Primitive("cylinder", {"p0_m": [0.5, 0.5, 0.0], "p1_m": [0.5, 0.5, 0.4], "diameter_m": 0.1}, "leaf")
+    g = _geom(prims=[box, cyl])
+    ds = compute_truth(g, default_grid(g, 0.1), progress=False)
+    r = 0.05
+    box_area = 2 * (0.2 * 0.3 + 0.3 * 0.05 + 0.2 * 0.05)
+    assert ds.attrs["total_leaf_area_m2"] == pytest.approx(box_area + 2 * np.pi * r * 0.4 + 2 * np.pi * r * r, rel=1e-12)
+    assert ds.attrs["total_wood_area_m2"] == 0.0 and ds.attrs["total_wood_volume_m3"] == 0.0

@@ -17,7 +17,9 @@ SECTIONS = {
         "occupancy": Key(STR, "plant", one_of("plant", "leaf"),
                          "voxels that make the canopy envelope: any plant area, or leaves only"),
         "ground_area_m2": Key(FLOAT, None, positive, "ground area for LAI (default: the plot of a "
-                              "gap-fraction scene; else row length × row_spacing_m when that is "
-                              "known; else the grid footprint)"),
+                              "gap-fraction scene; an orchard's n_trees × spacing_m × row_spacing_m "
+                              "and a vineyard's rows × vines × vine_spacing_m × row_spacing_m, as "
+                              "`measure` counts them; else the grid's row length × row_spacing_m "
+                              "when that is known; else the grid footprint)"),
     },
 }

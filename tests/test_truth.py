@@ -308,3 +308,26 @@ def test_leaf_labelled_primitives_count_as_leaf_area_without_volume():
     box_area = 2 * (0.2 * 0.3 + 0.3 * 0.05 + 0.2 * 0.05)
     assert ds.attrs["total_leaf_area_m2"] == pytest.approx(box_area + 2 * np.pi * r * 0.4 + 2 * np.pi * r * r, rel=1e-12)
     assert ds.attrs["total_wood_area_m2"] == 0.0 and ds.attrs["total_wood_volume_m3"] == 0.0
+
+
+@pytest.mark.parametrize("scene, ground_m2", [("orchard_leafy", 4 * 2.0 * 4.0),
+                                              ("vineyard_vsp", None)])
+def test_truth_lai_counts_the_ground_measure_counts(scene, ground_m2):
+    """An orchard's LAI is leaf area over n_trees × spacing × row spacing in both `truth`
+    and `measure` (not over the voxel grid's snapped row length)."""
+    from pathlib import Path
+
+    from simlidar_mi.lidar.survey import generate, load_scene
+    from simlidar_mi.truth.run import row_ground_area_of, run_truth
+    path = Path(__file__).resolve().parents[1] / "scenes" / f"{scene}.toml"
+    cfg = load_scene(path, ["truth.voxel_m=0.25"])
+    ground = row_ground_area_of(cfg)
+    if ground_m2 is not None:
+        assert ground == pytest.approx(ground_m2)
+    v = cfg["vineyard"] if scene.startswith("vine") else None
+    if v is not None:
+        assert ground == pytest.approx(v["n_rows"] * v["vines_per_row"] * v["vine_spacing_m"] * v["row_spacing_m"])
+    ds = run_truth(cfg).dataset
+    leaf = float(generate(cfg).leaves.triangle_area.sum())
+    assert ds.attrs["ground_area_m2"] == pytest.approx(ground)
+    assert ds.attrs["LAI"] == pytest.approx(leaf / ground, rel=1e-12)

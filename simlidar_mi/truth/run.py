@@ -67,6 +67,19 @@ def row_spacing_of(cfg: SceneConfig) -> float | None:
     return None
 
 
+def row_ground_area_of(cfg: SceneConfig) -> float | None:
+    """The ground a row scene's plants own, as ``measure`` counts it: an orchard's
+    n_trees × spacing_m × row_spacing_m, a vineyard's n_rows × vines_per_row × vine_spacing_m
+    × row_spacing_m; None for other scenes."""
+    if cfg.has("vineyard") or cfg.has("vineyard.canopy"):
+        v = cfg["vineyard"]
+        return v["n_rows"] * v["vines_per_row"] * v["vine_spacing_m"] * v["row_spacing_m"]
+    if cfg.has("orchard") or cfg.has("orchard.tree") or cfg.has("orchard.leaves"):
+        o = cfg["orchard"]
+        return o["n_trees"] * o["spacing_m"] * o["row_spacing_m"]
+    return None
+
+
 def _summary(ds, grid, prof: dict, spacing: float | None, t: dict) -> list[dict]:
     a = ds.attrs
     rows = [("total_leaf_area_m2", a["total_leaf_area_m2"], "m2"),
@@ -134,6 +147,8 @@ def run_truth(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
         raise ConfigError(exc.reason, file=cfg.source, key=key, value=t[key[6:]]) from None
     spacing = row_spacing_of(cfg)
     ground = t["ground_area_m2"] if t["ground_area_m2"] is not None else plot_area
+    if ground is None:  # a row scene: the ground its plants own, as `measure` counts it
+        ground = row_ground_area_of(cfg)
     if ground is None and spacing is not None:  # a row's ground: its length × the row spacing
         a = {"x": 0, "y": 1}[t["row_axis"]]
         ground = grid.shape[a] * grid.voxel_m * spacing

@@ -422,6 +422,33 @@ def _synthetic_photo_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _truth_args(p: argparse.ArgumentParser) -> None:
+    _scene_args(p)
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder: truth.nc, truth_summary.csv, truth_profiles.png")
+    p.add_argument("--voxel", type=float, default=None, metavar="M",
+                   help="voxel side in metres (same as --set truth.voxel_m=M; default 0.1)")
+
+
+@command("truth", "Exact canopy ground truth of a scene on a voxel grid: leaf/wood area, wood "
+         "volume, LAD, PAD, LAI, canopy profiles, TRV, LWA", _truth_args)
+def _truth_run(args: argparse.Namespace) -> int:
+    from .truth.run import run_truth
+
+    extra = [f"truth.voxel_m={args.voxel!r}"] if args.voxel is not None else []
+    run = run_truth(args.scene, args.out, _overrides(args) + extra, progress=True)
+    for row in run.summary:
+        if row["quantity"] in ("total_leaf_area_m2", "total_wood_area_m2", "total_wood_volume_m3",
+                               "LAI", "mean_canopy_height_m", "mean_canopy_width_m", "TRV_m3_ha",
+                               "LWA_m2_ha"):
+            v = row["value"]
+            print(f"{row['quantity']:<22} {v:.6g} {row['unit']}" if isinstance(v, float)
+                  else f"{row['quantity']:<22} {v or '-'} {row['unit']}")
+    for path in run.files.values():
+        print(f"wrote {path}")
+    return 0
+
+
 def _evaluate_args(p: argparse.ArgumentParser) -> None:
     _scene_args(p)
     p.add_argument("--out", required=True, metavar="DIR",
@@ -433,7 +460,8 @@ def _evaluate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--estimator-cmd", action="append", default=[], metavar="CMD",
                    help='also score a command writing a grid NetCDF, e.g. "python my.py {las} {grid} {out}" '
                         "(placeholders {las} {exr} {grid} {out}; repeatable)")
-    p.add_argument("--voxel", type=float, default=None, metavar="M", help="voxel size in metres (default 0.1)")
+    p.add_argument("--voxel", type=float, default=None, metavar="M",
+                   help="voxel side in metres (default [truth] voxel_m, 0.1)")
     p.add_argument("--row-spacing", type=float, default=None, metavar="M",
                    help="row spacing in metres: adds TRV and LWA (truth and point cloud) to scores.json")
     p.add_argument("--weights", choices=("equal", "energy"), default="equal",

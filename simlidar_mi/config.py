@@ -41,7 +41,6 @@ from .errors import ConfigError, SimlidarWarning
 from .sensor_presets import apply_preset
 
 
-
 @dataclass
 class SceneConfig:
     """A validated scene file: ``sections[name][key]`` with defaults filled in."""

@@ -325,7 +325,9 @@ def _merge(feature: dict[str, dict[str, Key]]) -> None:
 
 
 from .config_keys_orchard import SECTIONS as _ORCHARD  # noqa: E402  ([orchard.leaves]; [orchard] row_spacing_m)
+from .config_keys_truth import SECTIONS as _TRUTH  # noqa: E402
 from .config_keys_vineyard import SECTIONS as _VINEYARD  # noqa: E402
 
 _merge(_ORCHARD)
 _merge(_VINEYARD)
+_merge(_TRUTH)

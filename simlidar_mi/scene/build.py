@@ -264,7 +264,7 @@ def default_origin(points_m: np.ndarray) -> np.ndarray:
     return np.round(0.5 * (points_m.min(0) + points_m.max(0))) + 0.0  # + 0.0: no -0
 
 
-def _primitive_mesh(prim: Primitive, k: int, source: str | None, index: int | None = None):
+def primitive_mesh(prim: Primitive, k: int, source: str | None, index: int | None = None):
     """Triangles of an explicit primitive, in real (float64) coordinates."""
     p = prim.params
     if prim.kind == "cylinder":
@@ -365,7 +365,7 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     mi = mitsuba(variant)
     leaves = leaves if leaves is not None else Leaves.empty()
     kept, n_dropped, kept_index = clean_branches(branches)
-    prim_meshes = [_primitive_mesh(prim, 64, source, j) for j, prim in enumerate(primitives)]
+    prim_meshes = [primitive_mesh(prim, 64, source, j) for j, prim in enumerate(primitives)]
     pts = [kept.p0, kept.p1, leaves.vertices.reshape(-1, 3)] + [v for v, _ in prim_meshes]
     if instances is not None and len(instances):
         pts.append(np.asarray(instances.translation_m, np.float64))

@@ -75,9 +75,10 @@ class VoxelGrid:
             raise ConfigError("voxel size must be a finite number > 0", key="voxel_m", value=voxel_m)
         lo, hi = np.asarray(lo_m, np.float64), np.asarray(hi_m, np.float64)
         origin = np.floor(lo / voxel_m) * voxel_m
-        shape = np.maximum(1, np.ceil((hi - origin) / voxel_m - 1e-9).astype(np.int64))
-        if int(np.prod(shape)) > max_voxels:
-            raise ConfigError(f"a {voxel_m} m grid over this scene has {int(np.prod(shape)):,} voxels "
+        shape = np.maximum(1, np.ceil((hi - origin) / voxel_m - 1e-9))
+        count = int(shape[0]) * int(shape[1]) * int(shape[2])  # Python ints: np.prod wraps at 2⁶³
+        if count > max_voxels:
+            raise ConfigError(f"a {voxel_m} m grid over this scene has {count:,} voxels "
                               f"(> {max_voxels:,}); use larger voxels", key="voxel_m", value=voxel_m)
         return cls(tuple(origin), voxel_m, tuple(int(n) for n in shape))
 

@@ -140,10 +140,7 @@ def _unique(name: str, taken) -> str:
 def _envelope(grid, truth, occupied_points, row_spacing_m, row_axis, base, ground_z_m) -> dict:
     """Canopy height/width per slice along the row (and TRV, LWA with a row spacing) of the
     truth (voxels holding plant area) and of the point cloud (occupied voxels)."""
-    try:
-        from .row_metrics import canopy_profiles, lwa_m2_ha, trv_m3_ha  # noqa: PLC0415
-    except ImportError:  # row_metrics arrives with the truth branch
-        return {"note": "simlidar_mi.truth.row_metrics is not available"}
+    from .row_metrics import canopy_profiles, lwa_m2_ha, trv_m3_ha  # noqa: PLC0415
     var = "plant_area_m2" if "plant_area_m2" in truth else "PAD_m2_m3"
     out = {}
     for label, occ in (("truth", np.asarray(truth[var].values) > 0), ("points", occupied_points > 0)):

@@ -53,8 +53,28 @@ def configured_address() -> str | None:
     address = os.environ.get(ENV, "").strip()
     if address:
         return address
+    if not _dask_config_may_exist():  # spares every local run the ~0.1 s import of dask
+        return None
     import dask  # noqa: PLC0415
     return dask.config.get("scheduler-address", None) or None
+
+
+def _dask_config_dirs() -> list[Path]:
+    """The folders Dask reads YAML config from (``dask.config.paths``, listed without
+    importing dask): ``DASK_ROOT_CONFIG`` or /etc/dask, <prefix>/etc/dask, ~/.config/dask."""
+    import site  # noqa: PLC0415
+    prefixes = [sys.prefix, *getattr(site, "PREFIXES", [])]
+    return [Path("/etc/dask"), *(Path(p) / "etc" / "dask" for p in prefixes),
+            Path.home() / ".config" / "dask"]
+
+
+def _dask_config_may_exist() -> bool:
+    """Whether Dask's config could name a scheduler: dask already imported (a config set in
+    this process), a ``DASK_*`` environment variable (values, ``DASK_CONFIG``,
+    ``DASK_ROOT_CONFIG``), or a file in one of Dask's config folders."""
+    if "dask" in sys.modules or any(k.startswith("DASK_") for k in os.environ):
+        return True
+    return any(d.is_dir() and any(d.iterdir()) for d in _dask_config_dirs())
 
 
 @contextlib.contextmanager

@@ -64,11 +64,12 @@ def test_readme_command_blocks_cover_every_command():
 
 
 def _clone(tmp_path: Path) -> tuple[Path, dict]:
-    """A scratch 'clone' (scenes/ linked) with ../shared beside it when the real one exists,
+    """A scratch 'clone' (scenes/ and examples/ linked) with ../shared beside it when the real one exists,
     and a PATH whose simlidar-mi is this interpreter's."""
     clone = tmp_path / "clone"
     clone.mkdir()
     (clone / "scenes").symlink_to(REPO / "scenes")
+    (clone / "examples").symlink_to(REPO / "examples")
     if SHARED.is_dir():
         (tmp_path / "shared").symlink_to(SHARED)
     bin_ = tmp_path / "bin"
@@ -76,6 +77,9 @@ def _clone(tmp_path: Path) -> tuple[Path, dict]:
     shim = bin_ / "simlidar-mi"
     shim.write_text(f'#!/bin/sh\nexec "{sys.executable}" -m simlidar_mi.cli "$@"\n')
     shim.chmod(0o755)
+    py = bin_ / "python"  # README lines that run `python` (plug-in estimators) get this one too
+    py.write_text(f'#!/bin/sh\nexec "{sys.executable}" "$@"\n')
+    py.chmod(0o755)
     env = dict(os.environ, PATH=f"{bin_}{os.pathsep}{os.environ['PATH']}")
     return clone, env
 

@@ -50,12 +50,24 @@ SHORT_SHARE = 16
 
 
 class Accumulator:
-    """Per-voxel sums on ``shape`` plus the total that fell outside it."""
+    """Per-voxel sums on ``shape`` plus the total that fell outside it, kept sparse.
+
+    Each :meth:`add` stores the batch's per-voxel sums (flat index, value) for the voxels
+    it touched; the dense array is allocated once, by :meth:`dense`. Merging the stored
+    batches runs ``np.bincount`` over them in the order they came, which adds each voxel's
+    batch sums one after another from 0, the same additions in the same order as adding
+    every batch into a dense array: the values are bit-identical to dense accumulation,
+    while memory grows with the voxels touched, not the grid."""
+
+    COMPACT_ENTRIES = 2_000_000  # merge the stored batches when they hold this many entries more
 
     def __init__(self, shape):
         self.shape = tuple(int(n) for n in shape)
-        self.data = np.zeros(self.shape, np.float64)
         self.outside = 0.0
+        self._flat: list[np.ndarray] = []
+        self._val: list[np.ndarray] = []
+        self._n = 0
+        self._compacted = 0
 
     def add(self, ijk: np.ndarray, w: np.ndarray) -> None:
         ijk = np.asarray(ijk, np.int64).reshape(-1, 3)
@@ -65,11 +77,44 @@ class Accumulator:
         if inside.any():
             flat = np.ravel_multi_index(ijk[inside].T, self.shape)
             uniq, inv = np.unique(flat, return_inverse=True)
-            self.data.reshape(-1)[uniq] += np.bincount(inv, w[inside], minlength=len(uniq))
+            self._push(uniq, np.bincount(inv, w[inside], minlength=len(uniq)))
+
+    def _push(self, flat, val) -> None:
+        self._flat.append(flat)
+        self._val.append(val)
+        self._n += len(flat)
+        if self._n - self._compacted > self.COMPACT_ENTRIES:
+            self._compact()
+
+    def _compact(self) -> tuple[np.ndarray, np.ndarray]:
+        """Merge the stored batches into one (sorted voxels, sums added in batch order)."""
+        if len(self._flat) != 1:
+            flat = np.concatenate(self._flat) if self._flat else np.zeros(0, np.int64)
+            val = np.concatenate(self._val) if self._val else np.zeros(0)
+            uniq, inv = np.unique(flat, return_inverse=True)
+            self._flat, self._val = [uniq], [np.bincount(inv, val, minlength=len(uniq))]
+            self._n = self._compacted = len(uniq)
+        return self._flat[0], self._val[0]
+
+    def merge(self, other: "Accumulator") -> None:
+        """Add another accumulator's sums (as one batch) and its outside total."""
+        self._push(*other._compact())
+        self.outside += other.outside
+
+    def dense(self) -> np.ndarray:
+        """A new float64 array of ``shape`` (0 where nothing was added)."""
+        flat, val = self._compact()
+        out = np.zeros(self.shape, np.float64)
+        out.reshape(-1)[flat] = val  # sums start from +0.0, as a dense accumulation's do
+        return out
+
+    @property
+    def data(self) -> np.ndarray:
+        return self.dense()
 
     @property
     def total(self) -> float:
-        return float(self.data.sum()) + self.outside
+        return float(self.dense().sum()) + self.outside
 
 
 # ------------------------------------------------------------------ triangles

@@ -34,10 +34,16 @@ Cylinders (lateral surface, volume, end discs)
     angle measure of a circle in each voxel. Because every (ρ, φ) line is fully
     partitioned into voxels, per-voxel values sum to 2πrL, πr²L and πr² by
     construction (to rounding, whatever the quadrature order).
+
+    The volume of a piece cut by voxel planes is now computed in closed form instead
+    (:mod:`simlidar_mi.truth.flux`, the divergence theorem); the ρ quadrature remains
+    as ``volume_method="quadrature"`` and for the end discs.
 """
 from __future__ import annotations
 
 import numpy as np
+
+from .flux import flux_volume
 
 __all__ = ["Accumulator", "clip_triangles", "cylinder_pieces", "voxelize_cylinders", "voxelize_discs",
            "box_volume"]
@@ -449,15 +455,24 @@ def _by_plane_count(P, lo, hi, single, acc_fn):
         acc_fn(rows, *(np.take_along_axis(x, order, axis=1) for x in (v_, a_, o_)))
 
 
-def voxelize_cylinders(p0, p1, r, lateral: Accumulator, volume: Accumulator) -> None:
+def voxelize_cylinders(p0, p1, r, lateral: Accumulator, volume: Accumulator,
+                       volume_method: str = "flux") -> None:
     """Add the per-voxel lateral area and volume of cylinders given in voxel units
-    (p0, p1 (n, 3), radius r (n,)) to the accumulators (voxel units² / ³)."""
+    (p0, p1 (n, 3), radius r (n,)) to the accumulators (voxel units² / ³).
+
+    ``volume_method``: "flux" (default) integrates the volume in closed form by the
+    divergence theorem (:mod:`simlidar_mi.truth.flux`); "quadrature" integrates
+    ``∫ ρ Λ(ρ) dρ`` by Gauss–Legendre (:data:`GL_NODES`), the earlier method, kept as an
+    independent cross-check."""
+    if volume_method not in ("flux", "quadrature"):
+        raise ValueError(f"volume_method must be 'flux' or 'quadrature', not {volume_method!r}")
     if not len(r):
         return
     P = cylinder_pieces(p0, p1, r)
     c, a, L, rr = P["c"], P["a"], P["L"], P["r"]
     ext = rr[:, None] * np.sqrt(np.clip(1.0 - a * a, 0.0, None))
     e1 = c + L[:, None] * a
+    cut = []
 
     def single(one):  # the whole piece inside one voxel
         ijk = np.floor(c[one] + 0.5 * L[one, None] * a[one]).astype(np.int64)
@@ -472,6 +487,9 @@ def voxelize_cylinders(p0, p1, r, lateral: Accumulator, volume: Accumulator) -> 
         for sl in _chunks(len(rows), per):
             S = _take(sub, sl)
             lateral.add(*_measure(S, S["r"], lines[sl], v_[sl], a_[sl], o_[sl], False, S["r"]))
+        if volume_method == "flux":
+            cut.append(rows)
+            return
         # volume = ∫ ρ Λ(ρ) dρ, Λ exact at each Gauss node
         rho, wq = _gauss_rho(_line_pairs(lines, sub["L"]), sub["r"])
         nr, nc = np.nonzero(wq > 0)
@@ -482,6 +500,8 @@ def voxelize_cylinders(p0, p1, r, lateral: Accumulator, volume: Accumulator) -> 
                                  rq * wq[nr[sl], nc[sl]]))
 
     _by_plane_count(P, np.minimum(c, e1) - ext, np.maximum(c, e1) + ext, single, group)
+    if cut:
+        flux_volume(_take(P, np.sort(np.concatenate(cut))), volume.add)
 
 
 def voxelize_discs(centre, normal, r, acc: Accumulator) -> None:

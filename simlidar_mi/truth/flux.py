@@ -112,7 +112,8 @@ def disc_polygon_moments(poly: np.ndarray, cnt: np.ndarray):
     M2 = -0.5 * E[..., 0] * (X0[..., 1] ** 2 + X0[..., 1] * E[..., 1] + E[..., 1] ** 2 / 3)
     A, M1, M2 = (np.where(line, x, 0.0) for x in (A, M1, M2))  # new arrays
     # arcs P → X0 (P outside) and X1 → Q (Q outside)
-    for on, a, b in ((valid & (s0 > 0), P, X0), (line & (s1 < 1), X1, Q)):
+    # (a repeated vertex, D = 0, contributes nothing; P and Q of an arc lie outside the disc)
+    for on, a, b in ((valid & (DD > 0) & (s0 > 0), P, X0), (line & (s1 < 1), X1, Q)):
         da, d1, d2 = _arc(a[on], b[on])
         A[on] += da
         M1[on] += d1

@@ -408,3 +408,17 @@ def test_flux_volume_of_a_nearly_horizontal_axis_is_well_conditioned(monkeypatch
     _, vld = _cyl(p0[0], p1[0], r[0], (8, 8, 8))
     total = np.pi * r[0] ** 2 * 3.1
     assert np.abs(v64.data - vld.data).max() <= 1e-13 * total
+
+
+def test_exact_disc_area_per_voxel_matches_the_closed_form_to_rounding():
+    cy, cz, r = 1.37, 1.52, 0.8  # a disc facing x: disc ∩ cell is a circle ∩ rectangle in (y, z)
+    d = Accumulator((4, 4, 4))
+    voxelize_discs(np.array([[2.3, cy, cz]]), np.array([[1.0, 0.0, 0.0]]), np.array([r]), d)
+    for j in range(4):
+        for k in range(4):
+            assert d.data[2, j, k] == pytest.approx(_disc_cell_area(cy, cz, r, j, j + 1, k, k + 1), abs=1e-13)
+    assert d.total == pytest.approx(np.pi * r * r, rel=1e-14)
+    # a disc lying in a voxel plane belongs to the voxel above it
+    d = Accumulator((4, 4, 4))
+    voxelize_discs(np.array([[1.6, 1.7, 2.0]]), np.array([[0.0, 0.0, -1.0]]), np.array([0.3]), d)
+    assert d.data[:, :, 2].sum() == pytest.approx(np.pi * 0.09, rel=1e-14) and d.data[:, :, 1].sum() == 0.0

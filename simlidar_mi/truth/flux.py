@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["disc_polygon_moments", "clip_halfplanes", "halfplane_disc_moments", "flux_volume"]
+__all__ = ["disc_polygon_moments", "clip_halfplanes", "halfplane_disc_moments", "disc_areas", "flux_volume"]
 
 MAX_V = 10  # a square clipped by six half-planes has at most 10 vertices
 ROWS_PER_CHUNK = 200_000
@@ -160,6 +160,26 @@ def _slices(rows):
         s = e
 
 
+def disc_areas(centre, a, u, v, r, add, scale=None) -> None:
+    """Area of flat discs (centre (n, 3), unit normal a, in-plane frame u, v, radius r;
+    voxel units) in each voxel they meet, times ``scale`` (n,) if given, passed to
+    ``add(ijk, w)``: r²·area(unit disc ∩ the voxel's six half-planes), closed form. A disc
+    lying in a voxel plane belongs to the voxel above it (its index range there is the
+    one voxel ``floor``)."""
+    w0 = r ** 2 if scale is None else scale * r ** 2
+    uv = np.stack([u, v], axis=2)
+    ext = r[:, None] * np.sqrt(np.clip(1.0 - a ** 2, 0.0, None))
+    start, count = _ranges(centre - ext, centre + ext)
+    for sl in _slices(count.prod(axis=1)):
+        own, ijk = _expand(start[sl], count[sl])
+        g = r[sl][own, None, None] * uv[sl][own]  # x_i = e_i + g_i·y
+        e = centre[sl][own]
+        G = np.concatenate([-g, g], axis=1)  # x_i ≥ i0 and x_i ≤ i0 + 1
+        B = np.concatenate([e - ijk, ijk + 1.0 - e], axis=1)
+        A, _, _ = halfplane_disc_moments(G, B)
+        add(ijk, w0[sl][own] * A)
+
+
 def flux_volume(P: dict, add) -> None:
     """Per-voxel volume of cylinder pieces (dict of arrays as from
     :func:`simlidar_mi.truth.voxelize.cylinder_pieces`: c, a, u, v, L, r), passed to
@@ -170,17 +190,8 @@ def flux_volume(P: dict, add) -> None:
     e1 = c + L[:, None] * a
     uv = np.stack([u, v], axis=2)  # (n, 3, 2): (u_i, v_i) per axis
 
-    # end discs: L × area(end disc ∩ voxel) = L r² A
-    ext = r[:, None] * np.sqrt(np.clip(1.0 - a ** 2, 0.0, None))
-    cstart, ccount = _ranges(e1 - ext, e1 + ext)
-    for sl in _slices(ccount.prod(axis=1)):
-        own, ijk = _expand(cstart[sl], ccount[sl])
-        g = r[sl][own, None, None] * uv[sl][own]  # x_i = e_i + g_i·y
-        ei = e1[sl][own]
-        G = np.concatenate([-g, g], axis=1)  # x_i ≥ i0 and x_i ≤ i0 + 1
-        B = np.concatenate([ei - ijk, ijk + 1.0 - ei], axis=1)
-        A, _, _ = halfplane_disc_moments(G, B)
-        add(ijk, (L[sl] * r[sl] ** 2)[own] * A)
+    # end discs: L × area(end disc ∩ voxel)
+    disc_areas(e1, a, u, v, r, add, scale=L)
     for k in range(3):
         i, j = [x for x in range(3) if x != k]
         cut = np.flatnonzero(a[:, k] != 0)  # a face parallel to the axis gets no flux

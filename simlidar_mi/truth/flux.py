@@ -215,8 +215,11 @@ def flux_volume(P: dict, add) -> None:
             dw = w - c[p, k]
             rr = r[p]
             qk = uv[p, k]  # (u_k, v_k)
-            rows = [rr[:, None] * qk, -rr[:, None] * qk]  # 0 ≤ a_k t ≤ L a_k (or reversed)
-            bs = [dw - np.minimum(0.0, L[p] * akp), np.maximum(0.0, L[p] * akp) - dw]
+            # 0 ≤ t ≤ L ⇔ x_k at the axis, w − r(u_k, v_k)·y, within [c_k, e1_k] (either order);
+            # bounded by the same e1_k that places the end disc, so an end disc lying in a
+            # voxel plane and that plane's face flux agree on the side (no rounding split)
+            rows = [rr[:, None] * qk, -rr[:, None] * qk]
+            bs = [w - np.minimum(c[p, k], e1[p, k]), np.maximum(c[p, k], e1[p, k]) - w]
             for ax in (i, j):  # x_ax = h + g·y on the face, within [n, n + 1]
                 ratio = a[p, ax] / akp
                 h = c[p, ax] + ratio * dw

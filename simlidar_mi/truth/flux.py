@@ -35,7 +35,7 @@ import numpy as np
 __all__ = ["disc_polygon_moments", "clip_halfplanes", "halfplane_disc_moments", "disc_areas", "flux_volume"]
 
 MAX_V = 10  # a square clipped by six half-planes has at most 10 vertices
-ROWS_PER_CHUNK = 200_000
+ROWS_PER_CHUNK = 25_000  # rows of (10-vertex polygon) work per numpy batch: ~30 MB peak
 LOW_AK = 1e-2  # faces with |a_k| below this are integrated in np.longdouble
 
 

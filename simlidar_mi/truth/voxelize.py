@@ -80,6 +80,7 @@ class Accumulator:
         w = np.asarray(w, np.float64).ravel()
         inside = np.all((ijk >= 0) & (ijk < np.asarray(self.shape)), axis=1)
         self.outside += float(w[~inside].sum())
+        inside &= w != 0  # adding 0 changes no sum: not stored
         if inside.any():
             flat = np.ravel_multi_index(ijk[inside].T, self.shape)
             uniq, inv = np.unique(flat, return_inverse=True)

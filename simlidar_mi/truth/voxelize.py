@@ -173,7 +173,7 @@ def _slab_range(poly, cnt, axis):
     return lo, np.maximum(lo, hi)
 
 
-def clip_triangles(tri_vox: np.ndarray, chunk: int = 100_000):
+def clip_triangles(tri_vox: np.ndarray, chunk: int = 20_000):
     """Per-voxel pieces of triangles given in voxel units, (n, 3, 3).
 
     Yields (ijk (m, 3) int64, area (m,) in voxel units²) per chunk of triangles."""

@@ -35,9 +35,11 @@ Cylinders (lateral surface, volume, end discs)
     partitioned into voxels, per-voxel values sum to 2πrL, πr²L and πr² by
     construction (to rounding, whatever the quadrature order).
 
-    The volume of a piece cut by voxel planes is now computed in closed form instead
-    (:mod:`simlidar_mi.truth.flux`, the divergence theorem); the ρ quadrature remains
-    as ``volume_method="quadrature"`` and for the end discs.
+    The volume of a piece cut by voxel planes and the area of an end disc are now
+    computed in closed form instead (:mod:`simlidar_mi.truth.flux`: the divergence
+    theorem, and unit disc ∩ polygon by Green's theorem); the ρ quadrature remains as
+    ``volume_method="quadrature"`` / ``method="quadrature"``, an independent cross-check
+    (its per-voxel error is 1e-10–1e-8 of a cylinder's volume, BENCHMARKS.md §10c).
 """
 from __future__ import annotations
 

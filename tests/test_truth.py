@@ -424,12 +424,14 @@ def test_exact_disc_area_per_voxel_matches_the_closed_form_to_rounding():
     assert d.data[:, :, 2].sum() == pytest.approx(np.pi * 0.09, rel=1e-14) and d.data[:, :, 1].sum() == 0.0
 
 
+@pytest.mark.parametrize("up", [True, False])
 @pytest.mark.parametrize("dz0, dz1", [(0.0, 0.0), (1.8e-15, 0.0), (0.0, 8.9e-16), (-1.8e-15, -8.9e-16)])
-def test_flux_volume_with_end_discs_in_voxel_planes_stays_in_the_cylinder(dz0, dz1):
-    """Ends on (or a rounding away from) voxel planes, axis on a voxel edge: each quarter of
-    each layer holds πr²/4, nothing leaks into the layers beyond the ends."""
+def test_flux_volume_with_end_discs_in_voxel_planes_stays_in_the_cylinder(dz0, dz1, up):
+    """Ends on (or a rounding away from) voxel planes, axis on a voxel edge, pointing up or
+    down: each quarter of each layer holds πr²/4, nothing leaks beyond the ends."""
     r = 0.125
-    _, vol = _cyl((2.0, 2.0, 2.0 + dz0), (2.0, 2.0, 6.0 + dz1), r, (4, 4, 8))
+    ends = [(2.0, 2.0, 2.0 + dz0), (2.0, 2.0, 6.0 + dz1)]
+    _, vol = _cyl(*(ends if up else ends[::-1]), r, (4, 4, 8))
     q = np.pi * r * r / 4
     for k in range(8):
         want = q if 2 <= k < 6 else 0.0

@@ -237,6 +237,10 @@ def flux_volume(P: dict, add) -> None:
                     rq, q_ = rr[rows_].astype(dt), qk[rows_].astype(dt)
                     fl = rq ** 2 / np.abs(akp[rows_]).astype(dt) * (dw[rows_].astype(dt) * A - rq * (q_[:, 0] * M1 + q_[:, 1] * M2))
                     flux[rows_] = fl.astype(np.float64)
+            # An end disc lying in the face (axis along −e_k, t = L at x_k = w) is placed in
+            # the voxel above w (floor), where the piece is: its flux is that end disc's term,
+            # not also a face's (with the axis along +e_k the face term moves it below).
+            flux[(akp < 0) & np.all(qk == 0, axis=1) & (w == e1[p, k])] = 0.0
             below = ijk.copy()
             below[:, k] -= 1
             add(np.concatenate([below, ijk]), np.concatenate([flux, -flux]))

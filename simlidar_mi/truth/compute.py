@@ -144,13 +144,17 @@ class Totals:
 
     def arrays(self) -> dict:
         """The three dense arrays in m² / m³, each allocated once and scaled in place
-        (``x *= h; x *= h`` rounds as ``x * h * h`` does)."""
+        (``x *= h; x *= h`` rounds as ``x * h * h`` does). The closed-form volume and disc
+        areas are differences of face integrals, so a voxel that holds (almost) nothing can
+        come out at −1e-17 by rounding: such values are set to 0 (no negative densities)."""
         h = self.grid.voxel_m
         leaf, wood, vol = self.leaf.dense(), self.wood.dense(), self.volume.dense()
         for a in (leaf, wood):
             a *= h
             a *= h
         vol *= h ** 3
+        for a in (leaf, wood, vol):  # a voxel the surface barely touches can round to −1e-17
+            np.maximum(a, 0.0, out=a)
         return {"leaf_area_m2": leaf, "wood_area_m2": wood, "wood_volume_m3": vol}
 
     def outside(self) -> dict:

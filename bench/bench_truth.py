@@ -1,16 +1,20 @@
 """Canopy ground truth (``simlidar-mi truth``): time and peak memory against voxel size.
 
     .venv/bin/python bench/bench_truth.py [--only NAME ...] [--voxels 0.05 0.1 0.25]
+                                          [--set KEY=VALUE ...] [--repeat N]
 
 Each (scene, voxel) runs in a fresh process (peak RSS is the process's own): generate
 the geometry, then :func:`compute_truth` on the default grid. Scenes written by other
-features (leafy orchard, vineyard) are included when their files exist. Prints a
-markdown table.
+features (leafy orchard, vineyard) are included when their files exist; ``--set``
+adds scene-key overrides to every case. With ``--repeat N`` each case runs N times
+(fresh processes): the table gives the median truth time and the largest peak RSS.
+Prints a markdown table.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import subprocess
 import sys
 from pathlib import Path
@@ -49,13 +53,15 @@ CASES = {
     # written by the leafy-orchard and vineyard features; run when present
     "orchard_leafy": ("scenes/orchard_leafy.toml", []),
     "vineyard_vsp": ("scenes/vineyard_vsp.toml", []),
+    # a 50 m row: 50 vines 1 m apart (the scene's vine_spacing_m)
+    "vineyard_vsp_50m": ("scenes/vineyard_vsp.toml", ["vineyard.vines_per_row=50", "vineyard.vine_spacing_m=1.0"]),
 }
 
 
-def run(name: str, voxel: float, timeout_s: float) -> dict:
+def run(name: str, voxel: float, timeout_s: float, extra=()) -> dict:
     scene, over = CASES[name]
     try:
-        proc = subprocess.run([sys.executable, "-c", ROW, scene, str(voxel), *over], capture_output=True,
+        proc = subprocess.run([sys.executable, "-c", ROW, scene, str(voxel), *over, *extra], capture_output=True,
                               text=True, cwd=REPO, timeout=timeout_s)
     except subprocess.TimeoutExpired:
         return {"error": f"> {timeout_s:.0f} s (stopped)"}
@@ -69,6 +75,9 @@ def main() -> None:
     ap.add_argument("--only", nargs="*", default=None, choices=list(CASES))
     ap.add_argument("--voxels", nargs="*", type=float, default=[0.25, 0.1, 0.05])
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds per case")
+    ap.add_argument("--set", dest="overrides", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="scene-key overrides added to every case")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per case (median time, largest RSS)")
     args = ap.parse_args()
     print(machine())
     print("| scene | voxel m | branches | leaf triangles | voxels | generate s | truth s | peak RSS MB "
@@ -79,7 +88,10 @@ def main() -> None:
             print(f"| {name} | – | scene file {CASES[name][0]} not present | | | | | | | |")
             continue
         for vox in args.voxels:
-            r = run(name, vox, args.timeout)
+            runs = [run(name, vox, args.timeout, args.overrides) for _ in range(max(1, args.repeat))]
+            r = next((x for x in runs if "error" in x), None) or dict(
+                runs[0], truth_s=statistics.median(x["truth_s"] for x in runs),
+                rss_peak_mb=max(x["rss_peak_mb"] for x in runs))
             if "error" in r:
                 print(f"| {name} | {vox} | {r['error']} | | | | | | | |", flush=True)
                 continue

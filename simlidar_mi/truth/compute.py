@@ -40,7 +40,8 @@ __all__ = ["compute_truth", "default_grid", "Totals"]
 BATCH_ELEMENTS = 500_000  # triangles + cylinders expanded per batch of instanced trees
 
 
-# Truth holds 9 float64 values a voxel (3 accumulators, 6 Dataset variables): 100 M voxels ≈ 7 GB.
+# Truth holds 6 float64 values a voxel (the Dataset's variables; the accumulators are sparse
+# until then): 100 M voxels ≈ 4.8 GB.
 MAX_VOXELS = 100_000_000
 
 
@@ -48,7 +49,7 @@ def default_grid(geometry, voxel_m: float = 0.1, margin_m: float = 0.0,
                  max_voxels: int = MAX_VOXELS) -> VoxelGrid:
     """The grid of ``voxel_m`` voxels (snapped to multiples of ``voxel_m``) covering the
     geometry's bounds plus ``margin_m`` on every side: nothing falls outside it. More
-    than ``max_voxels`` voxels is refused (about 72 bytes a voxel while computing)."""
+    than ``max_voxels`` voxels is refused (about 48 bytes a voxel)."""
     if not (np.isfinite(margin_m) and margin_m >= 0):
         raise ConfigError("margin must be a finite number ≥ 0 metres", key="margin_m", value=margin_m)
     lo, hi = geometry.bounds_m()
@@ -130,8 +131,7 @@ class Totals:
             # leaf-labelled cylinder: its surface as leaf area (no volume)
             tmp = Totals(self.grid)
             tmp.cylinders(p0, p1, d, np.ones(1, bool), np.ones(1, bool))
-            self.leaf.data += tmp.wood.data
-            self.leaf.outside += tmp.wood.outside
+            self.leaf.merge(tmp.wood)
             self.leaf_exact_m2 += tmp.wood_exact_m2
             return
         v, f = primitive_mesh(prim, 3, source, j)
@@ -143,9 +143,19 @@ class Totals:
             self.volume_exact_m3 += float(np.prod(hi - lo))
 
     def arrays(self) -> dict:
+        """The three dense arrays in m² / m³, each allocated once and scaled in place
+        (``x *= h; x *= h`` rounds as ``x * h * h`` does). The closed-form volume and disc
+        areas are differences of face integrals, so a voxel that holds (almost) nothing can
+        come out at −1e-17 by rounding: such values are set to 0 (no negative densities)."""
         h = self.grid.voxel_m
-        return {"leaf_area_m2": self.leaf.data * h * h, "wood_area_m2": self.wood.data * h * h,
-                "wood_volume_m3": self.volume.data * h ** 3}
+        leaf, wood, vol = self.leaf.dense(), self.wood.dense(), self.volume.dense()
+        for a in (leaf, wood):
+            a *= h
+            a *= h
+        vol *= h ** 3
+        for a in (leaf, wood, vol):  # a voxel the surface barely touches can round to −1e-17
+            np.maximum(a, 0.0, out=a)
+        return {"leaf_area_m2": leaf, "wood_area_m2": wood, "wood_volume_m3": vol}
 
     def outside(self) -> dict:
         h = self.grid.voxel_m
@@ -228,9 +238,11 @@ def compute_truth(geometry, grid: VoxelGrid, progress=True, ground_area_m2: floa
 def _dataset(tot: Totals, grid: VoxelGrid, ground_area_m2):
     arr = tot.arrays()
     vol = grid.voxel_volume_m3
-    arr["plant_area_m2"] = arr["leaf_area_m2"] + 0.5 * arr["wood_area_m2"]
-    arr["LAD_m2_m3"] = arr["leaf_area_m2"] / vol
-    arr["PAD_m2_m3"] = arr["plant_area_m2"] / vol
+    # no full-size temporaries: each derived array is the only allocation of its line
+    plant = np.multiply(arr["wood_area_m2"], 0.5)
+    arr["plant_area_m2"] = np.add(arr["leaf_area_m2"], plant, out=plant)
+    arr["LAD_m2_m3"] = np.divide(arr["leaf_area_m2"], vol)
+    arr["PAD_m2_m3"] = np.divide(arr["plant_area_m2"], vol)
     foot = grid.voxel_m ** 2 * grid.shape[0] * grid.shape[1]
     ground = float(ground_area_m2) if ground_area_m2 is not None else foot
     if not (np.isfinite(ground) and ground > 0):

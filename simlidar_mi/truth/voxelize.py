@@ -34,10 +34,18 @@ Cylinders (lateral surface, volume, end discs)
     angle measure of a circle in each voxel. Because every (ρ, φ) line is fully
     partitioned into voxels, per-voxel values sum to 2πrL, πr²L and πr² by
     construction (to rounding, whatever the quadrature order).
+
+    The volume of a piece cut by voxel planes and the area of an end disc are now
+    computed in closed form instead (:mod:`simlidar_mi.truth.flux`: the divergence
+    theorem, and unit disc ∩ polygon by Green's theorem); the ρ quadrature remains as
+    ``volume_method="quadrature"`` / ``method="quadrature"``, an independent cross-check
+    (its per-voxel error is 1e-10–1e-8 of a cylinder's volume, BENCHMARKS.md §10c).
 """
 from __future__ import annotations
 
 import numpy as np
+
+from .flux import disc_areas, flux_volume
 
 __all__ = ["Accumulator", "clip_triangles", "cylinder_pieces", "voxelize_cylinders", "voxelize_discs",
            "box_volume"]
@@ -50,26 +58,72 @@ SHORT_SHARE = 16
 
 
 class Accumulator:
-    """Per-voxel sums on ``shape`` plus the total that fell outside it."""
+    """Per-voxel sums on ``shape`` plus the total that fell outside it, kept sparse.
+
+    Each :meth:`add` stores the batch's per-voxel sums (flat index, value) for the voxels
+    it touched; the dense array is allocated once, by :meth:`dense`. Merging the stored
+    batches runs ``np.bincount`` over them in the order they came, which adds each voxel's
+    batch sums one after another from 0, the same additions in the same order as adding
+    every batch into a dense array: the values are bit-identical to dense accumulation,
+    while memory grows with the voxels touched, not the grid."""
+
+    COMPACT_ENTRIES = 2_000_000  # merge the stored batches when they hold this many entries more
 
     def __init__(self, shape):
         self.shape = tuple(int(n) for n in shape)
-        self.data = np.zeros(self.shape, np.float64)
         self.outside = 0.0
+        self._flat: list[np.ndarray] = []
+        self._val: list[np.ndarray] = []
+        self._n = 0
+        self._compacted = 0
 
     def add(self, ijk: np.ndarray, w: np.ndarray) -> None:
         ijk = np.asarray(ijk, np.int64).reshape(-1, 3)
         w = np.asarray(w, np.float64).ravel()
         inside = np.all((ijk >= 0) & (ijk < np.asarray(self.shape)), axis=1)
         self.outside += float(w[~inside].sum())
+        inside &= w != 0  # adding 0 changes no sum: not stored
         if inside.any():
             flat = np.ravel_multi_index(ijk[inside].T, self.shape)
             uniq, inv = np.unique(flat, return_inverse=True)
-            self.data.reshape(-1)[uniq] += np.bincount(inv, w[inside], minlength=len(uniq))
+            self._push(uniq, np.bincount(inv, w[inside], minlength=len(uniq)))
+
+    def _push(self, flat, val) -> None:
+        self._flat.append(flat)
+        self._val.append(val)
+        self._n += len(flat)
+        if self._n - self._compacted > self.COMPACT_ENTRIES:
+            self._compact()
+
+    def _compact(self) -> tuple[np.ndarray, np.ndarray]:
+        """Merge the stored batches into one (sorted voxels, sums added in batch order)."""
+        if len(self._flat) != 1:
+            flat = np.concatenate(self._flat) if self._flat else np.zeros(0, np.int64)
+            val = np.concatenate(self._val) if self._val else np.zeros(0)
+            uniq, inv = np.unique(flat, return_inverse=True)
+            self._flat, self._val = [uniq], [np.bincount(inv, val, minlength=len(uniq))]
+            self._n = self._compacted = len(uniq)
+        return self._flat[0], self._val[0]
+
+    def merge(self, other: "Accumulator") -> None:
+        """Add another accumulator's sums (as one batch) and its outside total."""
+        self._push(*other._compact())
+        self.outside += other.outside
+
+    def dense(self) -> np.ndarray:
+        """A new float64 array of ``shape`` (0 where nothing was added)."""
+        flat, val = self._compact()
+        out = np.zeros(self.shape, np.float64)
+        out.reshape(-1)[flat] = val  # sums start from +0.0, as a dense accumulation's do
+        return out
+
+    @property
+    def data(self) -> np.ndarray:
+        return self.dense()
 
     @property
     def total(self) -> float:
-        return float(self.data.sum()) + self.outside
+        return float(self.dense().sum()) + self.outside
 
 
 # ------------------------------------------------------------------ triangles
@@ -121,7 +175,7 @@ def _slab_range(poly, cnt, axis):
     return lo, np.maximum(lo, hi)
 
 
-def clip_triangles(tri_vox: np.ndarray, chunk: int = 100_000):
+def clip_triangles(tri_vox: np.ndarray, chunk: int = 20_000):
     """Per-voxel pieces of triangles given in voxel units, (n, 3, 3).
 
     Yields (ijk (m, 3) int64, area (m,) in voxel units²) per chunk of triangles."""
@@ -404,15 +458,24 @@ def _by_plane_count(P, lo, hi, single, acc_fn):
         acc_fn(rows, *(np.take_along_axis(x, order, axis=1) for x in (v_, a_, o_)))
 
 
-def voxelize_cylinders(p0, p1, r, lateral: Accumulator, volume: Accumulator) -> None:
+def voxelize_cylinders(p0, p1, r, lateral: Accumulator, volume: Accumulator,
+                       volume_method: str = "flux") -> None:
     """Add the per-voxel lateral area and volume of cylinders given in voxel units
-    (p0, p1 (n, 3), radius r (n,)) to the accumulators (voxel units² / ³)."""
+    (p0, p1 (n, 3), radius r (n,)) to the accumulators (voxel units² / ³).
+
+    ``volume_method``: "flux" (default) integrates the volume in closed form by the
+    divergence theorem (:mod:`simlidar_mi.truth.flux`); "quadrature" integrates
+    ``∫ ρ Λ(ρ) dρ`` by Gauss–Legendre (:data:`GL_NODES`), the earlier method, kept as an
+    independent cross-check."""
+    if volume_method not in ("flux", "quadrature"):
+        raise ValueError(f"volume_method must be 'flux' or 'quadrature', not {volume_method!r}")
     if not len(r):
         return
     P = cylinder_pieces(p0, p1, r)
     c, a, L, rr = P["c"], P["a"], P["L"], P["r"]
     ext = rr[:, None] * np.sqrt(np.clip(1.0 - a * a, 0.0, None))
     e1 = c + L[:, None] * a
+    cut = []
 
     def single(one):  # the whole piece inside one voxel
         ijk = np.floor(c[one] + 0.5 * L[one, None] * a[one]).astype(np.int64)
@@ -427,6 +490,9 @@ def voxelize_cylinders(p0, p1, r, lateral: Accumulator, volume: Accumulator) -> 
         for sl in _chunks(len(rows), per):
             S = _take(sub, sl)
             lateral.add(*_measure(S, S["r"], lines[sl], v_[sl], a_[sl], o_[sl], False, S["r"]))
+        if volume_method == "flux":
+            cut.append(rows)
+            return
         # volume = ∫ ρ Λ(ρ) dρ, Λ exact at each Gauss node
         rho, wq = _gauss_rho(_line_pairs(lines, sub["L"]), sub["r"])
         nr, nc = np.nonzero(wq > 0)
@@ -437,11 +503,17 @@ def voxelize_cylinders(p0, p1, r, lateral: Accumulator, volume: Accumulator) -> 
                                  rq * wq[nr[sl], nc[sl]]))
 
     _by_plane_count(P, np.minimum(c, e1) - ext, np.maximum(c, e1) + ext, single, group)
+    if cut:
+        flux_volume(_take(P, np.sort(np.concatenate(cut))), volume.add)
 
 
-def voxelize_discs(centre, normal, r, acc: Accumulator) -> None:
+def voxelize_discs(centre, normal, r, acc: Accumulator, method: str = "exact") -> None:
     """Add the per-voxel area of flat discs (centre (n, 3), unit normal (n, 3), radius
-    (n,), voxel units) to ``acc``: ∫ ρ θ(ρ) dρ, θ the circle's angle in each voxel."""
+    (n,), voxel units) to ``acc``. ``method``: "exact" (default) — disc ∩ voxel in closed
+    form (:func:`simlidar_mi.truth.flux.disc_areas`); "quadrature" — ∫ ρ θ(ρ) dρ by
+    Gauss–Legendre, θ the circle's angle in each voxel (the earlier method)."""
+    if method not in ("exact", "quadrature"):
+        raise ValueError(f"method must be 'exact' or 'quadrature', not {method!r}")
     if not len(r):
         return
     a = np.array(normal, np.float64)
@@ -450,6 +522,9 @@ def voxelize_discs(centre, normal, r, acc: Accumulator) -> None:
     u, v = _basis(a)
     P = {"c": np.asarray(centre, np.float64), "a": a, "u": u, "v": v, "L": np.zeros(len(r)),
          "r": np.asarray(r, np.float64)}
+    if method == "exact":
+        disc_areas(P["c"], a, u, v, P["r"], acc.add)
+        return
     ext = P["r"][:, None] * np.sqrt(np.clip(1.0 - a * a, 0.0, None))
 
     def single(one):

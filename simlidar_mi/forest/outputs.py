@@ -287,7 +287,7 @@ def plot_preview(forest: Forest, path: str | Path, max_trees: int = 300,
     cols = _colours(len(forest.species_names))
     n_leaves = int(forest.n_leaves[idx].sum()) if len(idx) else 0
     step = max(1, math.ceil(n_leaves / max_leaf_points))
-    segs_side, segs_top, lw, leaf_pts, leaf_col = [], [], [], [], []
+    segs_side, segs_top, lw, leaf_pts = [], [], [], []
     for i in idx:
         br, _ = forest.tree_geometry(int(i))
         segs_side.append(np.stack([br.p0[:, [0, 2]], br.p1[:, [0, 2]]], 1))
@@ -295,20 +295,24 @@ def plot_preview(forest: Forest, path: str | Path, max_trees: int = 300,
         lw.append(np.clip(br.diameter * 4.0, 0.1, 1.5))
         lt = forest.tree_leaf_table(int(i))
         leaf_pts.append(lt.centre_m[::step])
-        leaf_col.append(np.repeat([cols[int(forest.species[i])]], len(leaf_pts[-1]), axis=0))
     fig, (a_side, a_top) = plt.subplots(2, 1, figsize=(12, 12), dpi=110,
                                         gridspec_kw={"height_ratios": [1, 2.0]})
     dot = 0.6 * math.sqrt(min(step, 16))  # thinned leaves drawn bigger to keep the crown's tone
     if len(idx):
         pts = np.concatenate(leaf_pts) if leaf_pts else np.zeros((0, 3))
-        lc = np.concatenate(leaf_col) if leaf_col else np.zeros((0, 4))
         widths = np.concatenate(lw)
         for ax, segs, alpha in ((a_side, segs_side, 1.0), (a_top, segs_top, 0.8)):
             for width, xy in _segment_lines(np.concatenate(segs), widths):
                 ax.plot(xy[:, 0], xy[:, 1], lw=width, color="saddlebrown", alpha=alpha,
                         solid_capstyle="butt")
-        a_side.scatter(pts[:, 0], pts[:, 2], s=dot, c=lc, alpha=0.35, linewidths=0, zorder=3)
-        a_top.scatter(pts[:, 0], pts[:, 1], s=dot, c=lc, alpha=0.35, linewidths=0, zorder=3)
+        # leaf dots as markers of one colour per run of same-species trees, in tree order: Agg
+        # stamps one cached marker (a scatter of 200 k dots drew each: 2.3 s of 5.8 s)
+        kind = np.concatenate([np.full(len(p), int(forest.species[i])) for p, i in zip(leaf_pts, idx)])
+        cuts = np.flatnonzero(np.diff(kind)) + 1
+        for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(kind)]):
+            for ax, (u, v) in ((a_side, (0, 2)), (a_top, (0, 1))):
+                ax.plot(pts[a:b, u], pts[a:b, v], ls="", marker="o", ms=math.sqrt(dot), mew=0,
+                        color=cols[kind[a]], alpha=0.35, zorder=3)
     diam = 2 * forest.crown_radius_m
     a_top.add_collection(EllipseCollection(diam, diam, np.zeros(len(forest)), units="xy",
                                            offsets=np.column_stack([forest.x_m, forest.y_m]),

@@ -60,12 +60,14 @@ def load() -> str:
 
 
 def timed_cli(tree: Path, args: list[str], cwd: Path) -> dict:
-    """One fresh ``python -m simlidar_mi.cli ARGS`` under /usr/bin/time: wall s, peak RSS MB and
-    CPU s (user + system, all threads: the work done, less sensitive to other jobs than wall time)."""
+    """One fresh ``python -P -m simlidar_mi.cli ARGS`` under /usr/bin/time: wall s, peak RSS MB and
+    CPU s (user + system, all threads: the work done, less sensitive to other jobs than wall time).
+    ``-P``: the code comes from ``tree`` (PYTHONPATH), not from ``cwd``; without it ``-m`` puts the
+    working directory first and a "before" tree ran this checkout's code."""
     env = dict(os.environ, PYTHONPATH=str(tree))
     env.pop("DASK_SCHEDULER_ADDRESS", None)
     t = time.perf_counter()
-    proc = subprocess.run(["/usr/bin/time", "-f", "RSSKB %M %U %S", PY, "-m", "simlidar_mi.cli", *args],
+    proc = subprocess.run(["/usr/bin/time", "-f", "RSSKB %M %U %S", PY, "-P", "-m", "simlidar_mi.cli", *args],
                           capture_output=True, text=True, env=env, cwd=cwd)
     wall = time.perf_counter() - t
     if proc.returncode:

@@ -66,8 +66,12 @@ def _rot_z(yaw_deg: float) -> np.ndarray:
 
 
 def _place(points: np.ndarray, t: np.ndarray, yaw_deg: float, scale: float) -> np.ndarray:
-    """``t + Rz(yaw)·(scale·p)`` for points of any leading shape (…, 3)."""
-    return (scale * points) @ _rot_z(yaw_deg).T + t
+    """``t + Rz(yaw)·(scale·p)`` for points of any leading shape (…, 3).
+
+    As one (n, 3) @ (3, 3) product: a (n, 3, 3) leaf-vertex stack @ (3, 3) is n small BLAS
+    calls, 2× slower, for the same bits (checked on the forests' PLY exports)."""
+    p = scale * np.asarray(points)
+    return (p.reshape(-1, 3) @ _rot_z(yaw_deg).T).reshape(p.shape) + t
 
 
 def _placed(t: RandomTree, tr: np.ndarray, yaw: float, s: float, tid: int) -> tuple[Branches, Leaves]:

@@ -63,6 +63,9 @@ TIME_PULSE = "pulse time: (i*M + k) / pulse_rate_hz seconds from the first pulse
 TIME_SCAN_ORDER = ("scan-order time, not measured: i + k/M on a nominal 1 s per row "
                    "(row i, column k of M), legs following each other")
 TIME_BEAM = "beam emission time in seconds from the first beam (BeamPattern.beam_times_s)"
+#: Points per block when computing points and packing LAS records: small enough that the
+#: temporaries are reused from cache instead of page-faulted fresh (bytes do not depend on it).
+CHUNK_POINTS = 1 << 16
 #: ASPRS code of each class code (geometry.CLASS_CODES) as a lookup table; escapes are not written.
 LAS_CLASS_LUT = np.zeros(256, np.uint8)
 LAS_CLASS_LUT[list(LAS_CLASS)] = list(LAS_CLASS.values())
@@ -121,20 +124,30 @@ def row_points_m(pattern, range_m: np.ndarray, a: int, b: int) -> np.ndarray:
 def kept_points_m(pattern, range_m: np.ndarray, i_idx: np.ndarray, k_idx: np.ndarray) -> np.ndarray:
     """(n, 3) first-return points of beams (i_idx, k_idx): ``ScanResult.points_m()[i_idx, k_idx]``
     with the same float64 operations, without the (N, M, 3) arrays of every beam (most beams of
-    a tractor scan escape; the full arrays cost 0.2 s at 2.5 M beams)."""
+    a tractor scan escape; the full arrays cost 0.2 s at 2.5 M beams).  Computed in blocks of
+    :data:`CHUNK_POINTS` so that the temporaries stay small and are reused: fresh (n, 3)
+    temporaries cost more in first-touch page faults than in arithmetic (0.40 → 0.1 s at 1.4 M)."""
     p = pattern
-    o = p.row_origin_m[i_idx]
-    if p.moving:
-        o = o + p.col_time_s[k_idx, None] * np.asarray(p.velocity_m_s, np.float64)[None, :]
-    if p.beam_dirs is not None:
-        d = p.beam_dirs[i_idx, k_idx]
-    else:  # cos/sin over the rows as world_dirs computes them, then picked
+    out = np.empty((len(i_idx), 3), np.float64)
+    velocity = np.asarray(p.velocity_m_s, np.float64)[None, :] if p.moving else None
+    if p.beam_dirs is None:  # cos/sin over the rows as world_dirs computes them, then picked
         yaw = np.deg2rad(p.row_yaw_deg)
-        c, s = np.cos(yaw)[i_idx], np.sin(yaw)[i_idx]
-        cd = p.col_dir[k_idx]
-        d = np.stack([c * cd[:, 0] - s * cd[:, 1], s * cd[:, 0] + c * cd[:, 1], cd[:, 2]], axis=-1)
-    r = np.asarray(range_m)[i_idx, k_idx].astype(np.float64)
-    return o + r[:, None] * d
+        cos_yaw, sin_yaw = np.cos(yaw), np.sin(yaw)
+    range_m = np.asarray(range_m)
+    for a in range(0, len(i_idx), CHUNK_POINTS):
+        i, k = i_idx[a:a + CHUNK_POINTS], k_idx[a:a + CHUNK_POINTS]
+        o = p.row_origin_m[i]
+        if velocity is not None:
+            o = o + p.col_time_s[k, None] * velocity
+        if p.beam_dirs is not None:
+            d = p.beam_dirs[i, k]
+        else:
+            c, s = cos_yaw[i], sin_yaw[i]
+            cd = p.col_dir[k]
+            d = np.stack([c * cd[:, 0] - s * cd[:, 1], s * cd[:, 0] + c * cd[:, 1], cd[:, 2]], axis=-1)
+        r = range_m[i, k].astype(np.float64)
+        np.add(o, r[:, None] * d, out=out[a:a + CHUNK_POINTS])
+    return out
 
 
 def crs_wkt(crs: str) -> str:
@@ -166,9 +179,10 @@ def write_scan_las(result: ScanResult | list[ScanResult], path: str | Path,
     sensor = next((r.sensor for r in results if getattr(r, "sensor", None) is not None), None)
     header = las_header(offsets, time_kind, with_tree=with_tree, with_echoes=with_echoes, crs=crs,
                         sensor=sensor)
-    record = las_record(header, cols, with_tree=with_tree, with_echoes=with_echoes)
     with atomic_file(path) as tmp, laspy.open(str(tmp), mode="w", header=header) as w:
-        w.write_points(record)
+        for a in range(0, len(pts), CHUNK_POINTS):  # same bytes as one record (module docstring)
+            chunk = {key: v[a:a + CHUNK_POINTS] for key, v in cols.items()}
+            w.write_points(las_record(header, chunk, with_tree=with_tree, with_echoes=with_echoes))
     return Path(path)
 
 

@@ -134,7 +134,8 @@ class RandomTree:
             pts += [self.branches.p0[:, :2], self.branches.p1[:, :2]]
         if len(self.leaves):
             pts.append(self.leaves.vertices[..., :2].reshape(-1, 2))
-        return float(np.sqrt(max((p ** 2).sum(1).max() for p in pts)))
+        # x·x + y·y per point: the same floats as (p ** 2).sum(1), without the (n, 2) temporaries
+        return float(np.sqrt(max((p[:, 0] * p[:, 0] + p[:, 1] * p[:, 1]).max() for p in pts)))
 
     @property
     def n_leaves(self) -> int:

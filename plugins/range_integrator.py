@@ -112,14 +112,7 @@ class RangeIntegrator(mi.SamplingIntegrator):
         idx = dr.arange(mi.UInt32, count * S)
         beam = idx // S if S > 1 else idx          # chunk-local: indexes the block reductions
         glob = beam if beam_start == 0 else mi.UInt32(beam_start) + beam
-        i, k = glob // M, glob % M
-        pos = mi.Vector2f((mi.Float(k) + 0.5) / M, (mi.Float(i) + 0.5) / N)
-        if S > 1:
-            sub = idx % S
-            aperture = mi.Vector2f(mi.Float(sub % (P + 1)) / P, mi.Float(sub // (P + 1)) / P)
-        else:
-            aperture = mi.Vector2f(0.5, 0.5)
-        ray, _ = sensor.sample_ray(0.0, 0.0, pos, aperture)
+        ray = _beam_ray(sensor, glob, idx % S if S > 1 else None)
         pi = scene.ray_intersect_preliminary(ray, coherent=True)
         hit = pi.is_valid()
         cls, elem, tree, _, _, _ = self._classify(pi, hit)
@@ -182,21 +175,13 @@ class RangeIntegrator(mi.SamplingIntegrator):
         ``reflectance`` (see :meth:`set_reflectance`).  No reduction: the waveform is built on
         the host.
         """
-        M, P = sensor.n_angles, sensor.footprint
-        Q = (P + 1) ** 2
+        Q = (sensor.footprint + 1) ** 2
         off = np.asarray(offsets_rad, np.float64).reshape(-1, 2)
         S = len(off)
         idx = dr.arange(mi.UInt32, beam_count * Q * S)
         rest = idx // S if S > 1 else idx
         beam = mi.UInt32(beam_start) + (rest // Q if Q > 1 else rest)
-        i, k = beam // M, beam % M
-        pos = mi.Vector2f((mi.Float(k) + 0.5) / M, (mi.Float(i) + 0.5) / sensor.n_positions)
-        if Q > 1:
-            sub = rest % Q
-            aperture = mi.Vector2f(mi.Float(sub % (P + 1)) / P, mi.Float(sub // (P + 1)) / P)
-        else:
-            aperture = mi.Vector2f(0.5, 0.5)
-        ray, _ = sensor.sample_ray(0.0, 0.0, pos, aperture)
+        ray = _beam_ray(sensor, beam, rest % Q if Q > 1 else None)
         if S > 1 or np.any(off != 0):
             j = idx % S
             tan_u = dr.gather(mi.Float, mi.Float(np.tan(off[:, 0]).astype(np.float32)), j)
@@ -298,6 +283,21 @@ class RangeIntegrator(mi.SamplingIntegrator):
     def to_string(self) -> str:
         return (f"RangeIntegrator[escape={self.escape}, ground={self.ground}, ground_z={self.ground_z}, "
                 f"hit_rule={self.hit_rule}]")
+
+
+def _beam_ray(sensor: mi.Sensor, beam, sub=None):
+    """The ray of global beam index ``beam`` (row-major: position, angle) through dot-matrix
+    sub-beam ``sub`` of the sensor's footprint (None: the beam's centre); ``trace`` and
+    ``trace_subrays`` both aim their rays here."""
+    M, N, P = sensor.n_angles, sensor.n_positions, sensor.footprint
+    i, k = beam // M, beam % M
+    pos = mi.Vector2f((mi.Float(k) + 0.5) / M, (mi.Float(i) + 0.5) / N)
+    if sub is None:
+        aperture = mi.Vector2f(0.5, 0.5)
+    else:
+        aperture = mi.Vector2f(mi.Float(sub % (P + 1)) / P, mi.Float(sub // (P + 1)) / P)
+    ray, _ = sensor.sample_ray(0.0, 0.0, pos, aperture)
+    return ray
 
 
 def register() -> None:

@@ -49,6 +49,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from simlidar_mi.lidar.packets import aligned_span
+
 PLUGIN_NAME = "lidar_range"
 ESCAPE, GROUND, WOOD, LEAF = 0, 1, 2, 3
 NO_ID = 0xFFFFFFFF
@@ -109,9 +111,12 @@ class RangeIntegrator(mi.SamplingIntegrator):
         N, M, P = sensor.n_positions, sensor.n_angles, sensor.footprint
         S = (P + 1) ** 2
         count = N * M - beam_start if beam_count is None else int(beam_count)
-        idx = dr.arange(mi.UInt32, count * S)
+        # Widened to packet boundaries of the whole scan (simlidar_mi.lidar.packets), so each
+        # ray shares its Embree packet with the rays it shares it with in a whole-scan trace.
+        start, n, skip = aligned_span(beam_start, count, N * M, sensor.first_beam)
+        idx = dr.arange(mi.UInt32, n * S)
         beam = idx // S if S > 1 else idx          # chunk-local: indexes the block reductions
-        glob = beam if beam_start == 0 else mi.UInt32(beam_start) + beam
+        glob = beam if start == 0 else mi.UInt32(start) + beam
         ray = _beam_ray(sensor, glob, idx % S if S > 1 else None)
         pi = scene.ray_intersect_preliminary(ray, coherent=True)
         hit = pi.is_valid()
@@ -142,7 +147,7 @@ class RangeIntegrator(mi.SamplingIntegrator):
         if tree is not None:
             out["tree_id"] = tree
         dr.eval(out)  # one kernel: reading the arrays one by one would trace twice
-        return out
+        return _kept(out, skip, count, 1, n)
 
     def set_reflectance(self, class_reflectance: np.ndarray, shape_reflectance: np.ndarray | None = None) -> None:
         """ρ per class code (escape, ground, wood, leaf) and, per shape registry id, a shape's own
@@ -178,9 +183,11 @@ class RangeIntegrator(mi.SamplingIntegrator):
         Q = (sensor.footprint + 1) ** 2
         off = np.asarray(offsets_rad, np.float64).reshape(-1, 2)
         S = len(off)
-        idx = dr.arange(mi.UInt32, beam_count * Q * S)
+        start, n_traced, skip = aligned_span(int(beam_start), int(beam_count), sensor.n_positions * sensor.n_angles,
+                                             sensor.first_beam)  # packet boundaries, as in trace()
+        idx = dr.arange(mi.UInt32, n_traced * Q * S)
         rest = idx // S if S > 1 else idx
-        beam = mi.UInt32(beam_start) + (rest // Q if Q > 1 else rest)
+        beam = mi.UInt32(start) + (rest // Q if Q > 1 else rest)
         ray = _beam_ray(sensor, beam, rest % Q if Q > 1 else None)
         if S > 1 or np.any(off != 0):
             j = idx % S
@@ -225,7 +232,7 @@ class RangeIntegrator(mi.SamplingIntegrator):
         if normals:
             out["cos_incidence"], out["reflectance"] = cos_i, rho
         dr.eval(out)  # one kernel for every output
-        return out
+        return _kept(out, skip, int(beam_count), Q * S, n_traced)
 
     def _ground(self, ray, t, cls, elem, tree):
         """The analytic ground plane after vegetation: a beam that passes every shape meets
@@ -283,6 +290,17 @@ class RangeIntegrator(mi.SamplingIntegrator):
     def to_string(self) -> str:
         return (f"RangeIntegrator[escape={self.escape}, ground={self.ground}, ground_z={self.ground_z}, "
                 f"hit_rule={self.hit_rule}]")
+
+
+def _kept(out: dict, skip: int, count: int, per_beam: int, traced: int) -> dict:
+    """The arrays of beams [skip, skip + count) of a trace of ``traced`` beams (``per_beam``
+    entries a beam): the requested beams of a packet-aligned trace."""
+    if skip == 0 and count == traced:
+        return out
+    keep = dr.arange(mi.UInt32, skip * per_beam, (skip + count) * per_beam)
+    out = {k: dr.gather(type(v), v, keep) for k, v in out.items()}
+    dr.eval(out)
+    return out
 
 
 def _beam_ray(sensor: mi.Sensor, beam, sub=None):

@@ -82,6 +82,9 @@ class PatternLidar(mi.Sensor):
         self._has_yaw = False
         self._velocity = None
         self._beam_dirs = None
+        # Index of this sensor's beam 0 in the whole scan (a tile's sensor: simlidar_mi.lidar.scan
+        # sets it), so traces align on the whole scan's packets (simlidar_mi.lidar.packets).
+        self.first_beam = 0
 
     def set_motion(self, col_time_s: np.ndarray, velocity_m_s) -> None:
         """Column delays (M·(P+1),) in seconds and the platform velocity (3,) in m/s, float64;

@@ -26,6 +26,7 @@ from ..errors import ConfigError
 from ..geometry import CLASS_CODES
 from ..io.exr import read_exr
 from ..scene.build import BuiltScene
+from .packets import padded_rows
 from .platforms import BeamPattern, elevation_dirs
 from .sensor import SensorModel, subray_offsets
 from .waveform import Echoes
@@ -344,14 +345,14 @@ class BeamTracer:
         self._integrator = _range_integrator(mi, built, self.pattern)
         self._scene = built.scene
         self.n_beams = self.pattern.n_beams
+        # A tile's sensor starts up to a packet before the tile (lidar.packets): its beam index.
+        self._lead = (rows[0] * self.pattern.n_cols if rows else 0) - self._lidar.first_beam
 
     def trace(self, beam_start: int = 0, beam_count: int | None = None) -> dict[str, np.ndarray | None]:
         """Flat numpy arrays ``range`` (float32 m), ``cls`` (uint8), ``elem`` and ``tree``
         (uint32; tree None for scenes of one plant) and ``frac`` (float32) of the beams."""
-        if beam_start == 0 and beam_count in (None, self.n_beams):
-            out = self._integrator.trace(self._scene, self._lidar)
-        else:
-            out = self._integrator.trace(self._scene, self._lidar, int(beam_start), int(beam_count))
+        count = self.n_beams - beam_start if beam_count is None else int(beam_count)
+        out = self._integrator.trace(self._scene, self._lidar, self._lead + int(beam_start), count)
         # .numpy() is a view of Dr.Jit memory: copy before the arrays are released.
         return {"range": out["range"].numpy().copy(), "cls": out["class"].numpy().astype(np.uint8),
                 "elem": out["element_id"].numpy().copy(), "frac": out["hit_fraction"].numpy().copy(),
@@ -431,22 +432,26 @@ def _lidar(mi, built: BuiltScene, settings, rows: tuple[int, int] | None = None)
             "film": _film(s.n_angles, s.n_positions),
         })
         if rows is not None:  # the whole tractor's float32 tables, sliced: the same rays
-            r0, r1 = rows
+            ra, rb = padded_rows(*rows, s.n_positions, s.n_angles)  # whole packets (lidar.packets)
             p1 = s.footprint + 1
-            origins = np.stack([np.asarray(a, np.float64)[r0 * p1:r1 * p1] for a in lidar._o], axis=1)
+            origins = np.stack([np.asarray(a, np.float64)[ra * p1:rb * p1] for a in lidar._o], axis=1)
             dirs = np.stack([np.asarray(a, np.float64) for a in lidar._d], axis=1)
-            pattern = pattern.rows(r0, r1)
-            lidar = mi.load_dict({"type": "lidar_pattern", "n_positions": r1 - r0, "n_angles": s.n_angles,
-                                  "footprint": s.footprint, "film": _film(s.n_angles, r1 - r0)})
+            pattern = pattern.rows(*rows)
+            lidar = mi.load_dict({"type": "lidar_pattern", "n_positions": rb - ra, "n_angles": s.n_angles,
+                                  "footprint": s.footprint, "film": _film(s.n_angles, rb - ra)})
             lidar.set_tables(origins, dirs)
+            lidar.first_beam = ra * s.n_angles
     else:
         s, pattern = None, (settings if rows is None else settings.rows(*rows))
-        lidar = mi.load_dict({"type": "lidar_pattern", "n_positions": pattern.n_rows,
-                              "n_angles": pattern.n_cols, "footprint": pattern.footprint,
-                              "film": _film(pattern.n_cols, pattern.n_rows)})
-        lidar.set_tables(*pattern.sub_tables(o))
-        if pattern.beam_dirs is not None:
-            lidar.set_beam_dirs(pattern.beam_dirs.reshape(-1, 3))
+        ra, rb = (0, settings.n_rows) if rows is None else padded_rows(*rows, settings.n_rows, settings.n_cols)
+        own = settings if rows is None else settings.rows(ra, rb)  # the sensor's rows: whole packets
+        lidar = mi.load_dict({"type": "lidar_pattern", "n_positions": own.n_rows,
+                              "n_angles": own.n_cols, "footprint": own.footprint,
+                              "film": _film(own.n_cols, own.n_rows)})
+        lidar.set_tables(*own.sub_tables(o))
+        if own.beam_dirs is not None:
+            lidar.set_beam_dirs(own.beam_dirs.reshape(-1, 3))
+        lidar.first_beam = ra * settings.n_cols
     motion = pattern.motion_tables()
     if motion is not None:  # each beam from the platform's position at its own time
         lidar.set_motion(*motion)
@@ -517,7 +522,8 @@ def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPat
     for b0 in range(0, n_beams, per_chunk):
         n = min(per_chunk, n_beams - b0)
         t1 = time.perf_counter()
-        out = integrator.trace_subrays(built.scene, lidar, offsets, b0, n, normals=energy)
+        out = integrator.trace_subrays(built.scene, lidar, offsets, beam0 - lidar.first_beam + b0, n,
+                                       normals=energy)
         t = out["t"].numpy().reshape(n, n_sub).astype(np.float64)
         trace_s += time.perf_counter() - t1
         c = out["class"].numpy().reshape(n, n_sub).astype(np.uint8)

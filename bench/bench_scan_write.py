@@ -1,0 +1,126 @@
+"""Table 3's 7×4 row end to end, and its writers one after another vs side by side (issue #8).
+
+    .venv/bin/python bench/bench_scan_write.py --before DIR [--repeat 5] [--writes 6]
+
+1. End to end: ``python -P -m simlidar_mi.cli scan SCENE --out TMP`` in fresh processes under
+   ``/usr/bin/time``, the tree ``DIR`` ("before") and this checkout ("after") interleaved run
+   for run (``-P``: the code comes from ``PYTHONPATH`` only).  Medians of wall, CPU and peak
+   RSS, the stage seconds of ``measures.json``, and whether the last pair wrote the same bytes
+   (scan.exr, scan.png, points.las; measures.json but for ``seconds``).
+2. Writers: one process holds the scan, then writes its EXR, PNG and LAS with
+   :func:`simlidar_mi.lidar.scan_files.write_held_scan` on 1 thread (one after another, as
+   before) and on ``WRITER_THREADS`` threads, alternately; wall and process CPU seconds.
+Prints markdown; the load average is printed before and after.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "bench"))
+from _machine import machine  # noqa: E402
+
+WRITES = r"""
+import json, sys, tempfile, time, shutil
+from pathlib import Path
+from simlidar_mi.config import load_scene
+from simlidar_mi.lidar import scan_files
+from simlidar_mi.lidar.survey import run_scan
+cfg = load_scene(sys.argv[1])
+results = [run_scan(cfg, None).result]
+kw = {"exr_kwargs": {"seed": cfg.seed, "scene_sha256": cfg.sha256}, "las": True, "crs": None,
+      "png_titles": ["range image"]}
+out = {"1": [], str(scan_files.WRITER_THREADS): []}
+for rep in range(int(sys.argv[2]) + 1):  # the first round warms the imports and is dropped
+    for threads in (1, scan_files.WRITER_THREADS):
+        d = Path(tempfile.mkdtemp(dir=sys.argv[3]))
+        scan_files.WRITER_THREADS = threads
+        t, c = time.perf_counter(), time.process_time()
+        scan_files.write_held_scan(results, d, d, **kw)
+        if rep:
+            out[str(threads)].append((time.perf_counter() - t, time.process_time() - c))
+        shutil.rmtree(d)
+print(json.dumps(out))
+"""
+
+
+def md5(path: Path) -> str:
+    if path.name == "measures.json":
+        data = json.loads(path.read_text())
+        data.pop("seconds", None)
+        return hashlib.md5(json.dumps(data, sort_keys=True).encode()).hexdigest()
+    return hashlib.md5(path.read_bytes()).hexdigest()
+
+
+def one_run(tree: Path, scene: str, out: Path) -> dict:
+    shutil.rmtree(out, ignore_errors=True)
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    proc = subprocess.run(["/usr/bin/time", "-f", "TIME %e %U %S %M", sys.executable, "-P", "-m",
+                           "simlidar_mi.cli", "scan", scene, "--out", str(out)],
+                          capture_output=True, text=True, cwd=REPO, env=env)
+    if proc.returncode:
+        raise SystemExit(proc.stderr[-3000:])
+    wall, user, system, rss = proc.stderr.strip().splitlines()[-1].split()[1:]
+    seconds = json.loads((out / "measures.json").read_text())["seconds"]
+    return {"wall": float(wall), "cpu": float(user) + float(system), "rss_mb": int(rss) / 1024,
+            **seconds, "digest": {p.name: md5(p) for p in sorted(out.iterdir())}}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--before", required=True, help="a checkout of the code to compare with")
+    ap.add_argument("--scene", default="scenes/simlidar_table3_7x4.toml")
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--writes", type=int, default=6, help="rounds of the in-process writer test")
+    args = ap.parse_args()
+    print(machine())
+    print(f"load average at start: {os.getloadavg()}\n")
+    tmp = Path(tempfile.mkdtemp(prefix="bench_scan_write_"))
+    runs: dict[str, list] = {"before": [], "after": []}
+    for _ in range(args.repeat):
+        for name, tree in (("before", Path(args.before)), ("after", REPO)):
+            runs[name].append(one_run(tree, args.scene, tmp / name))
+            r = runs[name][-1]
+            print(f"  {name}: wall {r['wall']:.2f} s, CPU {r['cpu']:.2f} s, "
+                  + ", ".join(f"{k} {r[k]:.2f}" for k in ("generate", "build", "scan", "write")),
+                  flush=True)
+    same = runs["before"][-1]["digest"] == runs["after"][-1]["digest"]
+    print("\n| tree | wall (s) | CPU (s) | peak RSS (MB) | generate | build | scan | write | outside the stages |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for name, rs in runs.items():
+        med = {k: statistics.median(r[k] for r in rs) for k in ("wall", "cpu", "rss_mb", "generate", "build",
+                                                                   "scan", "write")}
+        outside = statistics.median(r["wall"] - r["generate"] - r["build"] - r["scan"] - r["write"] for r in rs)
+        print(f"| {name} | {med['wall']:.2f} | {med['cpu']:.2f} | {med['rss_mb']:.0f} | {med['generate']:.2f} | "
+              f"{med['build']:.2f} | {med['scan']:.2f} | {med['write']:.2f} | {outside:.2f} |")
+    ratios = [b["wall"] / a["wall"] for b, a in zip(runs["before"], runs["after"])]
+    print(f"\nbefore/after wall, median of pairs: {statistics.median(ratios):.2f}×; same bytes: {same}")
+    print("runs (wall/CPU s): " + "; ".join(
+        f"{name} " + ", ".join(f"{r['wall']:.2f}/{r['cpu']:.2f}" for r in rs) for name, rs in runs.items()))
+
+    proc = subprocess.run([sys.executable, "-c", WRITES, args.scene, str(args.writes), str(tmp)],
+                          capture_output=True, text=True, cwd=REPO,
+                          env={**os.environ, "PYTHONPATH": str(REPO)})
+    if proc.returncode:
+        raise SystemExit(proc.stderr[-3000:])
+    w = json.loads(proc.stdout.strip().splitlines()[-1])
+    print("\n| writers (EXR + PNG + LAS, one process) | wall (s), median | CPU (s), median | runs (wall) |")
+    print("|---|---:|---:|---|")
+    for threads, rs in w.items():
+        print(f"| {threads} thread{'s' if threads != '1' else ''} | {statistics.median(r[0] for r in rs):.3f} | "
+              f"{statistics.median(r[1] for r in rs):.3f} | {', '.join(f'{r[0]:.2f}' for r in rs)} |")
+    print(f"\nload average at end: {os.getloadavg()}")
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -10,6 +10,11 @@
 2. Writers: one process holds the scan, then writes its EXR, PNG and LAS with
    :func:`simlidar_mi.lidar.scan_files.write_held_scan` on 1 thread (one after another, as
    before) and on ``WRITER_THREADS`` threads, alternately; wall and process CPU seconds.
+3. Breakdown (``--breakdown N``): N fresh processes of this checkout running the same command
+   through ``simlidar_mi.cli.main`` with timers wrapped around each component (interpreter
+   start, imports, Mitsuba import and variant, scene file, generation, mesh arrays, the
+   Mitsuba meshes, Embree's scene load, the scan, each writer and the measures on their
+   threads, ``measures.json`` and the folder commit, process exit); medians.
 Prints markdown; the load average is printed before and after.
 """
 from __future__ import annotations
@@ -53,6 +58,65 @@ print(json.dumps(out))
 """
 
 
+BREAKDOWN = r"""
+import sys, time
+T = {"spawn": float(sys.argv[1]), "python_up": time.time()}
+S = {}
+def span(name, t0, t1):
+    S.setdefault(name, []).append((t0, t1))
+def wrap(mod, attr, name):
+    f = getattr(mod, attr)
+    def g(*a, **k):
+        t0 = time.time()
+        try:
+            return f(*a, **k)
+        finally:
+            span(name, t0, time.time())
+    setattr(mod, attr, g)
+t0 = time.time()
+import simlidar_mi.cli as cli
+from simlidar_mi import _mitsuba
+from simlidar_mi.lidar import survey, scan as scan_mod
+from simlidar_mi.scene import build as build_mod
+from simlidar_mi.io import atomic
+span("imports: numpy and ours", t0, time.time())
+t0 = time.time()
+mi = _mitsuba.mitsuba()
+span("Mitsuba import, set_variant (AD reload), plugins", t0, time.time())
+t0 = time.time()
+from simlidar_mi.io import exr, las, plots
+from simlidar_mi.lidar import scan_files
+span("imports: OpenEXR, laspy (+pyproj), PIL", t0, time.time())
+orig_load = mi.load_dict
+def load_dict(d, *a, **k):
+    t0 = time.time()
+    try:
+        return orig_load(d, *a, **k)
+    finally:
+        if isinstance(d, dict) and d.get("type") == "scene":
+            span("build: Embree, load_dict(scene)", t0, time.time())
+mi.load_dict = load_dict
+wrap(survey, "load_scene", "scene file")
+wrap(survey, "generate", "generate (L-systems)")
+wrap(build_mod, "exposed_ends", "build: mesh arrays (exposed_ends, prism_mesh)")
+wrap(build_mod, "prism_mesh", "build: mesh arrays (exposed_ends, prism_mesh)")
+wrap(build_mod, "_mi_mesh", "build: Mitsuba meshes (_mi_mesh)")
+wrap(survey, "build", "build stage")
+wrap(scan_mod, "scan", "scan (trace)")
+wrap(survey, "scan_measures", "thread: measures")
+wrap(exr, "write_scan_exr", "thread: EXR")
+wrap(las, "write_scan_las", "thread: LAS")
+wrap(plots, "plot_scan_png", "thread: PNG")
+wrap(scan_files, "write_held_scan", "writers + measures side by side (wall)")
+wrap(atomic, "_commit", "folder commit (renames)")
+t0 = time.time()
+rc = cli.main(["scan", sys.argv[2], "--out", sys.argv[3]])
+T["main"] = (t0, time.time())
+import json
+print(json.dumps({"T": T, "S": S}))
+"""
+
+
 def md5(path: Path) -> str:
     if path.name == "measures.json":
         data = json.loads(path.read_text())
@@ -75,13 +139,57 @@ def one_run(tree: Path, scene: str, out: Path) -> dict:
             **seconds, "digest": {p.name: md5(p) for p in sorted(out.iterdir())}}
 
 
+def breakdown_run(scene: str, out: Path) -> dict[str, float]:
+    """One fresh process of BREAKDOWN: seconds per component (see the module docstring)."""
+    shutil.rmtree(out, ignore_errors=True)
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    import time  # noqa: PLC0415
+    spawn = time.time()
+    proc = subprocess.run([sys.executable, "-P", "-c", BREAKDOWN, repr(spawn), scene, str(out)],
+                          capture_output=True, text=True, cwd=REPO, env=env)
+    end = time.time()
+    if proc.returncode:
+        raise SystemExit(proc.stderr[-3000:])
+    d = json.loads(proc.stdout.strip().splitlines()[-1])
+    T, S = d["T"], d["S"]
+    row = {"interpreter start (python -P, site)": T["python_up"] - spawn}
+    for name, spans in S.items():
+        row[name] = sum(b - a for a, b in spans)
+    build = row.pop("build stage")
+    row["build: the rest (origin, checks, shape group, ids)"] = build - sum(
+        v for k, v in row.items() if k.startswith("build: "))
+    main_s = T["main"][1] - T["main"][0]
+    inside = ("scene file", "generate (L-systems)", "scan (trace)",
+              "writers + measures side by side (wall)", "folder commit (renames)")
+    row["rest of main (argparse, patterns, staging, measures.json)"] = main_s - build - sum(
+        row.get(k, 0.0) for k in inside)
+    row["process exit (after the last file)"] = end - T["main"][1]
+    row["total (spawn to exit)"] = end - spawn
+    return row
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--before", required=True, help="a checkout of the code to compare with")
+    ap.add_argument("--before", help="a checkout of the code to compare with (required but for --breakdown)")
     ap.add_argument("--scene", default="scenes/simlidar_table3_7x4.toml")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--writes", type=int, default=6, help="rounds of the in-process writer test")
+    ap.add_argument("--breakdown", type=int, default=0, help="fresh processes for the breakdown only")
     args = ap.parse_args()
+    if args.breakdown:
+        print(machine())
+        print(f"load average at start: {os.getloadavg()}\n")
+        tmp = Path(tempfile.mkdtemp(prefix="bench_scan_write_"))
+        rows = [breakdown_run(args.scene, tmp / "out") for _ in range(args.breakdown)]
+        print("| component | median (s) | min (s) | runs (s) |\n|---|---:|---:|---|")
+        for k in rows[0]:
+            xs = [r.get(k, 0.0) for r in rows]
+            print(f"| {k} | {statistics.median(xs):.3f} | {min(xs):.3f} | {', '.join(f'{x:.2f}' for x in xs)} |")
+        print(f"\nload average at end: {os.getloadavg()}")
+        shutil.rmtree(tmp, ignore_errors=True)
+        return
+    if not args.before:
+        ap.error("--before DIR is needed")
     print(machine())
     print(f"load average at start: {os.getloadavg()}\n")
     tmp = Path(tempfile.mkdtemp(prefix="bench_scan_write_"))

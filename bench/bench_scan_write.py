@@ -8,13 +8,13 @@
    RSS, the stage seconds of ``measures.json``, and whether the last pair wrote the same bytes
    (scan.exr, scan.png, points.las; measures.json but for ``seconds``).
 2. Writers: one process holds the scan, then writes its EXR, PNG and LAS with
-   :func:`simlidar_mi.lidar.scan_files.write_held_scan` on 1 thread (one after another, as
-   before) and on ``WRITER_THREADS`` threads, alternately; wall and process CPU seconds.
+   :func:`simlidar_mi.lidar.scan_files.write_held_scan`, alternately all here in turn (as
+   before) and with the LAS in a forked child (``FORK_LAS``); wall seconds.
 3. Breakdown (``--breakdown N``): N fresh processes of this checkout running the same command
    through ``simlidar_mi.cli.main`` with timers wrapped around each component (interpreter
    start, imports, Mitsuba import and variant, scene file, generation, mesh arrays, the
-   Mitsuba meshes, Embree's scene load, the scan, each writer and the measures on their
-   threads, ``measures.json`` and the folder commit, process exit); medians.
+   Mitsuba meshes, Embree's scene load, the scan, each writer and the measures, the LAS
+   child's fork and the wait for it, the folder commit, process exit); medians.
 Prints markdown; the load average is printed before and after.
 """
 from __future__ import annotations
@@ -44,15 +44,15 @@ cfg = load_scene(sys.argv[1])
 results = [run_scan(cfg, None).result]
 kw = {"exr_kwargs": {"seed": cfg.seed, "scene_sha256": cfg.sha256}, "las": True, "crs": None,
       "png_titles": ["range image"]}
-out = {"1": [], str(scan_files.WRITER_THREADS): []}
+out = {"in turn, here": [], "LAS in a forked child": []}
 for rep in range(int(sys.argv[2]) + 1):  # the first round warms the imports and is dropped
-    for threads in (1, scan_files.WRITER_THREADS):
+    for name, fork in zip(out, (False, True)):
         d = Path(tempfile.mkdtemp(dir=sys.argv[3]))
-        scan_files.WRITER_THREADS = threads
-        t, c = time.perf_counter(), time.process_time()
+        scan_files.FORK_LAS = fork
+        t = time.perf_counter()
         scan_files.write_held_scan(results, d, d, **kw)
         if rep:
-            out[str(threads)].append((time.perf_counter() - t, time.process_time() - c))
+            out[name].append((time.perf_counter() - t, 0.0))
         shutil.rmtree(d)
 print(json.dumps(out))
 """
@@ -87,6 +87,8 @@ t0 = time.time()
 from simlidar_mi.io import exr, las, plots
 from simlidar_mi.lidar import scan_files
 span("imports: OpenEXR, laspy (+pyproj), PIL", t0, time.time())
+if sys.argv[4] != "default":
+    scan_files.FORK_LAS = sys.argv[4] == "1"
 orig_load = mi.load_dict
 def load_dict(d, *a, **k):
     t0 = time.time()
@@ -103,17 +105,31 @@ wrap(build_mod, "prism_mesh", "build: mesh arrays (exposed_ends, prism_mesh)")
 wrap(build_mod, "_mi_mesh", "build: Mitsuba meshes (_mi_mesh)")
 wrap(survey, "build", "build stage")
 wrap(scan_mod, "scan", "scan (trace)")
-wrap(survey, "scan_measures", "thread: measures")
-wrap(exr, "write_scan_exr", "thread: EXR")
-wrap(las, "write_scan_las", "thread: LAS")
-wrap(plots, "plot_scan_png", "thread: PNG")
-wrap(scan_files, "write_held_scan", "writers + measures side by side (wall)")
+wrap(survey, "scan_measures", "write: measures")
+wrap(exr, "write_scan_exr", "write: EXR")
+wrap(las, "write_scan_las", "write: LAS (here; in the child not seen)")
+wrap(plots, "plot_scan_png", "write: PNG")
+wrap(scan_files._Child, "__init__", "write: fork of the LAS child")
+wrap(scan_files._Child, "wait", "write: waiting for the LAS child at the end")
+wrap(scan_files, "write_held_scan", "write: all files and the measures (wall)")
+import resource
+_held = scan_files.write_held_scan
+def held_cpu(*a, **k):  # CPU seconds of this process and of the LAS child, apart
+    c0, k0 = time.process_time(), resource.getrusage(resource.RUSAGE_CHILDREN)
+    try:
+        return _held(*a, **k)
+    finally:
+        k1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        span("write CPU: this process", 0.0, time.process_time() - c0)
+        span("write CPU: the LAS child", 0.0, (k1.ru_utime - k0.ru_utime) + (k1.ru_stime - k0.ru_stime))
+scan_files.write_held_scan = held_cpu
 wrap(atomic, "_commit", "folder commit (renames)")
 t0 = time.time()
 rc = cli.main(["scan", sys.argv[2], "--out", sys.argv[3]])
 T["main"] = (t0, time.time())
 import json
-print(json.dumps({"T": T, "S": S}))
+print(json.dumps({"T": T, "S": S}), flush=True)
+cli._exit_now(rc)  # as the command line ends (simlidar_mi/cli.py)
 """
 
 
@@ -139,13 +155,13 @@ def one_run(tree: Path, scene: str, out: Path) -> dict:
             **seconds, "digest": {p.name: md5(p) for p in sorted(out.iterdir())}}
 
 
-def breakdown_run(scene: str, out: Path) -> dict[str, float]:
+def breakdown_run(scene: str, out: Path, fork: str = "default") -> dict[str, float]:
     """One fresh process of BREAKDOWN: seconds per component (see the module docstring)."""
     shutil.rmtree(out, ignore_errors=True)
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     import time  # noqa: PLC0415
     spawn = time.time()
-    proc = subprocess.run([sys.executable, "-P", "-c", BREAKDOWN, repr(spawn), scene, str(out)],
+    proc = subprocess.run([sys.executable, "-P", "-c", BREAKDOWN, repr(spawn), scene, str(out), fork],
                           capture_output=True, text=True, cwd=REPO, env=env)
     end = time.time()
     if proc.returncode:
@@ -160,10 +176,10 @@ def breakdown_run(scene: str, out: Path) -> dict[str, float]:
         v for k, v in row.items() if k.startswith("build: "))
     main_s = T["main"][1] - T["main"][0]
     inside = ("scene file", "generate (L-systems)", "scan (trace)",
-              "writers + measures side by side (wall)", "folder commit (renames)")
+              "write: all files and the measures (wall)", "folder commit (renames)")
     row["rest of main (argparse, patterns, staging, measures.json)"] = main_s - build - sum(
         row.get(k, 0.0) for k in inside)
-    row["process exit (after the last file)"] = end - T["main"][1]
+    row["process exit (after the last file; cli._exit_now)"] = end - T["main"][1]
     row["total (spawn to exit)"] = end - spawn
     return row
 
@@ -175,16 +191,33 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--writes", type=int, default=6, help="rounds of the in-process writer test")
     ap.add_argument("--breakdown", type=int, default=0, help="fresh processes for the breakdown only")
+    ap.add_argument("--no-limits", action="store_true", help="breakdown without the limits")
+    ap.add_argument("--fork", default="default", choices=("default", "0", "1"),
+                    help="LAS in a forked child in the breakdown (default: as shipped)")
     args = ap.parse_args()
     if args.breakdown:
         print(machine())
         print(f"load average at start: {os.getloadavg()}\n")
         tmp = Path(tempfile.mkdtemp(prefix="bench_scan_write_"))
-        rows = [breakdown_run(args.scene, tmp / "out") for _ in range(args.breakdown)]
+        rows = [breakdown_run(args.scene, tmp / "out", args.fork) for _ in range(args.breakdown)]
         print("| component | median (s) | min (s) | runs (s) |\n|---|---:|---:|---|")
         for k in rows[0]:
             xs = [r.get(k, 0.0) for r in rows]
             print(f"| {k} | {statistics.median(xs):.3f} | {min(xs):.3f} | {', '.join(f'{x:.2f}' for x in xs)} |")
+        # The limits of bench_scale.py (BENCHMARKS §8a), in the same run: the process floor
+        # (numpy + Mitsuba + variant + a one-triangle scene), the raw ray cast of the scan's
+        # own beams, the disk for the same bytes in as many files; Embree is the row above.
+        if args.no_limits:
+            return
+        import bench_scale as bs  # noqa: PLC0415
+        breakdown_run(args.scene, tmp / "out")
+        n_bytes, n_files = bs.dir_bytes(tmp / "out"), bs.dir_files(tmp / "out")
+        floor = statistics.median(bs.in_process(bs.FLOOR)["s"] for _ in range(args.breakdown))
+        rays = bs.in_process(bs.RAYS, args.scene, str(args.breakdown))
+        disk = statistics.median(bs.disk_write_s(n_bytes, n_files, tmp) for _ in range(args.breakdown))
+        print(f"\nlimits: floor {floor:.3f} s; raw rays {rays['raw_s']:.3f} s ({rays['beams']:,} beams; "
+              f"the scan itself {rays['scan_s']:.3f} s warm); disk {disk:.3f} s for {n_bytes / 1e6:.1f} MB "
+              f"in {n_files} files")
         print(f"\nload average at end: {os.getloadavg()}")
         shutil.rmtree(tmp, ignore_errors=True)
         return
@@ -221,11 +254,11 @@ def main() -> None:
     if proc.returncode:
         raise SystemExit(proc.stderr[-3000:])
     w = json.loads(proc.stdout.strip().splitlines()[-1])
-    print("\n| writers (EXR + PNG + LAS, one process) | wall (s), median | CPU (s), median | runs (wall) |")
+    print("\n| writers (EXR + PNG + LAS of the held scan, warm process) | wall (s), median | wall (s), min | runs |")
     print("|---|---:|---:|---|")
-    for threads, rs in w.items():
-        print(f"| {threads} thread{'s' if threads != '1' else ''} | {statistics.median(r[0] for r in rs):.3f} | "
-              f"{statistics.median(r[1] for r in rs):.3f} | {', '.join(f'{r[0]:.2f}' for r in rs)} |")
+    for name, rs in w.items():
+        print(f"| {name} | {statistics.median(r[0] for r in rs):.3f} | {min(r[0] for r in rs):.3f} | "
+              f"{', '.join(f'{r[0]:.2f}' for r in rs)} |")
     print(f"\nload average at end: {os.getloadavg()}")
     shutil.rmtree(tmp, ignore_errors=True)
 

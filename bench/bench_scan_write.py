@@ -1,20 +1,18 @@
-"""Table 3's 7×4 row end to end, and its writers one after another vs side by side (issue #8).
+"""Table 3's 7×4 row end to end, before/after, and where its time goes (issue #8).
 
-    .venv/bin/python bench/bench_scan_write.py --before DIR [--repeat 5] [--writes 6]
+    .venv/bin/python bench/bench_scan_write.py --before DIR [--repeat 5]
+    .venv/bin/python bench/bench_scan_write.py --breakdown 5 [--no-limits]
 
 1. End to end: ``python -P -m simlidar_mi.cli scan SCENE --out TMP`` in fresh processes under
    ``/usr/bin/time``, the tree ``DIR`` ("before") and this checkout ("after") interleaved run
    for run (``-P``: the code comes from ``PYTHONPATH`` only).  Medians of wall, CPU and peak
    RSS, the stage seconds of ``measures.json``, and whether the last pair wrote the same bytes
    (scan.exr, scan.png, points.las; measures.json but for ``seconds``).
-2. Writers: one process holds the scan, then writes its EXR, PNG and LAS with
-   :func:`simlidar_mi.lidar.scan_files.write_held_scan`, alternately all here in turn (as
-   before) and with the LAS in a forked child (``FORK_LAS``); wall seconds.
-3. Breakdown (``--breakdown N``): N fresh processes of this checkout running the same command
+2. Breakdown (``--breakdown N``): N fresh processes of this checkout running the same command
    through ``simlidar_mi.cli.main`` with timers wrapped around each component (interpreter
    start, imports, Mitsuba import and variant, scene file, generation, mesh arrays, the
-   Mitsuba meshes, Embree's scene load, the scan, each writer and the measures, the LAS
-   child's fork and the wait for it, the folder commit, process exit); medians.
+   Mitsuba meshes, Embree's scene load, the scan, the measures, each writer, the folder
+   commit, process exit); medians; then the limits of ``bench_scale.py`` in the same run.
 Prints markdown; the load average is printed before and after.
 """
 from __future__ import annotations
@@ -33,30 +31,6 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "bench"))
 from _machine import machine  # noqa: E402
-
-WRITES = r"""
-import json, sys, tempfile, time, shutil
-from pathlib import Path
-from simlidar_mi.config import load_scene
-from simlidar_mi.lidar import scan_files
-from simlidar_mi.lidar.survey import run_scan
-cfg = load_scene(sys.argv[1])
-results = [run_scan(cfg, None).result]
-kw = {"exr_kwargs": {"seed": cfg.seed, "scene_sha256": cfg.sha256}, "las": True, "crs": None,
-      "png_titles": ["range image"]}
-out = {"in turn, here": [], "LAS in a forked child": []}
-for rep in range(int(sys.argv[2]) + 1):  # the first round warms the imports and is dropped
-    for name, fork in zip(out, (False, True)):
-        d = Path(tempfile.mkdtemp(dir=sys.argv[3]))
-        scan_files.FORK_LAS = fork
-        t = time.perf_counter()
-        scan_files.write_held_scan(results, d, d, **kw)
-        if rep:
-            out[name].append((time.perf_counter() - t, 0.0))
-        shutil.rmtree(d)
-print(json.dumps(out))
-"""
-
 
 BREAKDOWN = r"""
 import sys, time
@@ -85,10 +59,7 @@ mi = _mitsuba.mitsuba()
 span("Mitsuba import, set_variant (AD reload), plugins", t0, time.time())
 t0 = time.time()
 from simlidar_mi.io import exr, las, plots
-from simlidar_mi.lidar import scan_files
 span("imports: OpenEXR, laspy (+pyproj), PIL", t0, time.time())
-if sys.argv[4] != "default":
-    scan_files.FORK_LAS = sys.argv[4] == "1"
 orig_load = mi.load_dict
 def load_dict(d, *a, **k):
     t0 = time.time()
@@ -105,24 +76,10 @@ wrap(build_mod, "prism_mesh", "build: mesh arrays (exposed_ends, prism_mesh)")
 wrap(build_mod, "_mi_mesh", "build: Mitsuba meshes (_mi_mesh)")
 wrap(survey, "build", "build stage")
 wrap(scan_mod, "scan", "scan (trace)")
-wrap(survey, "scan_measures", "write: measures")
+wrap(survey, "scan_measures", "measures (A_IM, A_IM_yz, swept share, wood)")
 wrap(exr, "write_scan_exr", "write: EXR")
-wrap(las, "write_scan_las", "write: LAS (here; in the child not seen)")
-wrap(plots, "plot_scan_png", "write: PNG")
-wrap(scan_files._Child, "__init__", "write: fork of the LAS child")
-wrap(scan_files._Child, "wait", "write: waiting for the LAS child at the end")
-wrap(scan_files, "write_held_scan", "write: all files and the measures (wall)")
-import resource
-_held = scan_files.write_held_scan
-def held_cpu(*a, **k):  # CPU seconds of this process and of the LAS child, apart
-    c0, k0 = time.process_time(), resource.getrusage(resource.RUSAGE_CHILDREN)
-    try:
-        return _held(*a, **k)
-    finally:
-        k1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-        span("write CPU: this process", 0.0, time.process_time() - c0)
-        span("write CPU: the LAS child", 0.0, (k1.ru_utime - k0.ru_utime) + (k1.ru_stime - k0.ru_stime))
-scan_files.write_held_scan = held_cpu
+wrap(las, "write_scan_las", "write: LAS")
+wrap(plots, "plot_scan_png", "write: PNG (range image)")
 wrap(atomic, "_commit", "folder commit (renames)")
 t0 = time.time()
 rc = cli.main(["scan", sys.argv[2], "--out", sys.argv[3]])
@@ -155,13 +112,13 @@ def one_run(tree: Path, scene: str, out: Path) -> dict:
             **seconds, "digest": {p.name: md5(p) for p in sorted(out.iterdir())}}
 
 
-def breakdown_run(scene: str, out: Path, fork: str = "default") -> dict[str, float]:
+def breakdown_run(scene: str, out: Path) -> dict[str, float]:
     """One fresh process of BREAKDOWN: seconds per component (see the module docstring)."""
     shutil.rmtree(out, ignore_errors=True)
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     import time  # noqa: PLC0415
     spawn = time.time()
-    proc = subprocess.run([sys.executable, "-P", "-c", BREAKDOWN, repr(spawn), scene, str(out), fork],
+    proc = subprocess.run([sys.executable, "-P", "-c", BREAKDOWN, repr(spawn), scene, str(out)],
                           capture_output=True, text=True, cwd=REPO, env=env)
     end = time.time()
     if proc.returncode:
@@ -175,8 +132,8 @@ def breakdown_run(scene: str, out: Path, fork: str = "default") -> dict[str, flo
     row["build: the rest (origin, checks, shape group, ids)"] = build - sum(
         v for k, v in row.items() if k.startswith("build: "))
     main_s = T["main"][1] - T["main"][0]
-    inside = ("scene file", "generate (L-systems)", "scan (trace)",
-              "write: all files and the measures (wall)", "folder commit (renames)")
+    inside = ("scene file", "generate (L-systems)", "scan (trace)", "measures (A_IM, A_IM_yz, swept share, wood)",
+              "write: EXR", "write: LAS", "write: PNG (range image)", "folder commit (renames)")
     row["rest of main (argparse, patterns, staging, measures.json)"] = main_s - build - sum(
         row.get(k, 0.0) for k in inside)
     row["process exit (after the last file; cli._exit_now)"] = end - T["main"][1]
@@ -189,17 +146,14 @@ def main() -> None:
     ap.add_argument("--before", help="a checkout of the code to compare with (required but for --breakdown)")
     ap.add_argument("--scene", default="scenes/simlidar_table3_7x4.toml")
     ap.add_argument("--repeat", type=int, default=5)
-    ap.add_argument("--writes", type=int, default=6, help="rounds of the in-process writer test")
     ap.add_argument("--breakdown", type=int, default=0, help="fresh processes for the breakdown only")
     ap.add_argument("--no-limits", action="store_true", help="breakdown without the limits")
-    ap.add_argument("--fork", default="default", choices=("default", "0", "1"),
-                    help="LAS in a forked child in the breakdown (default: as shipped)")
     args = ap.parse_args()
     if args.breakdown:
         print(machine())
         print(f"load average at start: {os.getloadavg()}\n")
         tmp = Path(tempfile.mkdtemp(prefix="bench_scan_write_"))
-        rows = [breakdown_run(args.scene, tmp / "out", args.fork) for _ in range(args.breakdown)]
+        rows = [breakdown_run(args.scene, tmp / "out") for _ in range(args.breakdown)]
         print("| component | median (s) | min (s) | runs (s) |\n|---|---:|---:|---|")
         for k in rows[0]:
             xs = [r.get(k, 0.0) for r in rows]
@@ -248,17 +202,6 @@ def main() -> None:
     print("runs (wall/CPU s): " + "; ".join(
         f"{name} " + ", ".join(f"{r['wall']:.2f}/{r['cpu']:.2f}" for r in rs) for name, rs in runs.items()))
 
-    proc = subprocess.run([sys.executable, "-c", WRITES, args.scene, str(args.writes), str(tmp)],
-                          capture_output=True, text=True, cwd=REPO,
-                          env={**os.environ, "PYTHONPATH": str(REPO)})
-    if proc.returncode:
-        raise SystemExit(proc.stderr[-3000:])
-    w = json.loads(proc.stdout.strip().splitlines()[-1])
-    print("\n| writers (EXR + PNG + LAS of the held scan, warm process) | wall (s), median | wall (s), min | runs |")
-    print("|---|---:|---:|---|")
-    for name, rs in w.items():
-        print(f"| {name} | {statistics.median(r[0] for r in rs):.3f} | {min(r[0] for r in rs):.3f} | "
-              f"{', '.join(f'{r[0]:.2f}' for r in rs)} |")
     print(f"\nload average at end: {os.getloadavg()}")
     shutil.rmtree(tmp, ignore_errors=True)
 

@@ -413,11 +413,12 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
         seconds["scan"] = time.perf_counter() - t
         if not streamed:
             bar(f"scanned {n_beams} beams")
-    if not streamed and out_dir is None:  # with files: beside the writers (below)
+    if not streamed:
         measures = scan_measures(cfg, geometry, built, results)
     files: dict[str, Path] = {}
     t = time.perf_counter()
     if out_dir is not None:
+        from ..io.exr import write_scan_exr  # noqa: PLC0415
         with staged_dir(out_dir, SCAN_OUTPUTS) as stage:
             if streamed:
                 from .stream import stream_scan  # noqa: PLC0415
@@ -436,16 +437,22 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
                     files["las"] = Path(out_dir) / "points.las"
                 bar(f"scanned and wrote {n_beams} beams in chunks of {chunk}")
                 measures = scan_measures(cfg, geometry, built, results)
-            else:  # EXR, PNG and LAS side by side (lidar/scan_files.py)
-                from .scan_files import write_held_scan  # noqa: PLC0415
-                legs = [f", leg {j}" if len(results) > 1 else "" for j in range(len(results))]
-                written, measures = write_held_scan(
-                    results, stage, Path(out_dir), exr_kwargs={"seed": cfg.seed, "scene_sha256": cfg.sha256,
-                        "extra": {"scene_file": cfg.source, "representation": built.representation,
-                                  "facets": built.facets}}, las=write_las, crs=cfg["scene"]["crs"],
-                    png_titles=[f"{cfg['scene']['name']}: range image{leg}" for leg in legs] if write_png else None,
-                    also=lambda: scan_measures(cfg, geometry, built, results))
-                files.update(written)
+            for j, res in enumerate([] if streamed else results):
+                stem = "scan" if len(results) == 1 else f"scan_leg{j}"
+                write_scan_exr(res, stage / f"{stem}.exr", seed=cfg.seed, scene_sha256=cfg.sha256,
+                               extra={"scene_file": cfg.source, "representation": built.representation,
+                                      "facets": built.facets})
+                files[f"exr{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.exr"
+                if write_png:
+                    from ..io.plots import plot_scan_png  # noqa: PLC0415
+                    leg = "" if len(results) == 1 else f", leg {j}"
+                    plot_scan_png(res, stage / f"{stem}.png", title=f"{cfg['scene']['name']}: range image{leg}")
+                    files[f"png{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.png"
+            if write_las and not streamed:
+                from ..io.las import write_scan_las  # noqa: PLC0415
+                write_scan_las(results if len(results) > 1 else results[0], stage / "points.las",
+                               crs=cfg["scene"]["crs"])
+                files["las"] = Path(out_dir) / "points.las"
             seconds["write"] = time.perf_counter() - t - (seconds["scan"] if streamed else 0.0)
             measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}
             with atomic_file(stage / "measures.json") as tmp:

@@ -540,7 +540,11 @@ def _exit_now(rc: int) -> None:
     :func:`main` gets its return value."""
     import atexit  # noqa: PLC0415
     import os  # noqa: PLC0415
-    atexit._run_exitfuncs()  # what a normal exit runs first
+    import threading  # noqa: PLC0415
+    for thread in threading.enumerate():  # as a normal exit does first: wait for the others
+        if thread is not threading.current_thread() and not thread.daemon:
+            thread.join()
+    atexit._run_exitfuncs()  # then the exit handlers
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()

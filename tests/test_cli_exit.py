@@ -52,3 +52,13 @@ def test_scan_files_complete_before_the_process_ends(tmp_path):
 def test_main_with_argv_returns(capsys):
     assert main(["sensors"]) == 0
     assert "recalled, not checked" in capsys.readouterr().out
+
+
+def test_other_threads_finish_first(tmp_path):
+    code = ("import threading, time\n"
+            "threading.Thread(target=lambda: (time.sleep(0.3), print('thread done', flush=True))).start()\n"
+            + AFTER_MAIN)
+    proc = subprocess.run([sys.executable, "-c", code, "sensors"], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines()[-2:] == ["thread done", "atexit ran"]

@@ -162,6 +162,7 @@ def main() -> None:
         # (numpy + Mitsuba + variant + a one-triangle scene), the raw ray cast of the scan's
         # own beams, the disk for the same bytes in as many files; Embree is the row above.
         if args.no_limits:
+            shutil.rmtree(tmp, ignore_errors=True)
             return
         import bench_scale as bs  # noqa: PLC0415
         breakdown_run(args.scene, tmp / "out")

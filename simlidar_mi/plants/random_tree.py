@@ -43,7 +43,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
 from .laws import _whole
-from .tree_leaves import _Z, LeafTable, _make_leaves, _rotate, _unit
+from .tree_leaves import _Z, LeafTable, _cross, _make_leaves, _rotate, _unit
 from .tree_params import _LAWS, RandomTreeParams
 
 __all__ = ["RandomTree", "TreeDraws", "random_tree"]
@@ -145,18 +145,28 @@ class RandomTree:
 # --- generation ------------------------------------------------------------------------
 
 
+def _len(v: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(v, axis=1, keepdims=True)`` bit for bit (it is sqrt(Σ v·v)), without its overhead."""
+    return np.sqrt((v * v).sum(1, keepdims=True))
+
+
 def _bend(H: np.ndarray, U: np.ndarray, tropism: float) -> tuple[np.ndarray, np.ndarray]:
     """Tropism: pull headings toward ±z, then make U perpendicular to H again."""
     if tropism == 0 or not len(H):
         return H, U
     H2 = H + tropism * _Z
-    norm = np.linalg.norm(H2, axis=1, keepdims=True)
+    norm = _len(H2)
     # |τ| ≤ 0.95 keeps H + τẑ away from 0 unless H is nearly ∓ẑ; keep H there
     H2 = np.where(norm > 1e-6, H2 / np.maximum(norm, 1e-300), H)
     U2 = U - (U * H2).sum(1, keepdims=True) * H2
-    n = np.linalg.norm(U2, axis=1, keepdims=True)
-    fallback = np.cross(H2, np.where(np.abs(H2[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]]))
-    U2 = np.where(n > 1e-9, U2 / np.maximum(n, 1e-300), _unit(fallback))
+    n = _len(U2)
+    ok = n > 1e-9
+    U2 = U2 / np.maximum(n, 1e-300)
+    if not ok.all():   # U ∥ H after the bend: any unit vector ⟂ H will do
+        bad = ~ok[:, 0]
+        Hb = H2[bad]
+        fallback = _cross(Hb, np.where(np.abs(Hb[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]]))
+        U2[bad] = _unit(fallback)
     return H2, U2
 
 
@@ -294,38 +304,43 @@ def random_tree(params: RandomTreeParams, seed: int | np.random.SeedSequence | n
                                           int((~trunk_mother).sum()))
         else:
             ang[:] = draw("branch_angle_deg", P.branch_angle_deg, nl)
-        ang = np.radians(ang)
-        src = gi[mother]
-        az = twist[mother] + 2 * np.pi * k_in / np.maximum(m[mother], 1)
-        u = _rotate(U[src], H[src], az)
-        Hd = np.cos(ang)[:, None] * H[src] + np.sin(ang)[:, None] * u
-        Ud = np.cos(ang)[:, None] * u - np.sin(ang)[:, None] * H[src]
-        Hd, Ud = _bend(Hd, Ud, tau)
-        # apex-branching (no leader) daughters continue the axis ratio r1; laterals of a led axis use r2
-        led = leader[mother]
-        lr = np.where(led, g["lateral_length_ratio"], g["length_ratio"])
-        rr = np.where(led, g["lateral_radius_ratio"], g["radius_ratio"])
-        lat = (start[src] + t[:, None] * (end[src] - start[src]), Hd, Ud, length[src] * lr,
-               radius[src] * rr, order[src] + 1)
-
         # leaders (monopodial axes): opposite the first lateral, rolled by the divergence
         li = np.flatnonzero(leader)
         nL = len(li)
-        la = np.radians(draw("leader_angle_deg", P.leader_angle_deg, nL))
-        srcL = gi[li]
-        uL = _rotate(U[srcL], H[srcL], twist[li] + np.pi)
-        HL = np.cos(la)[:, None] * H[srcL] + np.sin(la)[:, None] * uL
-        UL = np.cos(la)[:, None] * uL - np.sin(la)[:, None] * H[srcL]
-        UL = _rotate(UL, HL, np.full(nL, math.radians(P.divergence_deg)))
-        side = order[srcL] > 1  # the trunk's own leader is not bent: stems stay upright
-        if side.any():
-            HL[side], UL[side] = _bend(HL[side], UL[side], tau)
-        lead = (end[srcL], HL, UL, length[srcL] * g["length_ratio"],
-                radius[srcL] * g["radius_ratio"], order[srcL])
+        la = draw("leader_angle_deg", P.leader_angle_deg, nL)
 
+        # the next generation, leaders first then laterals. Every step below is row-wise,
+        # so leaders and laterals share one pass: a leader turns by twist + π about its
+        # mother's axis and tilts by its leader angle, a lateral turns by its azimuth and
+        # tilts by its branch angle.
+        srcL, src = gi[li], gi[mother]
+        s_all = np.concatenate([srcL, src])
+        turn = np.concatenate([twist[li] + np.pi,
+                               twist[mother] + 2 * np.pi * k_in / np.maximum(m[mother], 1)])
+        tilt = np.radians(np.concatenate([la, ang]))
+        Hm, Um = H[s_all], U[s_all]
+        u = _rotate(Um, Hm, turn)
+        c, s_ = np.cos(tilt)[:, None], np.sin(tilt)[:, None]
+        Hn = c * Hm + s_ * u
+        Un = c * u - s_ * Hm
+        if nL:
+            Un[:nL] = _rotate(Un[:nL], Hn[:nL], np.full(nL, math.radians(P.divergence_deg)))
+        # the trunk's own leader is not bent: stems stay upright
+        bent = np.concatenate([order[srcL] > 1, np.ones(nl, bool)])
+        if tau != 0 and bent.any():
+            Hn[bent], Un[bent] = _bend(Hn[bent], Un[bent], tau)
+        # apex-branching (no leader) daughters continue the axis ratio r1; laterals of a led axis use r2
+        led = leader[mother]
+        lr = np.concatenate([np.full(nL, g["length_ratio"]),
+                             np.where(led, g["lateral_length_ratio"], g["length_ratio"])])
+        rr = np.concatenate([np.full(nL, g["radius_ratio"]),
+                             np.where(led, g["lateral_radius_ratio"], g["radius_ratio"])])
         kids[gi] = m + leader
         out_kids.append(kids)
-        start, H, U, length, radius, order = (np.concatenate([a, b]) for a, b in zip(lead, lat))
+        start = np.concatenate([end[srcL], start[src] + t[:, None] * (end[src] - start[src])])
+        H, U = Hn, Un
+        length, radius = length[s_all] * lr, radius[s_all] * rr
+        order = np.concatenate([order[srcL], order[src] + 1])
     if len(out_kids) < len(out_p0):
         out_kids.append(np.zeros(len(out_p0[-1]), np.int64))
 
@@ -351,8 +366,7 @@ def random_tree(params: RandomTreeParams, seed: int | np.random.SeedSequence | n
     ll = draw("leaf_length_m", P.leaf_length_m, nleaf)
     lw = ll * draw("leaf_width_ratio", P.leaf_width_ratio, nleaf)
     roll = np.radians(draw("leaf_roll_deg", P.leaf_roll_deg, nleaf))
-    leaves, table = _make_leaves(P, p0[owner], p1[owner], r[owner], Hb[owner], Ub[owner],
-                                 tpos, phi, lang, ll, lw, roll, tid)
+    leaves, table = _make_leaves(P, p0, p1, r, Hb, Ub, owner, tpos, phi, lang, ll, lw, roll, tid)
     draws = None
     if keep_draws:
         local = {k: np.zeros(0) for k in _LAWS if k not in g}  # every local law, drawn or not

@@ -25,6 +25,7 @@ from .tree_params import RandomTreeParams, leaf_polygon_area_factor
 __all__ = ["LeafTable", "ellipse_fan"]
 
 _Z = np.array([0.0, 0.0, 1.0])
+_BLOCK = 512   # leaves per block when (3, n) columns are written into (n, …, 3) triangles
 
 
 # --- rotations -------------------------------------------------------------------------
@@ -39,20 +40,27 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-# np.cross(a, b) is a1·b2 − a2·b1, a2·b0 − a0·b2, a0·b1 − a1·b0: the rows of these index
-# permutations give the same products and differences (same bits) without np.cross's
-# moveaxis/broadcast set-up, which dominates on the few-row arrays of a growing tree.
-_P1, _P2 = [1, 2, 0], [2, 0, 1]
+# np.cross(a, b) is a1·b2 − a2·b1, a2·b0 − a0·b2, a0·b1 − a1·b0: the same products and
+# differences written out give the same bits without np.cross's moveaxis/broadcast set-up,
+# which dominates on the few-row arrays of a growing tree.
+_I1, _I2 = np.array([1, 2, 0]), np.array([2, 0, 1])
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``np.cross(a, b)`` of (n, 3) rows (or a (3,) ``b``), bit for bit."""
-    return a[..., _P1] * b[..., _P2] - a[..., _P2] * b[..., _P1]
+    return (a.take(_I1, axis=-1) * b.take(_I2, axis=-1)
+            - a.take(_I2, axis=-1) * b.take(_I1, axis=-1))
 
 
 def _cross_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The same cross product for vectors stored as columns: (3, n) arrays (or (3, 1) ``b``)."""
-    return a[_P1] * b[_P2] - a[_P2] * b[_P1]
+    """The same cross product for vectors stored as columns: (3, n) arrays (or a (3, 1) ``b``)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    a0, a1, a2 = a
+    b0, b1, b2 = b
+    np.subtract(a1 * b2, a2 * b1, out=out[0])
+    np.subtract(a2 * b0, a0 * b2, out=out[1])
+    np.subtract(a0 * b1, a1 * b0, out=out[2])
+    return out
 
 
 def _norm_t(a: np.ndarray) -> np.ndarray:
@@ -106,9 +114,11 @@ def _ellipse_fan_t(centre: np.ndarray, head: np.ndarray, side: np.ndarray, half_
             + (sa * half_w)[None] * side[:, None, :])   # (3, k+1, n)
     out = np.empty((n, k, 3, 3))
     o = out.transpose(3, 1, 2, 0)        # (3, k, 3, n) view: coordinate, triangle, vertex, leaf
-    o[:, :, 0] = centre[:, None, :]
-    o[:, :, 1] = ring[:, 1:]
-    o[:, :, 2] = ring[:, :-1]
+    for i in range(0, n, _BLOCK):        # blocks of leaves: the scattered writes stay in cache
+        j = i + _BLOCK
+        o[:, :, 0, i:j] = centre[:, None, i:j]
+        o[:, :, 1, i:j] = ring[:, 1:, i:j]
+        o[:, :, 2, i:j] = ring[:, :-1, i:j]
     return out
 
 
@@ -186,10 +196,9 @@ def _make_leaves(P: RandomTreeParams, p0, p1, r, H, U, owner, tpos, phi, lang, l
     if n == 0:
         return Leaves.empty(), LeafTable.empty()
 
-    def cols(a):
-        return np.ascontiguousarray(a.T)[:, owner]
-
-    b0, b1, H, U, br = cols(p0), cols(p1), cols(H), cols(U), r[owner]
+    # the bearing branches' ends, heading and reference as (12, n) columns, gathered at once
+    g = np.ascontiguousarray(np.concatenate([p0, p1, H, U], 1).T)[:, owner]
+    b0, b1, H, U, br = g[0:3], g[3:6], g[6:9], g[9:12], r[owner]
     u = _rotate_t(U, H, phi)                         # outward direction at the insertion
     head = np.cos(lang) * H + np.sin(lang) * u
     base = b0 + tpos * (b1 - b0) + br * u            # attached at the bark
@@ -213,12 +222,12 @@ def _make_leaves(P: RandomTreeParams, p0, p1, r, H, U, owner, tpos, phi, lang, l
         # (base, right, tip), (base, tip, left): both wound so the normal is side × head
         tri = np.empty((n, 2, 3, 3))
         o = tri.transpose(3, 1, 2, 0)                # (3, 2, 3, n) view
-        o[:, 0, 0] = base
-        o[:, 0, 1] = right
-        o[:, 0, 2] = tip
-        o[:, 1, 0] = base
-        o[:, 1, 1] = tip
-        o[:, 1, 2] = left
+        for i in range(0, n, 2 * _BLOCK):            # blocks: the scattered writes stay in cache
+            j = i + 2 * _BLOCK
+            o[:, 0, 0, i:j] = o[:, 1, 0, i:j] = base[:, i:j]
+            o[:, 0, 1, i:j] = right[:, i:j]
+            o[:, 0, 2, i:j] = o[:, 1, 1, i:j] = tip[:, i:j]
+            o[:, 1, 2, i:j] = left[:, i:j]
     else:
         tri = _ellipse_fan_t(centre, head, side_r, 0.5 * ll, 0.5 * lw, P.leaf_sides)
     ntri = tri.shape[1]

@@ -84,6 +84,9 @@ class RandomTree:
     branching : share of the tree's branching decisions made with the L1 flag true:
         the flag itself (0 or 1) when it is drawn per tree.
     wood_scale : the factor :meth:`wood_scaled` applied (1 for a grown tree).
+    leaf_xy2_max_m2 : largest ``x² + y²`` of the leaf vertices, noted while they are made
+        (they are then still in cache; read back later they come from memory) so
+        :attr:`crown_radius_m` need not scan them; None: scan them.
     """
 
     branches: Branches
@@ -93,6 +96,7 @@ class RandomTree:
     draws: TreeDraws | None = field(default=None, repr=False)
     branching: float = 0.0
     wood_scale: float = 1.0
+    leaf_xy2_max_m2: float | None = field(default=None, repr=False, compare=False)
 
     def wood_scaled(self, scale: float) -> "RandomTree":
         """This tree with its wood scaled by ``scale`` about the trunk foot; leaves keep their size.
@@ -132,12 +136,15 @@ class RandomTree:
         pts = [np.zeros((1, 2))]
         if len(self.branches):
             pts += [self.branches.p0[:, :2], self.branches.p1[:, :2]]
-        if len(self.leaves):
+        if self.leaf_xy2_max_m2 is None and len(self.leaves):
             v = self.leaves.vertices.reshape(-1, 3)
             # in blocks: the temporaries stay in cache (a tree has ~10⁵ leaf vertices)
             pts += [v[i:i + 8192] for i in range(0, len(v), 8192)]
         # x·x + y·y per point: the same floats as (p ** 2).sum(1), without the (n, 2) temporaries
-        return float(np.sqrt(max((p[:, 0] * p[:, 0] + p[:, 1] * p[:, 1]).max() for p in pts)))
+        r2 = [(p[:, 0] * p[:, 0] + p[:, 1] * p[:, 1]).max() for p in pts]
+        if self.leaf_xy2_max_m2 is not None:
+            r2.append(self.leaf_xy2_max_m2)
+        return float(np.sqrt(max(r2)))
 
     @property
     def n_leaves(self) -> int:
@@ -368,7 +375,7 @@ def random_tree(params: RandomTreeParams, seed: int | np.random.SeedSequence | n
     ll = draw("leaf_length_m", P.leaf_length_m, nleaf)
     lw = ll * draw("leaf_width_ratio", P.leaf_width_ratio, nleaf)
     roll = np.radians(draw("leaf_roll_deg", P.leaf_roll_deg, nleaf))
-    leaves, table = _make_leaves(P, p0, p1, r, Hb, Ub, owner, tpos, phi, lang, ll, lw, roll, tid)
+    leaves, table, xy2 = _make_leaves(P, p0, p1, r, Hb, Ub, owner, tpos, phi, lang, ll, lw, roll, tid)
     draws = None
     if keep_draws:
         local = {k: np.zeros(0) for k in _LAWS if k not in g}  # every local law, drawn or not
@@ -376,5 +383,5 @@ def random_tree(params: RandomTreeParams, seed: int | np.random.SeedSequence | n
         draws = TreeDraws(dict(g), local)
     branching = (float(tree_flag) if per_tree
                  else n_flag_true / n_flag if n_flag else 0.0)
-    return RandomTree(branches, leaves, table, int_seed, draws, branching)
+    return RandomTree(branches, leaves, table, int_seed, draws, branching, 1.0, xy2)
 

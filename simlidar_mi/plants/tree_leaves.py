@@ -106,7 +106,10 @@ def ellipse_fan(centre: np.ndarray, head: np.ndarray, side: np.ndarray, half_l: 
 
 def _ellipse_fan_t(centre: np.ndarray, head: np.ndarray, side: np.ndarray, half_l: np.ndarray,
                    half_w: np.ndarray, k: int) -> np.ndarray:
-    """:func:`ellipse_fan` from (3, n) columns and (n,) half axes (same vertex arithmetic)."""
+    """:func:`ellipse_fan` from (3, n) columns and (n,) half axes (same vertex arithmetic).
+
+    Returns the triangles and the (3, k+1, n) polygon vertices.
+    """
     n = centre.shape[1]
     a = 2 * np.pi * np.arange(k + 1) / k
     ca, sa = np.cos(a)[:, None], np.sin(a)[:, None]
@@ -119,7 +122,7 @@ def _ellipse_fan_t(centre: np.ndarray, head: np.ndarray, side: np.ndarray, half_
         o[:, :, 0, i:j] = centre[:, None, i:j]
         o[:, :, 1, i:j] = ring[:, 1:, i:j]
         o[:, :, 2, i:j] = ring[:, :-1, i:j]
-    return out
+    return out, ring
 
 
 # --- leaves ----------------------------------------------------------------------------
@@ -186,15 +189,18 @@ class LeafTable:
 
 
 def _make_leaves(P: RandomTreeParams, p0, p1, r, H, U, owner, tpos, phi, lang, ll, lw, roll,
-                 tid: int) -> tuple[Leaves, LeafTable]:
+                 tid: int) -> tuple[Leaves, LeafTable, float | None]:
     """Leaves on branches ``owner`` (rows of the (nb, 3) ``p0``, ``p1``, ``H``, ``U`` and (nb,) ``r``).
+
+    Returns the leaves, their table and the largest ``x² + y²`` of their vertices (None
+    without leaves), taken from the distinct vertices while they are in cache.
 
     The vectors are handled as (3, n) columns: every operation then runs over contiguous
     (n,) rows instead of n rows of 3, with the per-element arithmetic of the row form.
     """
     n = len(ll)
     if n == 0:
-        return Leaves.empty(), LeafTable.empty()
+        return Leaves.empty(), LeafTable.empty(), None
 
     # the bearing branches' ends, heading and reference as (12, n) columns, gathered at once
     g = np.ascontiguousarray(np.concatenate([p0, p1, H, U], 1).T)[:, owner]
@@ -228,8 +234,10 @@ def _make_leaves(P: RandomTreeParams, p0, p1, r, H, U, owner, tpos, phi, lang, l
             o[:, 0, 1, i:j] = right[:, i:j]
             o[:, 0, 2, i:j] = o[:, 1, 1, i:j] = tip[:, i:j]
             o[:, 1, 2, i:j] = left[:, i:j]
+        corners = (base, right, tip, left)
     else:
-        tri = _ellipse_fan_t(centre, head, side_r, 0.5 * ll, 0.5 * lw, P.leaf_sides)
+        tri, ring = _ellipse_fan_t(centre, head, side_r, 0.5 * ll, 0.5 * lw, P.leaf_sides)
+        corners = (centre, ring.reshape(3, -1))
     ntri = tri.shape[1]
     area = leaf_polygon_area_factor(P.leaf_shape, P.leaf_sides) * ll * lw
     leaf_id = np.arange(n, dtype=np.int32)
@@ -237,4 +245,5 @@ def _make_leaves(P: RandomTreeParams, p0, p1, r, H, U, owner, tpos, phi, lang, l
                     np.full(n * ntri, tid, np.int32))
     table = LeafTable(np.full(n, tid, np.int32), leaf_id, np.ascontiguousarray(centre.T), ll, lw,
                       area, np.ascontiguousarray(normal.T), np.ascontiguousarray(head.T))
-    return leaves, table
+    xy2 = max(float((c[0] * c[0] + c[1] * c[1]).max()) for c in corners)
+    return leaves, table, xy2

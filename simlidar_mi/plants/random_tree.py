@@ -336,7 +336,9 @@ def random_tree(params: RandomTreeParams, seed: int | np.random.SeedSequence | n
             Un[:nL] = _rotate(Un[:nL], Hn[:nL], np.full(nL, math.radians(P.divergence_deg)))
         # the trunk's own leader is not bent: stems stay upright
         bent = np.concatenate([order[srcL] > 1, np.ones(nl, bool)])
-        if tau != 0 and bent.any():
+        if tau != 0 and bent.all():
+            Hn, Un = _bend(Hn, Un, tau)
+        elif tau != 0 and bent.any():
             Hn[bent], Un[bent] = _bend(Hn[bent], Un[bent], tau)
         # apex-branching (no leader) daughters continue the axis ratio r1; laterals of a led axis use r2
         led = leader[mother]

@@ -13,7 +13,8 @@ import pytest
 from scipy.special import ndtr, ndtri
 
 from simlidar_mi.plants.laws import Discrete, TruncNormal
-from simlidar_mi.plants.random_tree import _bend, _len, random_tree
+from simlidar_mi.errors import ConfigError
+from simlidar_mi.plants.random_tree import _bend, _len, iter_random_trees, random_tree
 from simlidar_mi.plants.tree_leaves import (
     _Z, _cross, _cross_t, _ellipse_fan_t, _make_leaves, _norm_t, _rotate, _rotate_t, ellipse_fan)
 from simlidar_mi.plants.tree_params import SPECIES_PRESETS, leaf_polygon_area_factor
@@ -182,3 +183,38 @@ def test_cached_discrete_draws_are_the_direct_inverse_cdf():
     ref = np.asarray(law.values)[np.minimum(np.searchsorted(cdf / cdf[-1], u, side="right"), 2)]
     assert _same(law.sample(np.random.default_rng(2), 1000), ref)
     assert set(np.unique(ref)) == {2, 3, 5}
+
+
+def _tree_bytes(t) -> bytes:
+    b, lv, lt = t.branches, t.leaves, t.leaf_table
+    arrays = [b.p0, b.p1, b.diameter, b.order, b.tree_id, lv.vertices, lv.leaf_id, lv.plant_id,
+              *(getattr(lt, f.name) for f in dataclasses.fields(lt))]
+    if t.draws is not None:
+        arrays += [t.draws.locals[k] for k in sorted(t.draws.locals)]
+    return b"".join(np.ascontiguousarray(a).tobytes() for a in arrays) + repr(
+        (t.seed, t.branching, t.crown_radius_m, sorted(t.draws.globals.items()) if t.draws else None)).encode()
+
+
+@pytest.mark.parametrize("name,per", [("deciduous-apex", "tree"), ("conifer-whorl", "branch"),
+                                      ("small-tree", "tree")])
+def test_trees_grown_together_are_the_trees_grown_alone(name, per):
+    P = dataclasses.replace(SPECIES_PRESETS[name], lateral_branching_per=per)
+    seeds = [11, 5, 2021, 0, 987654321]
+    together = list(iter_random_trees(P, seeds, [7, 8, 9, 10, 11], keep_draws=True))
+    alone = [random_tree(P, s, tree_id=k, keep_draws=True) for s, k in zip(seeds, [7, 8, 9, 10, 11])]
+    assert [_tree_bytes(t) for t in together] == [_tree_bytes(t) for t in alone]
+    # the trees differ from each other (the lock step does not share draws)
+    assert len({len(t.branches) for t in alone}) > 1
+
+
+def test_trees_grown_together_name_the_first_tree_that_grows_too_many():
+    P = SPECIES_PRESETS["small-tree"]
+    sizes = [len(random_tree(P, s).branches) for s in range(12)]
+    cap = sizes[0]                       # tree 0 fits; the first larger tree does not
+    first = next(k for k, n in enumerate(sizes) if n > cap)
+    assert first > 0
+    Pc = dataclasses.replace(P, max_branches=cap)
+    with pytest.raises(ConfigError, match=f"tree {first} grows more than {cap}"):
+        random_tree(Pc, first, tree_id=first)
+    with pytest.raises(ConfigError, match=f"tree {first} grows more than {cap}"):
+        list(iter_random_trees(Pc, range(12)))

@@ -26,6 +26,9 @@ It is written as a direct generator (breadth-first, one vectorised numpy pass pe
 generation) rather than through :mod:`simlidar_mi.lsystem`: each branch needs its
 own random draws and frame, which a string-rewriting derivation would only carry
 as module parameters, and building the word first would cost memory for nothing.
+:func:`iter_random_trees` grows many trees of one species in lock step (the wood's numpy
+pass covers all of them: :mod:`simlidar_mi.plants.tree_growth`); each is the tree
+:func:`random_tree` grows from its seed, bit for bit.
 
 Randomness: every tree draws from its own ``numpy.random.Generator`` (from an
 integer seed, a ``SeedSequence`` or a Generator), in a fixed order, so the same

@@ -49,7 +49,7 @@ from .._progress import bar
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
-from ..plants.random_tree import RandomTree, random_tree
+from ..plants.random_tree import RandomTree, iter_random_trees, random_tree
 from ..plants.tree_leaves import LeafTable
 from .params import ForestParams, forest_params_from_scene, prototype_scale, prototype_seed, tree_seed
 from .placement import Placement, crown_overlap_share, expected_count, place_trees
@@ -345,6 +345,29 @@ def _bar(it: Iterable, progress, desc: str, total: int | None = None) -> Iterabl
     return bar(it, progress, desc, total, unit="tree")
 
 
+def _grow(params: ForestParams, species: np.ndarray, seeds: np.ndarray, tree_ids: np.ndarray,
+          progress, desc: str) -> list[RandomTree]:
+    """Tree k is ``random_tree(params.species[species[k]].tree, seeds[k], tree_id=tree_ids[k])``.
+
+    The trees of a species grow together (:func:`iter_random_trees`: one numpy pass per
+    generation for all of them); each draws from its own seed, so they are the trees grown
+    one by one, bit for bit.
+    """
+    species = np.asarray(species)
+    out: list[Any] = [None] * len(seeds)
+
+    def grown():
+        for j in np.unique(species):
+            idx = np.flatnonzero(species == j)
+            yield from zip(idx, iter_random_trees(params.species[int(j)].tree,
+                                                  [int(seeds[k]) for k in idx],
+                                                  [int(tree_ids[k]) for k in idx]))
+
+    for k, t in _bar(grown(), progress, desc, total=len(seeds)):
+        out[k] = t
+    return out
+
+
 def _with_tree_id(t: RandomTree, tid: int) -> RandomTree:
     """``t`` with its tree id set to ``tid`` (branches, leaves, leaf table); geometry untouched."""
     b, lv, lt = t.branches, t.leaves, t.leaf_table
@@ -423,8 +446,7 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
         seeds = np.array([tree_seed(seed, c) for c in range(nc)], np.int64)
         st["seeds"] = seeds
         if not params.instancing:
-            trees = [random_tree(params.species[int(sp[c])].tree, int(seeds[c]))
-                     for c in _bar(range(nc), progress, "trees", total=nc)]
+            trees = _grow(params, sp, seeds, np.zeros(nc, np.int64), progress, "trees")
             st["trees"] = trees
             t_grow += time.perf_counter() - t0
             return np.array([t.crown_radius_m for t in trees])
@@ -438,9 +460,9 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
         proto_seed = np.array([prototype_seed(seed, j, k) for j, k in zip(proto_sp, proto_k)], np.int64)
         proto_scale = np.array([1.0 if whole else prototype_scale(seed, j, k, (lo, hi))
                                 for j, k in zip(proto_sp, proto_k)])
-        protos = [random_tree(params.species[int(j)].tree, int(s_), tree_id=p).wood_scaled(sc)
-                  for p, (j, s_, sc) in _bar(list(enumerate(zip(proto_sp, proto_seed, proto_scale))),
-                                             progress, "prototypes")]
+        protos = [t.wood_scaled(sc) for t, sc in
+                  zip(_grow(params, proto_sp, proto_seed, np.arange(len(proto_sp)), progress,
+                            "prototypes"), proto_scale)]
         # balanced assignment: a random order of the species' candidates dealt round-robin
         first = np.concatenate([[0], np.cumsum(K)[:-1]]).astype(np.int64)
         prototype = np.empty(nc, np.int64)
@@ -490,8 +512,7 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
         if "trees" in st:
             trees = tuple(_with_tree_id(st["trees"][int(c)], i) for i, c in enumerate(cand))
         else:
-            trees = tuple(random_tree(params.species[int(placement.species[i])].tree, int(seeds[i]),
-                                      tree_id=i) for i in _bar(range(n), progress, "trees", total=n))
+            trees = tuple(_grow(params, placement.species, seeds, np.arange(n), progress, "trees"))
         info["n_trees_grown"] = len(st.get("trees", trees))
         prototype = np.full(n, -1, np.int32)
         yaw, scale = np.zeros(n), np.ones(n)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 import operator
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Mapping
 
 import numpy as np
@@ -103,20 +104,33 @@ class TruncNormal:
         phi = lambda x: 0.5 * math.erfc(-x / math.sqrt(2.0))  # noqa: E731
         return phi(-a) - phi(-b) if a > 0 else phi(b) - phi(a)
 
+    @cached_property
+    def _inverse(self) -> tuple[bool, Any, Any]:
+        """(mirror, Φ(a), Φ(b) − Φ(a)) of the inverse-CDF draw, computed once per law.
+
+        A random tree draws from each law a few times per generation; recomputing these
+        two ``ndtr`` values each time cost more than the draws themselves.
+        """
+        from scipy.special import ndtr  # noqa: PLC0415 - not at import: see _mass
+        a, b = self._std_bounds()
+        if a > 0:  # interval above the mean: sample the mirror image in the lower tail
+            pa, pb = ndtr(-b), ndtr(-a)
+        else:
+            pa, pb = ndtr(a), ndtr(b)
+        return bool(a > 0), pa, pb - pa
+
     def sample(self, rng: np.random.Generator, size: int | None = None) -> np.ndarray:
         """``size`` independent draws (float64 array; a 0-d array when size is None)."""
         u = rng.random(size)
         if self.sd == 0:
             return np.full_like(u, self.mean)
-        from scipy.special import ndtr, ndtri  # noqa: PLC0415 - not at import: see _mass
-        a, b = self._std_bounds()
-        if a > 0:  # interval above the mean: sample the mirror image in the lower tail
-            pa, pb = ndtr(-b), ndtr(-a)
-            x = -ndtri(pa + u * (pb - pa))
-        else:
-            pa, pb = ndtr(a), ndtr(b)
-            x = ndtri(pa + u * (pb - pa))
-        return np.clip(self.mean + self.sd * x, self.lo, self.hi)
+        from scipy.special import ndtri  # noqa: PLC0415 - not at import: see _mass
+        mirror, pa, width = self._inverse
+        x = ndtri(pa + u * width)
+        if mirror:
+            x = -x
+        # np.clip's elementwise min(max(x, lo), hi), without its Python-level dispatch
+        return np.minimum(np.maximum(self.mean + self.sd * x, self.lo), self.hi)
 
     def moments(self) -> tuple[float, float]:
         """Exact mean and standard deviation of the truncated law (scipy)."""
@@ -186,9 +200,15 @@ class Discrete:
     def sample(self, rng: np.random.Generator, size: int | None = None) -> np.ndarray:
         """``size`` draws (one uniform each, inverse CDF)."""
         u = rng.random(size)
+        cdf, values = self._table
+        idx = np.minimum(np.searchsorted(cdf, u, side="right"), len(cdf) - 1)
+        return values[idx]
+
+    @cached_property
+    def _table(self) -> tuple[np.ndarray, np.ndarray]:
+        """The normalised CDF and the values as an array, computed once per law."""
         cdf = np.cumsum(self.probs)
-        idx = np.minimum(np.searchsorted(cdf / cdf[-1], u, side="right"), len(cdf) - 1)
-        return np.asarray(self.values)[idx]
+        return cdf / cdf[-1], np.asarray(self.values)
 
     def moments(self) -> tuple[float, float]:
         v, p = np.asarray(self.values, np.float64), np.asarray(self.probs)

@@ -26,6 +26,9 @@ It is written as a direct generator (breadth-first, one vectorised numpy pass pe
 generation) rather than through :mod:`simlidar_mi.lsystem`: each branch needs its
 own random draws and frame, which a string-rewriting derivation would only carry
 as module parameters, and building the word first would cost memory for nothing.
+:func:`iter_random_trees` grows many trees of one species in lock step (the wood's numpy
+pass covers all of them: :mod:`simlidar_mi.plants.tree_growth`); each is the tree
+:func:`random_tree` grows from its seed, bit for bit.
 
 Randomness: every tree draws from its own ``numpy.random.Generator`` (from an
 integer seed, a ``SeedSequence`` or a Generator), in a fixed order, so the same
@@ -37,16 +40,18 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import Iterator
 
 import numpy as np
 
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
 from .laws import _whole
-from .tree_leaves import _Z, LeafTable, _make_leaves, _rotate, _unit
+from .tree_growth import _bend, _grow_wood, _len, _start, _Tree  # noqa: F401  (_bend, _len: tests)
+from .tree_leaves import LeafTable, _make_leaves
 from .tree_params import _LAWS, RandomTreeParams
 
-__all__ = ["RandomTree", "TreeDraws", "random_tree"]
+__all__ = ["RandomTree", "TreeDraws", "iter_random_trees", "random_tree"]
 
 
 # --- results ---------------------------------------------------------------------------
@@ -84,6 +89,9 @@ class RandomTree:
     branching : share of the tree's branching decisions made with the L1 flag true:
         the flag itself (0 or 1) when it is drawn per tree.
     wood_scale : the factor :meth:`wood_scaled` applied (1 for a grown tree).
+    leaf_xy2_max_m2 : largest ``x² + y²`` of the leaf vertices, noted while they are made
+        (they are then still in cache; read back later they come from memory) so
+        :attr:`crown_radius_m` need not scan them; None: scan them.
     """
 
     branches: Branches
@@ -93,6 +101,7 @@ class RandomTree:
     draws: TreeDraws | None = field(default=None, repr=False)
     branching: float = 0.0
     wood_scale: float = 1.0
+    leaf_xy2_max_m2: float | None = field(default=None, repr=False, compare=False)
 
     def wood_scaled(self, scale: float) -> "RandomTree":
         """This tree with its wood scaled by ``scale`` about the trunk foot; leaves keep their size.
@@ -132,10 +141,15 @@ class RandomTree:
         pts = [np.zeros((1, 2))]
         if len(self.branches):
             pts += [self.branches.p0[:, :2], self.branches.p1[:, :2]]
-        if len(self.leaves):
-            pts.append(self.leaves.vertices[..., :2].reshape(-1, 2))
+        if self.leaf_xy2_max_m2 is None and len(self.leaves):
+            v = self.leaves.vertices.reshape(-1, 3)
+            # in blocks: the temporaries stay in cache (a tree has ~10⁵ leaf vertices)
+            pts += [v[i:i + 8192] for i in range(0, len(v), 8192)]
         # x·x + y·y per point: the same floats as (p ** 2).sum(1), without the (n, 2) temporaries
-        return float(np.sqrt(max((p[:, 0] * p[:, 0] + p[:, 1] * p[:, 1]).max() for p in pts)))
+        r2 = [(p[:, 0] * p[:, 0] + p[:, 1] * p[:, 1]).max() for p in pts]
+        if self.leaf_xy2_max_m2 is not None:
+            r2.append(self.leaf_xy2_max_m2)
+        return float(np.sqrt(max(r2)))
 
     @property
     def n_leaves(self) -> int:
@@ -143,21 +157,6 @@ class RandomTree:
 
 
 # --- generation ------------------------------------------------------------------------
-
-
-def _bend(H: np.ndarray, U: np.ndarray, tropism: float) -> tuple[np.ndarray, np.ndarray]:
-    """Tropism: pull headings toward ±z, then make U perpendicular to H again."""
-    if tropism == 0 or not len(H):
-        return H, U
-    H2 = H + tropism * _Z
-    norm = np.linalg.norm(H2, axis=1, keepdims=True)
-    # |τ| ≤ 0.95 keeps H + τẑ away from 0 unless H is nearly ∓ẑ; keep H there
-    H2 = np.where(norm > 1e-6, H2 / np.maximum(norm, 1e-300), H)
-    U2 = U - (U * H2).sum(1, keepdims=True) * H2
-    n = np.linalg.norm(U2, axis=1, keepdims=True)
-    fallback = np.cross(H2, np.where(np.abs(H2[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]]))
-    U2 = np.where(n > 1e-9, U2 / np.maximum(n, 1e-300), _unit(fallback))
-    return H2, U2
 
 
 def _rng_of(seed) -> tuple[np.random.Generator, int | None]:
@@ -196,147 +195,49 @@ def random_tree(params: RandomTreeParams, seed: int | np.random.SeedSequence | n
     if not isinstance(params, RandomTreeParams):
         raise ConfigError("must be a RandomTreeParams", key="params", value=params)
     rng, int_seed = _rng_of(seed)
-    tid = _whole(tree_id, "tree_id", 0)
-    P = params
-    rec: dict[str, list] = {}
+    t = _start(params, rng, _whole(tree_id, "tree_id", 0), keep_draws)
+    (wood,) = _grow_wood(params, [t])
+    return _finish(params, t, wood, int_seed)
 
-    def draw(name: str, law, n: int) -> np.ndarray:
-        x = law.sample(rng, n)
-        if keep_draws:
-            rec.setdefault(name, []).append(np.asarray(x))
-        return x
 
-    # global draws, fixed order (G1–G3)
-    g = {"trunk_length_m": float(P.trunk_length_m.sample(rng)),
-         "trunk_radius_m": float(P.trunk_radius_m.sample(rng)),
-         "growth_level": int(P.growth_level.sample(rng)),
-         "length_ratio": float(P.length_ratio.sample(rng)),
-         "radius_ratio": float(P.radius_ratio.sample(rng))}
-    g["lateral_length_ratio"] = (float(P.lateral_length_ratio.sample(rng))
-                                 if P.lateral_length_ratio is not None else g["length_ratio"])
-    g["lateral_radius_ratio"] = (float(P.lateral_radius_ratio.sample(rng))
-                                 if P.lateral_radius_ratio is not None else g["radius_ratio"])
-    G = g["growth_level"]
-    tau = P.tropism
-    per_tree = P.lateral_branching_per == "tree"
-    # L1 once per tree: one uniform, after the globals (per-branch mode draws none here)
-    tree_flag = bool(draw("lateral_branching", P.lateral_branching, 1)[0]) if per_tree else None
-    n_flag = n_flag_true = 0
+def iter_random_trees(params: RandomTreeParams, seeds, tree_ids=None, *,
+                      keep_draws: bool = False) -> Iterator[RandomTree]:
+    """The trees ``random_tree(params, seeds[k], tree_id=tree_ids[k])``, grown together.
 
-    # frontier of one generation: start, heading H, reference U ⟂ H, length, radius, order
-    start = np.zeros((1, 3))
-    H = np.array([[0.0, 0.0, 1.0]])
-    U = np.array([[1.0, 0.0, 0.0]])
-    length = np.array([g["trunk_length_m"]])
-    radius = np.array([g["trunk_radius_m"]])
-    order = np.array([1], np.int64)
-    out_p0, out_p1, out_r, out_o, out_H, out_U, out_depth, out_kids = [], [], [], [], [], [], [], []
-    n_total = 0
-    for depth in range(G):
-        n = len(length)
-        if n == 0:
-            break
-        n_total += n
-        if n_total > P.max_branches:
-            raise ConfigError(f"tree {tid} grows more than {P.max_branches} branch segments; lower "
-                              "growth_level or n_daughters, or raise max_branches",
-                              key=f"{P.name}.max_branches", value=P.max_branches)
-        end = start + H * length[:, None]
-        out_p0.append(start)
-        out_p1.append(end)
-        out_r.append(radius)
-        out_o.append(order)
-        out_H.append(H)
-        out_U.append(U)
-        out_depth.append(np.full(n, depth))
-        grows = (length >= P.min_length_m) if depth < G - 1 else np.zeros(n, bool)
-        kids = np.zeros(n, np.int64)
-        if not grows.any():
-            out_kids.append(kids)
-            break
-        gi = np.flatnonzero(grows)
-        ng = len(gi)
-        # local draws of the growing branches (L1, L2, L4)
-        flag = (np.full(ng, tree_flag) if per_tree
-                else draw("lateral_branching", P.lateral_branching, ng))
-        n_flag += ng
-        n_flag_true += int(flag.sum())
-        twist = np.radians(draw("twist_deg", P.twist_deg, ng))
-        is_trunk = order[gi] == 1
-        m = np.zeros(ng, np.int64)
-        if P.trunk_n_daughters is not None:
-            if is_trunk.any():
-                m[is_trunk] = draw("trunk_n_daughters", P.trunk_n_daughters, int(is_trunk.sum()))
-            if (~is_trunk).any():
-                m[~is_trunk] = draw("n_daughters", P.n_daughters, int((~is_trunk).sum()))
-        else:
-            m[:] = draw("n_daughters", P.n_daughters, ng)
-        can_lateral = (order[gi] < P.max_order) & ~(is_trunk & (depth < P.bare_trunk_levels))
-        m = np.where(can_lateral, m, 0)
-        leader = order[gi] <= P.monopodial_orders
+    The wood of all of them grows in lock step (:mod:`simlidar_mi.plants.tree_growth`: one
+    numpy pass per generation), then each tree's leaves are made as it is yielded. Every tree
+    draws from its own generator in its own order: the trees are those :func:`random_tree`
+    grows, bit for bit. ``seeds``: integers ≥ 0 or SeedSequences (not Generators: a tree
+    that grows more than ``max_branches`` segments makes them all regrow one by one, so the
+    error names the first such tree as :func:`random_tree` would).
+    """
+    if not isinstance(params, RandomTreeParams):
+        raise ConfigError("must be a RandomTreeParams", key="params", value=params)
+    seeds = list(seeds)
+    tids = list(range(len(seeds))) if tree_ids is None else [int(t) for t in tree_ids]
+    if len(tids) != len(seeds):
+        raise ConfigError(f"needs one tree id per seed ({len(seeds)})", key="tree_ids", value=tids)
+    if any(isinstance(s, np.random.Generator) for s in seeds):
+        raise ConfigError("seeds must be integers or SeedSequences", key="seeds", value=seeds)
+    if not seeds:
+        return
+    rngs = [_rng_of(s) for s in seeds]
+    trees = [_start(params, rng, _whole(tid, "tree_id", 0), keep_draws)
+             for (rng, _), tid in zip(rngs, tids)]
+    try:
+        woods = _grow_wood(params, trees)
+    except ConfigError:
+        for s, tid in zip(seeds, tids):   # raises for the first tree that grows too many
+            random_tree(params, s, tree_id=tid)
+        raise
+    for t, wood, (_, int_seed) in zip(trees, woods, rngs):
+        yield _finish(params, t, wood, int_seed)
 
-        # lateral daughters: mother index, index within the set, position, angle
-        mother = np.repeat(np.arange(ng), m)
-        k_in = np.arange(len(mother)) - np.repeat(np.cumsum(m) - m, m)
-        nl = len(mother)
-        t = np.ones(nl)
-        lat_flag = flag[mother]
-        if lat_flag.any():
-            t[lat_flag] = rng.uniform(P.lateral_position_min, 1.0, int(lat_flag.sum()))
-        ang = np.empty(nl)
-        trunk_mother = is_trunk[mother]
-        if P.trunk_branch_angle_deg is not None:
-            if trunk_mother.any():
-                ang[trunk_mother] = draw("trunk_branch_angle_deg", P.trunk_branch_angle_deg,
-                                         int(trunk_mother.sum()))
-            if (~trunk_mother).any():
-                ang[~trunk_mother] = draw("branch_angle_deg", P.branch_angle_deg,
-                                          int((~trunk_mother).sum()))
-        else:
-            ang[:] = draw("branch_angle_deg", P.branch_angle_deg, nl)
-        ang = np.radians(ang)
-        src = gi[mother]
-        az = twist[mother] + 2 * np.pi * k_in / np.maximum(m[mother], 1)
-        u = _rotate(U[src], H[src], az)
-        Hd = np.cos(ang)[:, None] * H[src] + np.sin(ang)[:, None] * u
-        Ud = np.cos(ang)[:, None] * u - np.sin(ang)[:, None] * H[src]
-        Hd, Ud = _bend(Hd, Ud, tau)
-        # apex-branching (no leader) daughters continue the axis ratio r1; laterals of a led axis use r2
-        led = leader[mother]
-        lr = np.where(led, g["lateral_length_ratio"], g["length_ratio"])
-        rr = np.where(led, g["lateral_radius_ratio"], g["radius_ratio"])
-        lat = (start[src] + t[:, None] * (end[src] - start[src]), Hd, Ud, length[src] * lr,
-               radius[src] * rr, order[src] + 1)
 
-        # leaders (monopodial axes): opposite the first lateral, rolled by the divergence
-        li = np.flatnonzero(leader)
-        nL = len(li)
-        la = np.radians(draw("leader_angle_deg", P.leader_angle_deg, nL))
-        srcL = gi[li]
-        uL = _rotate(U[srcL], H[srcL], twist[li] + np.pi)
-        HL = np.cos(la)[:, None] * H[srcL] + np.sin(la)[:, None] * uL
-        UL = np.cos(la)[:, None] * uL - np.sin(la)[:, None] * H[srcL]
-        UL = _rotate(UL, HL, np.full(nL, math.radians(P.divergence_deg)))
-        side = order[srcL] > 1  # the trunk's own leader is not bent: stems stay upright
-        if side.any():
-            HL[side], UL[side] = _bend(HL[side], UL[side], tau)
-        lead = (end[srcL], HL, UL, length[srcL] * g["length_ratio"],
-                radius[srcL] * g["radius_ratio"], order[srcL])
-
-        kids[gi] = m + leader
-        out_kids.append(kids)
-        start, H, U, length, radius, order = (np.concatenate([a, b]) for a, b in zip(lead, lat))
-    if len(out_kids) < len(out_p0):
-        out_kids.append(np.zeros(len(out_p0[-1]), np.int64))
-
-    p0 = np.concatenate(out_p0)
-    p1 = np.concatenate(out_p1)
-    r = np.concatenate(out_r)
-    o = np.concatenate(out_o)
-    Hb = np.concatenate(out_H)
-    Ub = np.concatenate(out_U)
-    depth = np.concatenate(out_depth)
-    n_kids = np.concatenate(out_kids)
+def _finish(P: RandomTreeParams, t: _Tree, wood: tuple, int_seed: int | None) -> RandomTree:
+    """The leaves (L3) of a tree whose wood has grown, and the tree."""
+    p0, p1, r, o, Hb, Ub, depth, n_kids = wood
+    tid, rng, draw, G = t.tid, t.rng, t.draw, t.g["growth_level"]
     branches = Branches(p0, p1, 2.0 * r, o.astype(np.int32), np.full(len(r), tid, np.int32))
 
     # leaves (L3): on terminal branches, the last leaf_levels generations, high orders
@@ -351,14 +252,12 @@ def random_tree(params: RandomTreeParams, seed: int | np.random.SeedSequence | n
     ll = draw("leaf_length_m", P.leaf_length_m, nleaf)
     lw = ll * draw("leaf_width_ratio", P.leaf_width_ratio, nleaf)
     roll = np.radians(draw("leaf_roll_deg", P.leaf_roll_deg, nleaf))
-    leaves, table = _make_leaves(P, p0[owner], p1[owner], r[owner], Hb[owner], Ub[owner],
-                                 tpos, phi, lang, ll, lw, roll, tid)
+    leaves, table, xy2 = _make_leaves(P, p0, p1, r, Hb, Ub, owner, tpos, phi, lang, ll, lw, roll, tid)
     draws = None
-    if keep_draws:
-        local = {k: np.zeros(0) for k in _LAWS if k not in g}  # every local law, drawn or not
-        local.update({k: np.concatenate(v) for k, v in rec.items()})
-        draws = TreeDraws(dict(g), local)
-    branching = (float(tree_flag) if per_tree
-                 else n_flag_true / n_flag if n_flag else 0.0)
-    return RandomTree(branches, leaves, table, int_seed, draws, branching)
-
+    if t.keep_draws:
+        local = {k: np.zeros(0) for k in _LAWS if k not in t.g}  # every local law, drawn or not
+        local.update({k: np.concatenate(v) for k, v in t.rec.items()})
+        draws = TreeDraws(dict(t.g), local)
+    branching = (float(t.tree_flag) if P.lateral_branching_per == "tree"
+                 else t.n_flag_true / t.n_flag if t.n_flag else 0.0)
+    return RandomTree(branches, leaves, table, int_seed, draws, branching, 1.0, xy2)

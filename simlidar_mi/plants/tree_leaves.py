@@ -25,6 +25,7 @@ from .tree_params import RandomTreeParams, leaf_polygon_area_factor
 __all__ = ["LeafTable", "ellipse_fan"]
 
 _Z = np.array([0.0, 0.0, 1.0])
+_BLOCK = 512   # leaves per block when (3, n) columns are written into (n, …, 3) triangles
 
 
 # --- rotations -------------------------------------------------------------------------
@@ -39,10 +40,49 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
+# np.cross(a, b) is a1·b2 − a2·b1, a2·b0 − a0·b2, a0·b1 − a1·b0: the same products and
+# differences written out give the same bits without np.cross's moveaxis/broadcast set-up,
+# which dominates on the few-row arrays of a growing tree.
+_I1, _I2 = np.array([1, 2, 0]), np.array([2, 0, 1])
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross(a, b)`` of (n, 3) rows (or a (3,) ``b``), bit for bit."""
+    return (a.take(_I1, axis=-1) * b.take(_I2, axis=-1)
+            - a.take(_I2, axis=-1) * b.take(_I1, axis=-1))
+
+
+def _cross_t(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The same cross product for vectors stored as columns: (3, n) arrays (or a (3, 1) ``b``)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    a0, a1, a2 = a
+    b0, b1, b2 = b
+    np.subtract(a1 * b2, a2 * b1, out=out[0])
+    np.subtract(a2 * b0, a0 * b2, out=out[1])
+    np.subtract(a0 * b1, a1 * b0, out=out[2])
+    return out
+
+
+def _norm_t(a: np.ndarray) -> np.ndarray:
+    """(n,) lengths of the columns of a (3, n) array: ``np.linalg.norm(a.T, axis=1)``'s bits.
+
+    That norm is ``sqrt(add.reduce(x·x))``, which sums three terms left to right.
+    """
+    q = a * a
+    return np.sqrt((q[0] + q[1]) + q[2])
+
+
 def _rotate(v: np.ndarray, axis: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
     """Rodrigues: rotate rows of ``v`` about unit rows of ``axis`` (right-handed)."""
     c, s = np.cos(angle_rad)[:, None], np.sin(angle_rad)[:, None]
-    return v * c + np.cross(axis, v) * s + axis * (axis * v).sum(1, keepdims=True) * (1 - c)
+    return v * c + _cross(axis, v) * s + axis * (axis * v).sum(1, keepdims=True) * (1 - c)
+
+
+def _rotate_t(v: np.ndarray, axis: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
+    """:func:`_rotate` for (3, n) column vectors, with the same operations in the same order."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    p = axis * v
+    return v * c + _cross_t(axis, v) * s + axis * ((p[0] + p[1]) + p[2]) * (1 - c)
 
 
 def ellipse_fan(centre: np.ndarray, head: np.ndarray, side: np.ndarray, half_l: np.ndarray,
@@ -57,8 +97,32 @@ def ellipse_fan(centre: np.ndarray, head: np.ndarray, side: np.ndarray, half_l: 
     a = 2 * np.pi * np.arange(k + 1) / k
     ring = (centre[:, None, :] + np.cos(a)[None, :, None] * half_l * head[:, None, :]
             + np.sin(a)[None, :, None] * half_w * side[:, None, :])   # (n, k+1, 3)
-    c = np.broadcast_to(centre[:, None, :], (n, k, 3))
-    return np.stack([c, ring[:, 1:], ring[:, :-1]], 2)   # (centre, v_{j+1}, v_j)
+    out = np.empty((n, k, 3, 3))
+    out[:, :, 0] = centre[:, None, :]
+    out[:, :, 1] = ring[:, 1:]
+    out[:, :, 2] = ring[:, :-1]          # (centre, v_{j+1}, v_j)
+    return out
+
+
+def _ellipse_fan_t(centre: np.ndarray, head: np.ndarray, side: np.ndarray, half_l: np.ndarray,
+                   half_w: np.ndarray, k: int) -> np.ndarray:
+    """:func:`ellipse_fan` from (3, n) columns and (n,) half axes (same vertex arithmetic).
+
+    Returns the triangles and the (3, k+1, n) polygon vertices.
+    """
+    n = centre.shape[1]
+    a = 2 * np.pi * np.arange(k + 1) / k
+    ca, sa = np.cos(a)[:, None], np.sin(a)[:, None]
+    ring = (centre[:, None, :] + (ca * half_l)[None] * head[:, None, :]
+            + (sa * half_w)[None] * side[:, None, :])   # (3, k+1, n)
+    out = np.empty((n, k, 3, 3))
+    o = out.transpose(3, 1, 2, 0)        # (3, k, 3, n) view: coordinate, triangle, vertex, leaf
+    for i in range(0, n, _BLOCK):        # blocks of leaves: the scattered writes stay in cache
+        j = i + _BLOCK
+        o[:, :, 0, i:j] = centre[:, None, i:j]
+        o[:, :, 1, i:j] = ring[:, 1:, i:j]
+        o[:, :, 2, i:j] = ring[:, :-1, i:j]
+    return out, ring
 
 
 # --- leaves ----------------------------------------------------------------------------
@@ -124,36 +188,62 @@ class LeafTable:
                 "hx": h[:, 0], "hy": h[:, 1], "hz": h[:, 2]}
 
 
-def _make_leaves(P: RandomTreeParams, b0, b1, br, H, U, tpos, phi, lang, ll, lw, roll,
-                 tid: int) -> tuple[Leaves, LeafTable]:
+def _make_leaves(P: RandomTreeParams, p0, p1, r, H, U, owner, tpos, phi, lang, ll, lw, roll,
+                 tid: int) -> tuple[Leaves, LeafTable, float | None]:
+    """Leaves on branches ``owner`` (rows of the (nb, 3) ``p0``, ``p1``, ``H``, ``U`` and (nb,) ``r``).
+
+    Returns the leaves, their table and the largest ``x² + y²`` of their vertices (None
+    without leaves), taken from the distinct vertices while they are in cache.
+
+    The vectors are handled as (3, n) columns: every operation then runs over contiguous
+    (n,) rows instead of n rows of 3, with the per-element arithmetic of the row form.
+    """
     n = len(ll)
     if n == 0:
-        return Leaves.empty(), LeafTable.empty()
-    u = _rotate(U, H, phi)                           # outward direction at the insertion
-    head = np.cos(lang)[:, None] * H + np.sin(lang)[:, None] * u
-    base = b0 + tpos[:, None] * (b1 - b0) + br[:, None] * u   # attached at the bark
-    side = np.cross(head, _Z)
-    sn = np.linalg.norm(side, axis=1, keepdims=True)
-    # a vertical leaf has no horizontal side vector: use its insertion direction's normal
-    side = np.where(sn > 1e-6, side / np.maximum(sn, 1e-300), _unit(np.cross(head, u)))
-    up = np.cross(side, head)                        # upper-side normal with roll 0
-    side_r = np.cos(roll)[:, None] * side + np.sin(roll)[:, None] * up
-    normal = np.cross(side_r, head)
-    centre = base + 0.5 * ll[:, None] * head
-    half_l, half_w = 0.5 * ll[:, None, None], 0.5 * lw[:, None, None]
+        return Leaves.empty(), LeafTable.empty(), None
+
+    # the bearing branches' ends, heading and reference as (12, n) columns, gathered at once
+    g = np.ascontiguousarray(np.concatenate([p0, p1, H, U], 1).T)[:, owner]
+    b0, b1, H, U, br = g[0:3], g[3:6], g[6:9], g[9:12], r[owner]
+    u = _rotate_t(U, H, phi)                         # outward direction at the insertion
+    head = np.cos(lang) * H + np.sin(lang) * u
+    base = b0 + tpos * (b1 - b0) + br * u            # attached at the bark
+    side = _cross_t(head, _Z[:, None])
+    sn = _norm_t(side)
+    ok = sn > 1e-6
+    side = side / np.maximum(sn, 1e-300)
+    if not ok.all():
+        # a vertical leaf has no horizontal side vector: use its insertion direction's normal
+        bad = ~ok
+        f = _cross_t(head[:, bad], u[:, bad])
+        side[:, bad] = f / _norm_t(f)
+    up = _cross_t(side, head)                        # upper-side normal with roll 0
+    side_r = np.cos(roll) * side + np.sin(roll) * up
+    normal = _cross_t(side_r, head)
+    centre = base + 0.5 * ll * head
     if P.leaf_shape == "rhombus":
-        tip = base + ll[:, None] * head
-        right = centre + 0.5 * lw[:, None] * side_r
-        left = centre - 0.5 * lw[:, None] * side_r
+        tip = base + ll * head
+        right = centre + 0.5 * lw * side_r
+        left = centre - 0.5 * lw * side_r
         # (base, right, tip), (base, tip, left): both wound so the normal is side × head
-        tri = np.stack([np.stack([base, right, tip], 1), np.stack([base, tip, left], 1)], 1)
+        tri = np.empty((n, 2, 3, 3))
+        o = tri.transpose(3, 1, 2, 0)                # (3, 2, 3, n) view
+        for i in range(0, n, 2 * _BLOCK):            # blocks: the scattered writes stay in cache
+            j = i + 2 * _BLOCK
+            o[:, 0, 0, i:j] = o[:, 1, 0, i:j] = base[:, i:j]
+            o[:, 0, 1, i:j] = right[:, i:j]
+            o[:, 0, 2, i:j] = o[:, 1, 1, i:j] = tip[:, i:j]
+            o[:, 1, 2, i:j] = left[:, i:j]
+        corners = (base, right, tip, left)
     else:
-        tri = ellipse_fan(centre, head, side_r, half_l, half_w, P.leaf_sides)
+        tri, ring = _ellipse_fan_t(centre, head, side_r, 0.5 * ll, 0.5 * lw, P.leaf_sides)
+        corners = (centre, ring.reshape(3, -1))
     ntri = tri.shape[1]
     area = leaf_polygon_area_factor(P.leaf_shape, P.leaf_sides) * ll * lw
     leaf_id = np.arange(n, dtype=np.int32)
     leaves = Leaves(tri.reshape(-1, 3, 3), np.repeat(leaf_id, ntri),
                     np.full(n * ntri, tid, np.int32))
-    table = LeafTable(np.full(n, tid, np.int32), leaf_id, centre, ll, lw, area, normal, head)
-    return leaves, table
-
+    table = LeafTable(np.full(n, tid, np.int32), leaf_id, np.ascontiguousarray(centre.T), ll, lw,
+                      area, np.ascontiguousarray(normal.T), np.ascontiguousarray(head.T))
+    xy2 = max(float((c[0] * c[0] + c[1] * c[1]).max()) for c in corners)
+    return leaves, table, xy2

@@ -111,7 +111,8 @@ class RangeIntegrator(mi.SamplingIntegrator):
         count = N * M - beam_start if beam_count is None else int(beam_count)
         idx = dr.arange(mi.UInt32, count * S)
         beam = idx // S if S > 1 else idx          # chunk-local: indexes the block reductions
-        glob = beam if beam_start == 0 else mi.UInt32(beam_start) + beam
+        # opaque: one kernel for every chunk (a literal start compiled a new kernel per chunk)
+        glob = beam if beam_start == 0 else dr.opaque(mi.UInt32, beam_start) + beam
         ray = _beam_ray(sensor, glob, idx % S if S > 1 else None)
         pi = scene.ray_intersect_preliminary(ray, coherent=True)
         hit = pi.is_valid()
@@ -180,7 +181,9 @@ class RangeIntegrator(mi.SamplingIntegrator):
         S = len(off)
         idx = dr.arange(mi.UInt32, beam_count * Q * S)
         rest = idx // S if S > 1 else idx
-        beam = mi.UInt32(beam_start) + (rest // Q if Q > 1 else rest)
+        # opaque: one kernel for every chunk (a literal start compiled a new kernel per chunk,
+        # ~70 ms and a few MB each)
+        beam = dr.opaque(mi.UInt32, beam_start) + (rest // Q if Q > 1 else rest)
         ray = _beam_ray(sensor, beam, rest % Q if Q > 1 else None)
         if S > 1 or np.any(off != 0):
             j = idx % S

@@ -147,3 +147,11 @@ def test_echoes_do_not_depend_on_the_chunk_of_beams():
         for name in ("beam", "return_number", "number_of_returns", "range_m", "energy", "width_ns",
                      "cls", "element_id", "cos_incidence"):
             assert getattr(parts, name).tobytes() == getattr(whole, name).tobytes(), (cuts, name)
+
+
+def test_streamed_sensor_scan_shows_progress_per_chunk(tmp_path, capsys):
+    cfg = load_scene(SCENES / "orchard_lms511.toml", LMS511 + ["scan.chunk_beams=2000"])
+    run = run_scan(cfg, tmp_path, progress="lines")
+    n, m = run.result.shape
+    err = capsys.readouterr().err
+    assert f"trace + write: {-(-n * m // 2000)} chunks" in err

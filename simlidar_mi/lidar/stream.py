@@ -22,6 +22,7 @@ Scans with a ``[sensor]`` stream the same way (:mod:`simlidar_mi.lidar.stream_se
 """
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,65 +43,54 @@ class PairwiseSum:
     one (fewer than 8: one by one from 0); a longer run is split after n2 = ⌊n/2⌋ rounded down
     to a multiple of 8 and the two halves' sums added; the reduction adds that to 0.  The
     runs (leaves) depend on n only, so each leaf is summed as soon as its values are in and
-    the tree is added up at the end: memory is one float per leaf (≥ 64 values) and the
-    values of one unfinished leaf.  ``tests/test_sensor_stream.py`` checks it against
-    ``np.sum`` on arrays of many sizes, fed in pieces.
+    the tree is added up at the end: memory is one float per leaf (a leaf holds 64 to 128
+    values), the tree (about 24 bytes a leaf, shared by the sums of one n) and the values of
+    one unfinished leaf: about 0.5 byte a value.  The numpy version in use (2.x) was checked,
+    and ``tests/test_sensor_stream.py`` checks it against ``np.sum`` on arrays of many sizes,
+    fed in pieces (a numpy that sums otherwise fails there).
     """
-
-    LEAF = 128
 
     def __init__(self, n: int):
         self.n = int(n)
-        starts, lens = np.zeros(1, np.int64), np.array([self.n], np.int64)
-        levels, leaf_starts = [], []
-        while len(starts):
-            leaf = lens <= self.LEAF
-            levels.append([leaf, None])
-            leaf_starts.append(starts[leaf])
-            s, m = starts[~leaf], lens[~leaf]
-            n2 = m // 2 - (m // 2) % 8
-            starts = np.stack([s, s + n2], axis=1).ravel()  # left, right child of each node
-            lens = np.stack([n2, m - n2], axis=1).ravel()
-        order = np.concatenate(leaf_starts)
-        rank = np.argsort(order, kind="stable")
-        ids = np.empty(len(order), np.int64)
-        ids[rank] = np.arange(len(order))
-        at = 0
-        for level, ls in zip(levels, leaf_starts):
-            level[1] = ids[at:at + len(ls)]
-            at += len(ls)
-        self._levels = levels
-        self._start = order[rank]
-        self._end = np.r_[self._start[1:], self.n]
-        self._sums = np.zeros(len(order))
+        self._levels, self._start, self._end = _pairwise_tree(self.n)
+        self._sums = np.zeros(len(self._start))
         self._pos = self._next = 0
         self._carry = np.zeros(0)
 
     def add(self, values) -> None:
         """The next values (any shape, C order; cast to float64)."""
         v = np.asarray(values, np.float64).ravel()
-        if len(self._carry):
-            v = np.concatenate([self._carry, v])
-        base = self._pos - len(self._carry)
-        self._pos = base + len(v)
+        at = self._pos                                  # global index of v[0]
+        self._pos += len(v)
         if self._pos > self.n:
             raise ValueError(f"{self._pos} values fed to a sum of {self.n}")
-        last = int(np.searchsorted(self._end, self._pos, side="right"))
+        last = int(np.searchsorted(self._end, self._pos, side="right"))  # leaves complete now
+        if last == self._next:
+            self._carry = np.concatenate([self._carry, v])
+            return
+        if len(self._carry):  # the leaf begun in an earlier piece
+            i = self._next
+            leaf = np.concatenate([self._carry, v[:self._end[i] - at]])
+            self._sums[i] = _leaf_sums(leaf, leaf[:len(leaf) // 8 * 8].reshape(-1, 8), np.zeros(1, np.int64),
+                                       len(leaf))[0]
+            self._next += 1
         ids = np.arange(self._next, last)
-        lens = self._end[ids] - self._start[ids]
-        # Leaves start at multiples of 8 (every split does), and so does ``base``: v in rows of
-        # 8.  A leaf of zeros sums to 0 (the array holds zeros already): most beams miss the wood.
-        v8 = v[:len(v) // 8 * 8].reshape(-1, 8)
-        nz = np.r_[0, np.cumsum(np.any(v8 != 0, axis=1)), 0]
-        b0, b1 = (self._start[ids] - base) // 8, -(-(self._end[ids] - base) // 8)
-        live = (nz[np.minimum(b1, len(v8))] > nz[b0]) | (self._end[ids] - base > len(v8) * 8)
-        ids, lens = ids[live], lens[live]
-        for length in np.unique(lens):
-            sel = ids[lens == length]
-            self._sums[sel] = _leaf_sums(v, v8, self._start[sel] - base, int(length))
+        if len(ids):
+            # Leaves start at multiples of 8 (every split does): from the first one, v in rows
+            # of 8.  A leaf of zeros sums to 0 (the sums start at 0): most beams miss the wood.
+            base = int(self._start[ids[0]])
+            w = v[base - at:self._end[last - 1] - at]
+            v8 = w[:len(w) // 8 * 8].reshape(-1, 8)
+            nz = np.r_[0, np.cumsum(v8.any(axis=1)), 0]
+            b0, b1 = (self._start[ids] - base) // 8, -(-(self._end[ids] - base) // 8)
+            live = (nz[np.minimum(b1, len(v8))] > nz[b0]) | (self._end[ids] - base > len(v8) * 8)
+            ids = ids[live]
+            lens = self._end[ids] - self._start[ids]
+            for length in np.unique(lens):
+                sel = ids[lens == length]
+                self._sums[sel] = _leaf_sums(w, v8, self._start[sel] - base, int(length))
         self._next = last
-        rest = int(self._start[last] - base) if last < len(self._start) else len(v)
-        self._carry = v[rest:].copy()
+        self._carry = v[self._start[last] - at:].copy() if last < len(self._start) else np.zeros(0)
 
     def total(self) -> float:
         if self._pos != self.n:
@@ -115,6 +105,31 @@ class PairwiseSum:
                 out[~leaf] = vals[0::2] + vals[1::2]
             vals = out
         return float(0.0 + vals[0])
+
+
+@functools.lru_cache(maxsize=4)
+def _pairwise_tree(n: int):
+    """numpy's pairwise tree over n values (:class:`PairwiseSum`): per level (top first) which
+    nodes are leaves (≤ 128 values) and those leaves' indices in start order; the leaves'
+    starts and ends.  Shared by the sums of one scan (about 24 bytes a leaf)."""
+    starts, lens = np.zeros(1, np.int64), np.array([n], np.int64)
+    levels, leaf_starts = [], []
+    while len(starts):
+        leaf = lens <= 128
+        levels.append(leaf)
+        leaf_starts.append(starts[leaf])
+        s, m = starts[~leaf], lens[~leaf]
+        n2 = m // 2 - (m // 2) % 8
+        starts = np.stack([s, s + n2], axis=1).ravel()  # left, right child of each node
+        lens = np.stack([n2, m - n2], axis=1).ravel()
+    order = np.concatenate(leaf_starts)
+    rank = np.argsort(order, kind="stable")
+    ids = np.empty(len(order), np.int64)
+    ids[rank] = np.arange(len(order))
+    bounds = np.cumsum([0] + [len(x) for x in leaf_starts])
+    start = order[rank]
+    return ([(leaf, ids[a:b]) for leaf, a, b in zip(levels, bounds[:-1], bounds[1:])], start,
+            np.r_[start[1:], n])
 
 
 def _leaf_sums(v: np.ndarray, v8: np.ndarray, starts: np.ndarray, length: int) -> np.ndarray:

@@ -8,7 +8,7 @@ sensor.max_returns=3 --set scan.dy_m=DY`` under ``/usr/bin/time -v``, each in a 
 DIR (e.g. ``git archive <base> | tar -x -C DIR`` plus the ``simlidar_mi/plugins`` symlink),
 "after" from this checkout, interleaved; prints one markdown row per run with the load average
 at its start, and whether the two folders' files are the same bytes (measures.json without its
-seconds and scene path).
+seconds and scene path).  ``--after-only`` runs this checkout alone (scans too big to hold).
 """
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ import argparse
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -36,8 +37,9 @@ def run(tree: Path, dy: float, out: Path) -> dict:
     wall = re.search(r"Elapsed \(wall clock\) time \(h:mm:ss or m:ss\): (\S+)", p.stderr).group(1)
     secs = sum(float(x) * 60 ** i for i, x in enumerate(reversed(wall.split(":"))))
     rss = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", p.stderr).group(1))
+    cpu = sum(float(re.search(rf"{k} time \(seconds\): (\S+)", p.stderr).group(1)) for k in ("User", "System"))
     m = json.loads((out / "measures.json").read_text())
-    return {"wall_s": secs, "rss_gb": rss * 1024 / 1e9, "load": load, "beams": m["N"] * m["M"],
+    return {"wall_s": secs, "cpu_s": cpu, "rss_gb": rss * 1024 / 1e9, "load": load, "beams": m["N"] * m["M"],
             "stages": m["seconds"], "las_mb": (out / "points.las").stat().st_size / 1e6}
 
 
@@ -55,18 +57,23 @@ def same_files(a: Path, b: Path) -> bool:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--before", type=Path, required=True)
+    ap.add_argument("--before", type=Path)
     ap.add_argument("--dy", type=float, nargs="+", default=[0.01, 0.00167, 0.00042])
+    ap.add_argument("--after-only", action="store_true", help="no before run (scans too big to hold)")
     args = ap.parse_args()
-    print("| beams | before: wall / peak RSS | after: wall / peak RSS | after stages (s) | load | same bytes |")
+    print("| beams | before: wall / CPU / peak RSS | after: wall / CPU / peak RSS | after stages (s) | load | same bytes |")
     print("|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory(dir=REPO / "bench") as d:
         for dy in args.dy:
-            b = run(args.before.resolve(), dy, Path(d) / f"b{dy}")
+            b = None if args.after_only else run(args.before.resolve(), dy, Path(d) / f"b{dy}")
             a = run(REPO, dy, Path(d) / f"a{dy}")
-            print(f"| {a['beams'] / 1e6:.2f} M | {b['wall_s']:.1f} s / {b['rss_gb']:.2f} GB | "
-                  f"{a['wall_s']:.1f} s / {a['rss_gb']:.2f} GB | {a['stages']} | {b['load']}, {a['load']} | "
-                  f"{same_files(Path(d) / f'b{dy}', Path(d) / f'a{dy}')} |", flush=True)
+            before = "–" if b is None else f"{b['wall_s']:.1f} s / {b['cpu_s']:.1f} s / {b['rss_gb']:.2f} GB"
+            same = "–" if b is None else same_files(Path(d) / f"b{dy}", Path(d) / f"a{dy}")
+            print(f"| {a['beams'] / 1e6:.2f} M | {before} | {a['wall_s']:.1f} s / {a['cpu_s']:.1f} s / "
+                  f"{a['rss_gb']:.2f} GB | {a['stages']} | {'–' if b is None else b['load']}, {a['load']} | "
+                  f"{same} |", flush=True)
+            shutil.rmtree(d, ignore_errors=True)
+            Path(d).mkdir()
 
 
 if __name__ == "__main__":

@@ -461,7 +461,7 @@ def _range_integrator(mi, built: BuiltScene, pattern: BeamPattern):
     return integrator
 
 
-DEFAULT_CHUNK_RAYS = 1 << 22  # ~4 M sub-rays per trace: ~150 MB of Dr.Jit and numpy arrays
+DEFAULT_CHUNK_RAYS = 1 << 20  # ~1 M sub-rays per trace: ~0.2 GB with the echoes (4 M: ~0.75 GB; BENCHMARKS §8b)
 
 
 def physical_tracer(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPattern, model: SensorModel,

@@ -116,7 +116,8 @@ class RangeIntegrator(mi.SamplingIntegrator):
         start, n, skip = aligned_span(beam_start, count, N * M, sensor.first_beam)
         idx = dr.arange(mi.UInt32, n * S)
         beam = idx // S if S > 1 else idx          # chunk-local: indexes the block reductions
-        glob = beam if start == 0 else mi.UInt32(start) + beam
+        # opaque: one kernel for every chunk (a literal start compiled a new kernel per chunk)
+        glob = beam if start == 0 else dr.opaque(mi.UInt32, start) + beam
         ray = _beam_ray(sensor, glob, idx % S if S > 1 else None)
         pi = scene.ray_intersect_preliminary(ray, coherent=True)
         hit = pi.is_valid()
@@ -187,7 +188,9 @@ class RangeIntegrator(mi.SamplingIntegrator):
                                              sensor.first_beam)  # packet boundaries, as in trace()
         idx = dr.arange(mi.UInt32, n_traced * Q * S)
         rest = idx // S if S > 1 else idx
-        beam = mi.UInt32(start) + (rest // Q if Q > 1 else rest)
+        # opaque: one kernel for every chunk (a literal start compiled a new kernel per chunk,
+        # ~70 ms and a few MB each)
+        beam = dr.opaque(mi.UInt32, start) + (rest // Q if Q > 1 else rest)
         ray = _beam_ray(sensor, beam, rest % Q if Q > 1 else None)
         if S > 1 or np.any(off != 0):
             j = idx % S

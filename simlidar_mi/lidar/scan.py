@@ -28,7 +28,7 @@ from ..io.exr import read_exr
 from ..scene.build import BuiltScene
 from .packets import padded_rows
 from .platforms import BeamPattern, elevation_dirs
-from .sensor import SensorModel, subray_offsets
+from .sensor import SensorModel
 from .waveform import Echoes
 
 CLASS_NAMES = {v: k for k, v in CLASS_CODES.items()}
@@ -466,7 +466,27 @@ def _range_integrator(mi, built: BuiltScene, pattern: BeamPattern):
     return integrator
 
 
-DEFAULT_CHUNK_RAYS = 1 << 22  # ~4 M sub-rays per trace: ~150 MB of Dr.Jit and numpy arrays
+DEFAULT_CHUNK_RAYS = 1 << 20  # ~1 M sub-rays per trace: ~0.2 GB with the echoes (4 M: ~0.75 GB; BENCHMARKS §8b)
+
+
+def physical_tracer(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPattern, model: SensorModel,
+                    *, seed: int = 0, leg: int = 0, variant: str | None = None,
+                    chunk_beams: int = DEFAULT_CHUNK_BEAMS, chunk_rays: int = DEFAULT_CHUNK_RAYS,
+                    rows: tuple[int, int] | None = None):
+    """The :class:`~simlidar_mi.lidar.physical.PhysicalTracer` of a pattern (rows r0 … r1 − 1
+    with ``rows``): its Mitsuba sensor, and the range integrator with reflectances and normals."""
+    from .physical import PhysicalTracer  # noqa: PLC0415
+    mi = mitsuba(variant)
+    s, pattern, lidar = _lidar(mi, built, settings_or_pattern, rows)
+    integrator = _range_integrator(mi, built, pattern)
+    integrator.set_reflectance(model.class_reflectance(), built.shape_reflectance)
+    if model.needs_energy:
+        normals = built.prim_normals()
+        if normals is not None:
+            integrator.set_normals(normals, built.instance_yaw_rad)
+    return PhysicalTracer(s, pattern, lidar, integrator, built.scene, model, _metadata(built), seed=seed,
+                          leg=leg, chunk_beams=chunk_beams, chunk_rays=chunk_rays,
+                          beam0=rows[0] * pattern.n_cols if rows is not None else 0)
 
 
 def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPattern,
@@ -476,8 +496,10 @@ def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPat
     """A real scanner's scan: divergent sub-rays, echoes from the waveform, intensity, noise.
 
     Beams are traced in chunks of whole beams (at most ``chunk_beams`` beams, ``[scan]
-    chunk_beams``, and at most ``chunk_rays`` sub-rays, at least one beam), so the trace's
-    memory stays bounded (the result holds every beam and echo); every step is per beam or
+    chunk_beams``, and at most ``chunk_rays`` sub-rays, at least one beam:
+    :mod:`simlidar_mi.lidar.physical`, whose chunks :mod:`~simlidar_mi.lidar.stream_sensor`
+    writes without holding them), so the trace's memory stays bounded (the result holds
+    every beam and echo); every step is per beam or
     keyed by the global beam index, so results do not depend on the chunk size (nor on
     ``rows``, a tile of the scan: see :func:`scan`).  Per sub-ray energies follow the law
     of :mod:`simlidar_mi.lidar.sensor`; echoes come from
@@ -493,119 +515,25 @@ def scan_physical(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPat
     vegetation; ``n_returns``, ``echoes``, ``intensity`` (with ``intensity = true``) and
     ``sensor`` are filled.
     """
-    mi = mitsuba(variant)
-    s, pattern, lidar = _lidar(mi, built, settings_or_pattern, rows)
-    integrator = _range_integrator(mi, built, pattern)
-    integrator.set_reflectance(model.class_reflectance(), built.shape_reflectance)
-    if model.needs_energy:
-        normals = built.prim_normals()
-        if normals is not None:
-            integrator.set_normals(normals, built.instance_yaw_rad)
-    offsets, w_sub = subray_offsets(model)
-    n_dot = (pattern.footprint + 1) ** 2
-    n_sub = n_dot * len(offsets)                     # sub-rays per beam, laid out (q, j)
-    weight = np.tile(w_sub, n_dot) / n_dot           # Σ = 1 per beam
-    N, M = pattern.n_rows, pattern.n_cols
-    n_beams = N * M
-    beam0 = rows[0] * M if rows is not None else 0  # a tile's first beam in the whole scan
-    per_chunk = max(1, min(int(chunk_beams), int(chunk_rays) // n_sub))
-    energy = model.needs_energy
-    rng = np.full(n_beams, pattern.escape_m, np.float32)
-    cls = np.zeros(n_beams, np.uint8)
-    elem = np.full(n_beams, NO_ID, np.uint32)
-    frac = np.zeros(n_beams, np.float32)
-    n_ret = np.zeros(n_beams, np.uint8)
-    tree = inten = None
-    parts = []
+    tracer = physical_tracer(built, settings_or_pattern, model, seed=seed, leg=leg, variant=variant,
+                             chunk_beams=chunk_beams, chunk_rays=chunk_rays, rows=rows)
+    pattern = tracer.pattern
+    shape = (pattern.n_rows, pattern.n_cols)
     t0 = time.perf_counter()
-    trace_s = echo_s = 0.0
-    for b0 in range(0, n_beams, per_chunk):
-        n = min(per_chunk, n_beams - b0)
-        t1 = time.perf_counter()
-        out = integrator.trace_subrays(built.scene, lidar, offsets, beam0 - lidar.first_beam + b0, n,
-                                       normals=energy)
-        t = out["t"].numpy().reshape(n, n_sub).astype(np.float64)
-        trace_s += time.perf_counter() - t1
-        c = out["class"].numpy().reshape(n, n_sub).astype(np.uint8)
-        e = out["element_id"].numpy().reshape(n, n_sub).copy()
-        tr = out["tree_id"].numpy().reshape(n, n_sub).copy() if "tree_id" in out else None
-        if tr is not None and tree is None:
-            tree = np.full(n_beams, NO_ID, np.uint32)
-        veg = (c == CLASS_CODES["wood"]) | (c == CLASS_CODES["leaf"])
-        sl = slice(b0, b0 + n)
-        frac[sl] = veg.astype(np.float64) @ weight
-        if energy:
-            cos_i = out["cos_incidence"].numpy().reshape(n, n_sub).astype(np.float64)
-            rho = out["reflectance"].numpy().reshape(n, n_sub).astype(np.float64)
-            t1 = time.perf_counter()
-            echoes = _echoes(model, t, c, e, tr, cos_i, rho, weight, np.arange(beam0 + b0, beam0 + b0 + n, dtype=np.int64),
-                             seed=seed, leg=leg)
-            echo_s += time.perf_counter() - t1
-            parts.append(echoes)
-            first = echoes.return_number == 1
-            beams = echoes.beam[first] - beam0
-            rng[beams] = echoes.range_m[first]
-            cls[beams] = echoes.cls[first]
-            elem[beams] = echoes.element_id[first]
-            if tree is not None and echoes.tree_id is not None:
-                tree[beams] = echoes.tree_id[first]
-            if model.intensity:
-                if inten is None:
-                    inten = np.zeros(n_beams, np.float32)
-                inten[beams] = echoes.energy[first]
-            n_ret[beams] = echoes.number_of_returns[first]
-        else:
-            inside = (t >= model.range_min_m) & (t <= model.range_max_m)
-            r = np.where(inside, t, np.inf)
-            if pattern.hit_rule == "any" and n_sub > 1:
-                r_veg = np.where(veg, r, np.inf)
-                r = np.where(np.isfinite(r_veg).any(axis=1, keepdims=True), r_veg, r)
-            j = np.argmin(r, axis=1)
-            rows = np.arange(n)
-            r1 = r[rows, j]
-            got = np.isfinite(r1)
-            rng[sl] = np.where(got, r1, pattern.escape_m)
-            cls[sl] = np.where(got, c[rows, j], CLASS_CODES["escape"])
-            elem[sl] = np.where(got, e[rows, j], NO_ID)
-            if tree is not None:
-                tree[sl] = np.where(got, tr[rows, j], NO_ID)
-            n_ret[sl] = got
-        del out
+    full, parts = {}, []
+    for b0, n, part in tracer.chunks():
+        for k, v in part.items():
+            if k == "echoes":
+                parts.append(v)
+            elif v is not None:
+                full.setdefault(k, np.empty(tracer.n_beams, v.dtype))[b0:b0 + n] = v
     seconds = time.perf_counter() - t0
-    shape = (N, M)
-    echoes = Echoes.concat(parts) if energy else None
-    meta = _metadata(built)
-    meta.update({"sub_rays_per_beam": n_sub, "seed": int(seed), "leg": int(leg),
-                 "trace_seconds": trace_s, "echo_seconds": echo_s})
-    return ScanResult(s, rng.reshape(shape), cls.reshape(shape), elem.reshape(shape),
-                      frac.reshape(shape), built.origin_m.copy(), seconds, meta, pattern,
-                      None if tree is None else tree.reshape(shape), echoes=echoes,
-                      n_returns=n_ret.reshape(shape),
-                      intensity=None if inten is None else inten.reshape(shape),
-                      sensor=model.to_dict())
-
-
-def subray_energy(model: SensorModel, range_m: np.ndarray, reflectance: np.ndarray,
-                  cos_incidence: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """E_j = w_j·ρ_j·|cos i_j|·(R_ref/r_j)² (Lambertian, :mod:`~simlidar_mi.lidar.sensor`);
-    0 where the sub-ray escaped."""
-    with np.errstate(divide="ignore"):
-        inv_r2 = np.where(np.isfinite(range_m) & (range_m > 0), 1.0 / np.square(range_m), 0.0)
-    return weight * reflectance * np.abs(cos_incidence) * model.r_ref_m ** 2 * inv_r2
-
-
-def _echoes(model: SensorModel, t, c, e, tr, cos_i, rho, weight, beam_index, *, seed: int, leg: int):
-    from .waveform import detect_echoes  # noqa: PLC0415 - only scans with echoes need it
-    E = subray_energy(model, t, rho, cos_i, weight)
-    echoes = detect_echoes(t, E, c, e, tr, cos_i, beam_index, pulse_length_ns=model.pulse_length_ns,
-                           detection_threshold=model.detection_threshold,
-                           max_returns=model.max_returns, range_min_m=model.range_min_m,
-                           range_max_m=model.range_max_m)
-    if model.noise:
-        from .noise import apply_range_noise  # noqa: PLC0415
-        echoes = apply_range_noise(echoes, seed=seed, leg=leg, range_noise_m=model.range_noise_m,
-                                   range_noise_per_m=model.range_noise_per_m)
-    return echoes
+    meta = dict(tracer.metadata, trace_seconds=tracer.trace_s, echo_seconds=tracer.echo_s)
+    grid = {k: v.reshape(shape) for k, v in full.items()}
+    return ScanResult(tracer.settings, grid["range"], grid["cls"], grid["elem"], grid["frac"],
+                      built.origin_m.copy(), seconds, meta, pattern, grid.get("tree"),
+                      echoes=Echoes.concat(parts) if tracer.energy else None, n_returns=grid["n_ret"],
+                      intensity=grid.get("inten"), sensor=model.to_dict())
 
 
 def _film(width: int, height: int) -> dict:

@@ -9,6 +9,7 @@ Every function here is one step a user can also call from a notebook::
 """
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import time
@@ -355,8 +356,9 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     this process) the scan runs as tiles of ``tile_rows`` rows on the cluster's workers and
     is merged here into the same result and files (:mod:`simlidar_mi.lidar.tiles`).
 
-    Without a cluster, a first-return scan of more than ``[scan] chunk_beams`` beams written
-    to ``out_dir`` is traced and written chunk by chunk (:mod:`simlidar_mi.lidar.stream`; the same bytes): ``run.result`` is then a
+    Without a cluster, a scan of more than ``[scan] chunk_beams`` beams written to ``out_dir``
+    is traced and written chunk by chunk (:mod:`simlidar_mi.lidar.stream`, with a ``[sensor]``
+    :mod:`simlidar_mi.lidar.stream_sensor`; the same bytes): ``run.result`` is then a
     :class:`~simlidar_mi.lidar.stream.StreamedScan` (shape, counts, areas; no beams).
     """
     from .._dask import cluster_client  # noqa: PLC0415
@@ -406,7 +408,7 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
         sensor = scene_sensor(cfg, geometry, patterns)
         chunk = cfg["scan"]["chunk_beams"]
         # More than one chunk to files: traced and written chunk by chunk (lidar/stream.py).
-        streamed = out_dir is not None and sensor is None and max(p.n_beams for p in patterns) > chunk
+        streamed = out_dir is not None and max(p.n_beams for p in patterns) > chunk
         t = time.perf_counter()
         results = [] if streamed else [scan(built, p, cfg["scene"]["variant"], sensor, seed=cfg.seed, leg=j,
                                             chunk_beams=chunk) for j, p in enumerate(patterns)]
@@ -420,11 +422,14 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     if out_dir is not None:
         from ..io.exr import write_scan_exr  # noqa: PLC0415
         with staged_dir(out_dir, SCAN_OUTPUTS) as stage:
-            if streamed:
+            if streamed:  # first returns (lidar/stream.py) or a [sensor] scan (lidar/stream_sensor.py)
                 from .stream import stream_scan  # noqa: PLC0415
+                from .stream_sensor import stream_physical_scan  # noqa: PLC0415
                 names: dict = {}
                 many = len(patterns) > 1
-                results, seconds["scan"] = stream_scan(
+                how = stream_scan if sensor is None else functools.partial(stream_physical_scan, model=sensor,
+                                                                             seed=cfg.seed)
+                results, seconds["scan"] = how(
                     built, patterns, stage, variant=cfg["scene"]["variant"], chunk_beams=chunk,
                     exr_kwargs={"seed": cfg.seed, "scene_sha256": cfg.sha256,
                                 "extra": {"scene_file": cfg.source, "representation": built.representation,
@@ -524,8 +529,8 @@ def scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results) -> 
         out["sensor"] = first.sensor
         out["sub_rays_per_beam"] = first.metadata.get("sub_rays_per_beam")
         if first.echoes is not None:
-            from .waveform import echo_statistics  # noqa: PLC0415
-            out["echoes"] = echo_statistics(results)
+            from .stream_sensor import scan_echo_statistics  # noqa: PLC0415
+            out["echoes"] = scan_echo_statistics(results)
     for key in ("V_L_m3", "A_L_m2", "A_PR_m2", "A_PR_exact_m2", "per_tree"):
         if key in wm:
             out[key] = wm[key]

@@ -33,8 +33,10 @@ Most clusters are read without their whole waveform, with the same bits: a clust
 energy is below the threshold gives no echo; one of a single sub-ray is read on the 11 bins
 around it; one whose sub-rays lie within 9 bins on a window 6 bins wider each side, when W has
 one peak there (:func:`_one_peak`).  The rest go through the full detector
-(:func:`_general_echoes`).  Every path sums the pulse terms in the same order and chunks and
-takes widths at the same global bin indices, so the result does not depend on the path.
+(:func:`_general_echoes`).  Every path sums each cluster's pulse terms in the same order
+(sums are never cut inside a cluster) and takes widths at the same cluster-local bin indices,
+so the result depends neither on the path nor on which other beams are in the call (the
+chunk of a scan: issue #8, streamed scans).
 """
 from __future__ import annotations
 
@@ -53,9 +55,6 @@ BINS_PER_FWHM = 8
 KERNEL_SIGMAS = 6.0
 NO_ID = 0xFFFFFFFF
 _SIGMA_PER_FWHM = 1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0)))
-#: Sums of pulse terms are accumulated in chunks of this many sub-rays of the flat list;
-#: the association of the float sums (so the bits of W) follows these chunks.
-_WAVE_CHUNK = 1 << 16
 #: Pieces of about this many sub-rays keep the kernel temporaries in cache.
 _TILE_SUBRAYS = 1 << 12
 #: One-sub-ray clusters: W on the 11 bins around the sub-ray (peak ± 5).
@@ -318,7 +317,7 @@ def _pulse(taps, frac, ej, bin_sigmas):
     return x
 
 
-def _one_peak(V, bin0, goff, lo, h):
+def _one_peak(V, bin0, lo, h):
     """Echo of clusters whose waveform is known on a window V (n, T) of bins bin0 … bin0+T−1
     (cluster-local): W rises into the window and falls out of it (the pulse tails), so the
     detector of :func:`_general_echoes` finds exactly one peak iff the slope signs in the
@@ -352,7 +351,7 @@ def _one_peak(V, bin0, goff, lo, h):
     a, b = p - n_left, p + n_right
     ok &= (a >= 1) & (b <= T - 2)                      # the walk stopped inside the window
     a, b = np.clip(a, 1, T - 2), np.clip(b, 1, T - 2)
-    g0 = goff + bin0                                   # global bin of column 0
+    g0 = bin0                                          # cluster-local bin of column 0
     left = (g0 + a) + -1 * _crossing_values(V[rows, a], V[rows, a - 1], V[rows, a + 1],
                                             V[rows, a - 1], half, -1)
     right = (g0 + b) + 1 * _crossing_values(V[rows, b], V[rows, b - 1], V[rows, b + 1],
@@ -368,7 +367,7 @@ def _single_echoes(c, starts, nj, frac, ej, c_energy, *, lo, offset, nb, crow, h
     taps = np.arange(-(_SINGLE_TAPS // 2), _SINGLE_TAPS // 2 + 1)
     V = _pulse(taps.astype(np.float64), frac[j], ej[j], bin_sigmas)
     bin0 = nj[j] + taps[0]
-    ok, peak_r, width_m = _one_peak(V, bin0, offset[c], lo[c], h)
+    ok, peak_r, width_m = _one_peak(V, bin0, lo[c], h)
     ok &= (bin0 >= 1) & (bin0 + _SINGLE_TAPS < nb[c])
     gpeak = offset[c] + nj[j]
     return ok, _Part(gpeak[ok], crow[c][ok], peak_r[ok], c_energy[c][ok], width_m[ok], j[ok])
@@ -389,7 +388,7 @@ def _narrow_echoes(c, starts, ends, cl, nj, frac, ej, c_energy, *, lo, offset, n
     their waveform on a window from ``_NARROW_PAD`` bins before the first sub-ray to as many
     after the last, accumulated like :func:`_waveforms` (every window bin is within the
     kernel of every sub-ray of the cluster, so each bin gets the same terms in the same
-    order and the same chunking: the same bits).  Clusters with one peak (almost all:
+    order, never cut inside a cluster: the same bits).  Clusters with one peak (almost all:
     Gaussians within 2σ of each other have a log-concave sum) are read off the window
     (:func:`_one_peak`); the rest go to the general path."""
     span = nj[ends[c]] - nj[starts[c]]
@@ -424,7 +423,7 @@ def _narrow_echoes(c, starts, ends, cl, nj, frac, ej, c_energy, *, lo, offset, n
             span_bins = (int(k[b - 1]) + 1) * T - base
             V[base:base + span_bins] += np.bincount(idx.ravel(), vals.ravel(), minlength=span_bins)
         V = V.reshape(len(cs), T)
-        good, peak_r, width_m = _one_peak(V, bin0, offset[cs], lo[cs], h)
+        good, peak_r, width_m = _one_peak(V, bin0, lo[cs], h)
         good &= (bin0 >= 1) & (bin0 + T < nb[cs])
         ok[sel] = good
         cg = cs[good]
@@ -445,25 +444,21 @@ def _strongest(ej, sub, k, run):
 
 def _pieces(sub, k, row_start=None, tile=_TILE_SUBRAYS):
     """Pieces [a, b) of the sub-rays ``sub`` (positions in the flat list, increasing) for
-    one bincount each: cut wherever the flat list's ``_WAVE_CHUNK`` chunks are (the sums'
-    association, so the bits, follow them) and, for cache-sized pieces, at a cluster start
-    about every ``tile`` sub-rays (a cluster cut there would change its sums)."""
+    one bincount each, cache-sized: cut at a cluster start about every ``tile`` sub-rays.
+    A cluster is never cut, so each bin of W is its own cluster's pulse terms added in
+    sub-ray order from 0, whatever else the call holds (until issue #8 the sums were also
+    cut every 65536 sub-rays of the call's flat list, so W's last bits could depend on the
+    chunk of beams a cluster fell in)."""
     n = len(sub)
-    must = np.searchsorted(sub, np.arange(_WAVE_CHUNK, int(sub[-1]) + 1, _WAVE_CHUNK))
     if row_start is None:                              # first sub-ray of each cluster
         row_start = np.r_[0, np.flatnonzero(np.diff(k)) + 1]
     out, a = [], 0
-    mi = 0
     while a < n:
-        while mi < len(must) and must[mi] <= a:
-            mi += 1
-        limit = int(must[mi]) if mi < len(must) else n
-        if limit - a <= tile:
-            b = limit
+        if n - a <= tile:
+            b = n
         else:
             q = np.searchsorted(row_start, a + tile)
             b = int(row_start[q]) if q < len(row_start) else n
-            b = min(b, limit)
         out.append((a, b))
         a = b
     return out
@@ -471,9 +466,9 @@ def _pieces(sub, k, row_start=None, tile=_TILE_SUBRAYS):
 
 def _general_echoes(c, starts, cl, nj, frac, ej, fwhm, kb, *, lo, offset, nb, crow, h, bin_sigmas):
     """Clusters ``c`` (any shape) read on all their bins: the full detector of the module
-    docstring.  Bins are laid out compactly here; widths are taken at the global bin
-    indices (``offset``) and sums are cut at the flat list's chunks, so every path gives
-    the bits the whole-list detector gives."""
+    docstring.  Bins are laid out compactly here; widths are taken at cluster-local bin
+    indices and no sum is cut inside a cluster, so every path gives the bits the
+    whole-list detector gives, in any call."""
     sub, ccl = _members(c, cl, len(nb))               # ccl: compact cluster of each sub-ray
     cnb = nb[c]
     coff = np.r_[0, np.cumsum(cnb)[:-1]]
@@ -526,7 +521,7 @@ def _general_echoes(c, starts, cl, nj, frac, ej, fwhm, kb, *, lo, offset, nb, cr
     g = np.flatnonzero((g_energy > 0) & (strongest >= 0))
     rp = rep[g]
     width_m = _fwhm_bins(wave, peak[rp], height[rp], coff[pcl[rp]], coff[pcl[rp]] + cnb[pcl[rp]],
-                         shift[pcl[rp]]) * h
+                         -coff[pcl[rp]]) * h
     return _Part(peak[rp] + shift[pcl[rp]], beam_row[rp], peak_r[rp], g_energy[g], width_m, strongest[g])
 
 
@@ -551,7 +546,7 @@ def _fwhm_bins(wave, peak, height, lo_bin, hi_bin, shift) -> np.ndarray:
     """Full width (in bins) at height/2 around each ``peak``, walked outward while W ≥
     height/2 (inside the cluster [lo_bin, hi_bin)), each crossing interpolated on the
     parabola through ln W at the three bins around the last bin above half.  ``shift``
-    maps the bins to global indices (the edges are summed there)."""
+    maps the bins to cluster-local indices (the edges are summed there)."""
     half = height / 2.0
     edges = []
     for step in (-1, 1):

@@ -1,0 +1,139 @@
+"""The physical scanner's chunks (issue #7; streamed in issue #8): divergent sub-rays traced,
+their energies, echoes from the waveform, range noise, and each beam's first return.
+
+:class:`PhysicalTracer` runs one chunk of at most ``chunk_beams`` beams (``[scan]
+chunk_beams``) and ``chunk_rays`` sub-rays (at least one beam) at a time:
+
+1. the beam's S sub-rays (divergence × dot matrix, :func:`~simlidar_mi.lidar.sensor.subray_offsets`)
+   are traced by the range integrator (``trace_subrays``);
+2. with energies (``model.needs_energy``), sub-ray j returns E_j = w_j·ρ_j·|cos i_j|·(R_ref/r_j)²
+   (:func:`subray_energy`, the law of :mod:`~simlidar_mi.lidar.sensor`), the echoes come from
+   :func:`~simlidar_mi.lidar.waveform.detect_echoes` and range noise from
+   :mod:`~simlidar_mi.lidar.noise`, keyed by (seed, leg, beam, return number); echo 1 gives the
+   first-return arrays;
+3. without (range limits alone, or divergence with ``detection = "nearest"``), a beam's first
+   return is its nearest sub-ray inside [range_min_m, range_max_m] (under ``hit_rule =
+   "any"`` its nearest vegetation sub-ray).
+
+``hit_fraction`` is the profile-weighted share of the beam's sub-rays whose first hit is
+vegetation.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..geometry import CLASS_CODES
+from .noise import apply_range_noise
+from .sensor import SensorModel, subray_offsets
+from .waveform import NO_ID, detect_echoes
+
+
+class PhysicalTracer:
+    """A real scanner's scan of one pattern, traced on demand chunk by chunk: made by
+    :func:`~simlidar_mi.lidar.scan.physical_tracer` (the Mitsuba sensor and integrator of
+    the pattern), read whole by :func:`~simlidar_mi.lidar.scan.scan_physical` and streamed by
+    :func:`~simlidar_mi.lidar.stream_sensor.stream_physical_scan`.  Every step is per beam
+    or keyed by the global beam index, so a beam's values do not depend on its chunk."""
+
+    def __init__(self, settings, pattern, lidar, integrator, scene, model, metadata: dict, *,
+                 seed: int, leg: int, chunk_beams: int, chunk_rays: int, beam0: int = 0):
+        self.settings, self.pattern, self._lidar = settings, pattern, lidar
+        self._integrator, self._scene = integrator, scene
+        self.energy = model.needs_energy
+        self.model, self.seed, self.leg = model, int(seed), int(leg)
+        self._offsets, w_sub = subray_offsets(model)
+        n_dot = (pattern.footprint + 1) ** 2
+        self.n_sub = n_dot * len(self._offsets)               # sub-rays per beam, laid out (q, j)
+        self._weight = np.tile(w_sub, n_dot) / n_dot          # Σ = 1 per beam
+        self.n_beams = pattern.n_rows * pattern.n_cols
+        self.beam0 = int(beam0)                               # a tile's first beam in the whole scan
+        self.per_chunk = max(1, min(int(chunk_beams), int(chunk_rays) // self.n_sub))
+        self.n_chunks = -(-self.n_beams // self.per_chunk)
+        self.trace_s = self.echo_s = 0.0
+        self.metadata = dict(metadata, sub_rays_per_beam=self.n_sub, seed=self.seed, leg=self.leg)
+
+    def chunks(self):
+        """Yield (first beam, beams, arrays) per chunk: flat ``range`` (float32, escape where a
+        beam has no return), ``cls``, ``elem``, ``frac``, ``tree`` (None for one plant),
+        ``n_ret``, ``inten`` (None unless intensity is on) and ``echoes`` (None without
+        energies; beams are global flat indices)."""
+        model, pattern, escape = self.model, self.pattern, self.pattern.escape_m
+        n_sub = self.n_sub
+        for b0 in range(0, self.n_beams, self.per_chunk):
+            n = min(self.per_chunk, self.n_beams - b0)
+            t1 = time.perf_counter()
+            # A tile's sensor starts up to a packet before the tile (lidar.packets).
+            out = self._integrator.trace_subrays(self._scene, self._lidar, self._offsets,
+                                                 self.beam0 - self._lidar.first_beam + b0, n, normals=self.energy)
+            t = out["t"].numpy().reshape(n, n_sub).astype(np.float64)
+            self.trace_s += time.perf_counter() - t1
+            c = out["class"].numpy().reshape(n, n_sub).astype(np.uint8)
+            e = out["element_id"].numpy().reshape(n, n_sub).copy()
+            tr = out["tree_id"].numpy().reshape(n, n_sub).copy() if "tree_id" in out else None
+            veg = (c == CLASS_CODES["wood"]) | (c == CLASS_CODES["leaf"])
+            part = {"range": np.full(n, escape, np.float32), "cls": np.zeros(n, np.uint8),
+                    "elem": np.full(n, NO_ID, np.uint32), "frac": (veg.astype(np.float64) @ self._weight).astype(np.float32),
+                    "tree": None if tr is None else np.full(n, NO_ID, np.uint32),
+                    "n_ret": np.zeros(n, np.uint8), "inten": None, "echoes": None}
+            if self.energy:
+                cos_i = out["cos_incidence"].numpy().reshape(n, n_sub).astype(np.float64)
+                rho = out["reflectance"].numpy().reshape(n, n_sub).astype(np.float64)
+                del out
+                t1 = time.perf_counter()
+                g0 = self.beam0 + b0
+                echoes = _echoes(model, t, c, e, tr, cos_i, rho, self._weight,
+                                 np.arange(g0, g0 + n, dtype=np.int64), seed=self.seed, leg=self.leg)
+                self.echo_s += time.perf_counter() - t1
+                first = echoes.return_number == 1
+                beams = echoes.beam[first] - g0
+                part["range"][beams] = echoes.range_m[first]
+                part["cls"][beams] = echoes.cls[first]
+                part["elem"][beams] = echoes.element_id[first]
+                if tr is not None and echoes.tree_id is not None:
+                    part["tree"][beams] = echoes.tree_id[first]
+                if model.intensity:
+                    part["inten"] = np.zeros(n, np.float32)
+                    part["inten"][beams] = echoes.energy[first]
+                part["n_ret"][beams] = echoes.number_of_returns[first]
+                part["echoes"] = echoes
+            else:  # range limits alone: each beam's nearest sub-ray inside them
+                del out
+                inside = (t >= model.range_min_m) & (t <= model.range_max_m)
+                r = np.where(inside, t, np.inf)
+                if pattern.hit_rule == "any" and n_sub > 1:
+                    r_veg = np.where(veg, r, np.inf)
+                    r = np.where(np.isfinite(r_veg).any(axis=1, keepdims=True), r_veg, r)
+                j = np.argmin(r, axis=1)
+                at = np.arange(n)
+                r1 = r[at, j]
+                got = np.isfinite(r1)
+                part["range"][:] = np.where(got, r1, escape)
+                part["cls"][:] = np.where(got, c[at, j], CLASS_CODES["escape"])
+                part["elem"][:] = np.where(got, e[at, j], NO_ID)
+                if tr is not None:
+                    part["tree"][:] = np.where(got, tr[at, j], NO_ID)
+                part["n_ret"][:] = got
+            yield b0, n, part
+
+
+def subray_energy(model: SensorModel, range_m: np.ndarray, reflectance: np.ndarray,
+                  cos_incidence: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """E_j = w_j·ρ_j·|cos i_j|·(R_ref/r_j)² (Lambertian, :mod:`~simlidar_mi.lidar.sensor`);
+    0 where the sub-ray escaped."""
+    with np.errstate(divide="ignore"):
+        inv_r2 = np.where(np.isfinite(range_m) & (range_m > 0), 1.0 / np.square(range_m), 0.0)
+    return weight * reflectance * np.abs(cos_incidence) * model.r_ref_m ** 2 * inv_r2
+
+
+def _echoes(model: SensorModel, t, c, e, tr, cos_i, rho, weight, beam_index, *, seed: int, leg: int):
+    E = subray_energy(model, t, rho, cos_i, weight)
+    echoes = detect_echoes(t, E, c, e, tr, cos_i, beam_index, pulse_length_ns=model.pulse_length_ns,
+                           detection_threshold=model.detection_threshold,
+                           max_returns=model.max_returns, range_min_m=model.range_min_m,
+                           range_max_m=model.range_max_m)
+    if model.noise:
+        echoes = apply_range_noise(echoes, seed=seed, leg=leg, range_noise_m=model.range_noise_m,
+                                   range_noise_per_m=model.range_noise_per_m)
+    return echoes

@@ -155,7 +155,7 @@ class _Stand:
 
 
 def _write_mesh(stand: _Stand, path: Path, fmt: str, facets: int, progress: bool,
-                comments: list[str]) -> Path:
+                comments: list[str], atomic: bool = True) -> Path:
     k = int(facets)
     n = stand.n
     nb = np.array([len(stand.local(i).branches) for i in range(n)], np.int64)
@@ -192,7 +192,7 @@ def _write_mesh(stand: _Stand, path: Path, fmt: str, facets: int, progress: bool
                 off += 2 * k * b + 3 * ntri
 
         return write_ply_stream(path, int((2 * k * nb + 3 * nt).sum()), int((2 * k * nb + nt).sum()),
-                                verts(), faces(), comments)
+                                verts(), faces(), comments, atomic=atomic)
     if fmt == "obj":
         def wood() -> Iterator[tuple[np.ndarray, np.ndarray]]:
             for i in _bar(range(n), progress, path.name, total=n):
@@ -222,7 +222,10 @@ def write_stand(forest: Forest, path: str | Path, fmt: str = "ply", facets: int 
 
 
 def _write_prototype_meshes(forest: Forest, folder: Path, fmt: str, facets: int) -> list[Path]:
-    """One mesh per prototype, in its own frame (place with the transforms of trees.csv)."""
+    """One mesh per prototype, in its own frame (place with the transforms of trees.csv).
+
+    ``folder`` is inside the run's staged folder, which appears whole or not at all, so
+    each PLY is written in place (OBJ keeps its writer's temporary file)."""
     folder.mkdir(parents=True, exist_ok=True)
     out = []
     names = forest.species_names
@@ -231,7 +234,7 @@ def _write_prototype_meshes(forest: Forest, folder: Path, fmt: str, facets: int)
         species = names[int(forest.prototype_species[p])]
         out.append(_write_mesh(stand, folder / f"{species}_{p:03d}.{fmt}", fmt, facets, False,
                                [f"simlidar-mi forest prototype {p} ({species}), own frame, metres",
-                                "part 0 = wood (open prisms), 1 = leaves"]))
+                                "part 0 = wood (open prisms), 1 = leaves"], atomic=False))
     return out
 
 

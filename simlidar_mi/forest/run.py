@@ -190,9 +190,9 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
         raise ConfigError("the scene has no [forest] section or [[species]] tables", file=cfg.source,
                           key="forest")
     f = cfg["forest"]
+    ext = leaf_table_format(f["leaf_table_format"], cfg.source)
     forest = make_forest(cfg, progress=progress)
     leaf_mode, export = _resolve_modes(forest, f, cfg.source)
-    ext = leaf_table_format(f["leaf_table_format"], cfg.source)
     seconds = dict(forest.seconds)
     files: dict[str, Path] = {}
     out = Path(out_dir)

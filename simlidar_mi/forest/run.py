@@ -113,9 +113,15 @@ def _draw_pictures(forest: Forest, stage: Path, max_trees: int) -> float:
 def _picture_child(conn, forest: Forest, stage: Path, max_trees: int) -> None:
     """The forked process: draw, then send ("ok", seconds) or ("error", message)."""
     try:
-        conn.send(("ok", _draw_pictures(forest, stage, max_trees)))
-    except BaseException as exc:  # noqa: BLE001  (everything goes back to the parent)
-        conn.send(("error", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
+        try:
+            msg = ("ok", _draw_pictures(forest, stage, max_trees))
+        except KeyboardInterrupt:  # Ctrl-C reached the parent too: it reports that
+            return
+        except BaseException as exc:  # noqa: BLE001  (everything else goes back to the parent)
+            msg = ("error", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}")
+        conn.send(msg)
+    except OSError:  # the parent stopped listening (it failed or was interrupted first)
+        pass
     finally:
         conn.close()
 

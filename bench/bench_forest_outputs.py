@@ -13,6 +13,9 @@ run so they share the machine's load:
 - ``after``: this tree's CLI (pictures in a forked process).
 
 Prints a markdown table of medians with the stages of ``forest.json`` and the load average.
+
+``--steps``: instead, each output step alone with the forest grown once (matplotlib imported
+first), best of 2, in one process per tree (before, then after): wall and CPU seconds.
 """
 from __future__ import annotations
 
@@ -34,6 +37,44 @@ HIDE_PYARROW = ("import runpy, sys; sys.modules['pyarrow'] = sys.modules['pyarro
                 "sys.argv[0] = 'simlidar-mi'; runpy.run_module('simlidar_mi.cli', run_name='__main__')")
 IN_TURN = ("import sys; from simlidar_mi.forest.run import run_forest; "
            "run_forest(sys.argv[2], sys.argv[4], parallel=False)")
+
+
+STEPS = r"""
+import os, shutil, sys, time
+from pathlib import Path
+from simlidar_mi.config import load_scene
+from simlidar_mi.forest import outputs as o
+from simlidar_mi.forest.stand import make_forest
+forest = make_forest(load_scene(sys.argv[1]))
+out = Path(sys.argv[2])
+import matplotlib.pyplot  # noqa: F401  (imported outside the timings)
+res = {}
+def timed(name, fn):
+    t, c = time.perf_counter(), time.process_time()
+    fn()
+    res.setdefault(name, []).append((time.perf_counter() - t, time.process_time() - c))
+tables = lambda: (t.leaf_table for t in forest.prototypes)
+for rep in range(2):
+    timed("leaf table, CSV", lambda: o._leaf_tables_csv(out / "pl.csv", tables(), "prototype"))
+    if hasattr(o, "write_leaf_tables"):
+        timed("leaf table, Parquet", lambda: o._leaf_tables_parquet(out / "pl.parquet", tables(), "prototype"))
+    timed("layout.png", lambda: o.plot_layout(forest, out / "layout.png"))
+    timed("preview.png", lambda: o.plot_preview(forest, out / "preview.png", 300))
+    shutil.rmtree(out / "prototypes", ignore_errors=True)
+    timed("prototype PLYs", lambda: o._write_prototype_meshes(forest, out / "prototypes", "ply", 6))
+print(f"load {os.getloadavg()[0]:.1f}; " + "; ".join(
+    f"{k}: wall {min(w for w, c in v):.2f} CPU {min(c for w, c in v):.2f}" for k, v in res.items()))
+"""
+
+
+def steps(before: Path, scene: Path) -> None:
+    for name, tree in (("before", before), ("after", REPO)):
+        with tempfile.TemporaryDirectory() as tmp:
+            p = subprocess.run([sys.executable, "-P", "-c", STEPS, str(scene), tmp], capture_output=True,
+                               text=True, cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)})
+            if p.returncode:
+                raise SystemExit(p.stderr[-3000:])
+            print(f"{name}: {p.stdout.strip()}")
 
 
 def run(tree: Path, code: str | None, scene: Path, out: Path) -> dict:
@@ -58,7 +99,10 @@ def main() -> None:
     ap.add_argument("--before", required=True, type=Path, help="checkout to compare with")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--scene", type=Path, default=REPO / "scenes" / "forest_4species.toml")
+    ap.add_argument("--steps", action="store_true", help="each output step alone (see the docstring)")
     a = ap.parse_args()
+    if a.steps:
+        return steps(a.before.resolve(), a.scene.resolve())
     variants = {"before": (a.before.resolve(), HIDE_PYARROW), "after, in turn": (REPO, IN_TURN),
                 "after": (REPO, None)}
     res: dict[str, list[dict]] = {k: [] for k in variants}

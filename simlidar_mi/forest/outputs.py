@@ -162,6 +162,11 @@ def _write_mesh(stand: _Stand, path: Path, fmt: str, facets: int, progress: bool
     nt = np.array([len(stand.local(i).leaves) for i in range(n)], np.int64)
     cache: dict = {}
 
+    def placed(i: int, v: np.ndarray) -> np.ndarray:
+        if stand.place is None:  # own frame: the identity's + 0 only turns −0 into +0 (same bytes)
+            return v + 0.0
+        return _place(v, *stand.place(i))
+
     def mesh(i: int) -> tuple[np.ndarray, np.ndarray]:
         """World vertices of tree ``i``: wood prisms, leaf triangles (3 per triangle)."""
         t, key = stand.local(i), stand.key(i)
@@ -170,10 +175,7 @@ def _write_mesh(stand: _Stand, path: Path, fmt: str, facets: int, progress: bool
             wood = prism_tubes(t.branches, k)
             if key is not None:
                 cache[key] = wood
-        if stand.place is None:  # own frame: the identity's + 0 only turns −0 into +0 (same bytes)
-            return wood + 0.0, t.leaves.vertices.reshape(-1, 3) + 0.0
-        tr, yaw, s = stand.place(i)
-        return _place(wood, tr, yaw, s), _place(t.leaves.vertices.reshape(-1, 3), tr, yaw, s)
+        return placed(i, wood), placed(i, t.leaves.vertices.reshape(-1, 3))
 
     if fmt == "ply":
         def verts() -> Iterator[np.ndarray]:
@@ -200,7 +202,7 @@ def _write_mesh(stand: _Stand, path: Path, fmt: str, facets: int, progress: bool
 
         def leaves() -> Iterator[tuple[np.ndarray, np.ndarray]]:
             for i in range(n):
-                v = mesh(i)[1]
+                v = placed(i, stand.local(i).leaves.vertices.reshape(-1, 3))
                 yield v, np.arange(len(v), dtype=np.int64).reshape(-1, 3)
 
         return write_obj_stream(path, [("wood", wood), ("leaves", leaves)], comments)

@@ -48,6 +48,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import sys
 import time
 import traceback
 from dataclasses import dataclass
@@ -127,7 +128,9 @@ def _picture_child(conn, forest: Forest, stage: Path, max_trees: int) -> None:
 
 
 def _use_fork(parallel: bool | None) -> bool:
-    if parallel is False or "fork" not in multiprocessing.get_all_start_methods():
+    # Linux only: macOS offers fork too, but system frameworks are not fork-safe there
+    if parallel is False or not sys.platform.startswith("linux") \
+            or "fork" not in multiprocessing.get_all_start_methods():
         return False
     if parallel:
         return True

@@ -67,7 +67,8 @@ def test_parquet_is_the_same_bytes_run_to_run_and_holds_no_time(runs):
 
 def test_pictures_from_the_forked_process_are_the_bytes_drawn_in_turn(runs):
     a, b, c = runs
-    for name in ("layout.png", "preview.png", "trees.csv"):
+    assert a.summary["export"] == "stand"   # placed with BLAS (one thread while forked)
+    for name in ("layout.png", "preview.png", "trees.csv", "stand.ply"):
         data = (a.files["summary"].parent / name).read_bytes()
         assert data == (c.files["summary"].parent / name).read_bytes()
         assert data == (b.files["summary"].parent / name).read_bytes()

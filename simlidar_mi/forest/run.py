@@ -45,6 +45,7 @@ meshes (they are independent; same bytes as drawn in turn): see :func:`_start_pi
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import multiprocessing
 import os
@@ -111,11 +112,20 @@ def _draw_pictures(forest: Forest, stage: Path, max_trees: int) -> float:
     return time.perf_counter() - t0
 
 
+def _one_blas_thread():
+    """BLAS limited to one thread while the two processes share the cores: OpenBLAS's own
+    threads spin between calls and took the other process's time (after-growth 2.3–2.9 s in
+    turn, forked 1.5–2.5 s with OpenBLAS's threads, 1.3–1.9 s without; BENCHMARKS.md §8c)."""
+    from threadpoolctl import threadpool_limits  # noqa: PLC0415
+    return threadpool_limits(1, user_api="blas")
+
+
 def _picture_child(conn, forest: Forest, stage: Path, max_trees: int) -> None:
     """The forked process: draw, then send ("ok", seconds) or ("error", message)."""
     try:
         try:
-            msg = ("ok", _draw_pictures(forest, stage, max_trees))
+            with _one_blas_thread():
+                msg = ("ok", _draw_pictures(forest, stage, max_trees))
         except KeyboardInterrupt:  # Ctrl-C reached the parent too: it reports that
             return
         except BaseException as exc:  # noqa: BLE001  (everything else goes back to the parent)
@@ -207,6 +217,9 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
     out = Path(out_dir)
     with staged_dir(out, FOREST_OUTPUTS) as stage:
         pictures = _Pictures(forest, stage, f["preview_max_trees"], parallel)
+        blas = contextlib.ExitStack()
+        if pictures.child is not None:
+            blas.enter_context(_one_blas_thread())
         try:
             t0 = time.perf_counter()
             _write_trees_csv(stage / "trees.csv", forest)
@@ -240,6 +253,7 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
                 st.update(2)
             seconds["plots_wait"] = time.perf_counter() - t0  # what this process waited for it
         finally:
+            blas.close()
             pictures.close()
         files["layout"], files["preview"] = out / "layout.png", out / "preview.png"
 

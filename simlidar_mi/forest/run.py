@@ -114,8 +114,8 @@ def _draw_pictures(forest: Forest, stage: Path, max_trees: int) -> float:
 
 def _one_blas_thread():
     """BLAS limited to one thread while the two processes share the cores: OpenBLAS's own
-    threads spin between calls and took the other process's time (after-growth 2.3–2.9 s in
-    turn, forked 1.5–2.5 s with OpenBLAS's threads, 1.3–1.9 s without; BENCHMARKS.md §8c)."""
+    threads spin between calls and took the other process's time (after growth, load ≈ 4: 2.3–2.9 s
+    in turn, forked 1.5–2.5 s with OpenBLAS's threads, 1.3–2.0 s with one; BENCHMARKS.md §8c)."""
     from threadpoolctl import threadpool_limits  # noqa: PLC0415
     return threadpool_limits(1, user_api="blas")
 
@@ -151,7 +151,7 @@ def _use_fork(parallel: bool | None) -> bool:
 class _Pictures:
     """``layout.png`` and ``preview.png`` drawn into a staged folder, maybe in a forked process.
 
-    With two or more cores and the "fork" start method (Linux), :meth:`start` forks a child
+    With two or more cores and the "fork" start method (Linux), the constructor forks a child
     that draws them while the caller writes the tables and meshes: the child shares the
     forest's memory (nothing is pickled) and alone imports matplotlib; the bytes are those
     of drawing in turn.  :meth:`wait` returns the drawing's seconds, or raises

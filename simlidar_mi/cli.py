@@ -310,7 +310,7 @@ def _forest_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene key, e.g. --set forest.instancing=false (repeatable)")
     p.add_argument("--out", required=True, metavar="DIR",
-                   help="output folder: trees.csv, leaves.csv, layout.png, preview.png, stand.ply, "
+                   help="output folder: trees.csv, leaves.parquet, layout.png, preview.png, stand.ply, "
                         "forest.json")
 
 

@@ -70,6 +70,8 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "leaf_table": Key(STR, "auto", one_of("auto", "all", "prototypes", "none"),
                           "auto: 'all' up to leaf_table_max_rows leaves, else 'prototypes' (instancing) or 'all'"),
         "leaf_table_max_rows": Key(INT, 1_000_000, at_least(0), "limit of leaf_table = 'auto'"),
+        "leaf_table_format": Key(STR, "auto", one_of("auto", "parquet", "csv"),
+                                 "auto: parquet (csv only where pyarrow cannot be imported)"),
         "export": Key(STR, "auto", one_of("auto", "stand", "prototypes", "none"),
                       "auto: the whole stand up to export_max_triangles, else one file per prototype"),
         "export_format": Key(STR, "ply", one_of("ply", "obj"), "binary PLY or text OBJ"),

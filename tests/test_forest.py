@@ -1,5 +1,5 @@
 """Random forests (seed 004, §III): placement through make_forest, instancing, the files of
-``simlidar-mi forest`` (trees.csv, leaves.csv, PLY/OBJ, pictures), staging and bad configs."""
+``simlidar-mi forest`` (trees.csv, leaves.parquet / .csv, PLY/OBJ, pictures), staging and bad configs."""
 from __future__ import annotations
 
 import csv
@@ -34,7 +34,7 @@ FACETS = 6
 
 @pytest.fixture(scope="module")
 def full_run(tmp_path_factory):
-    """The small scene as shipped: every tree its own draw, leaves.csv, stand.ply."""
+    """The small scene as shipped: every tree its own draw, leaves.parquet, stand.ply."""
     out = tmp_path_factory.mktemp("forest_full")
     return run_forest(SCENES / "forest_small.toml", out), out
 
@@ -44,7 +44,8 @@ def inst_run(tmp_path_factory):
     """The same scene with instancing (auto prototypes, wood scaled by 0.8–1.25 per prototype)."""
     out = tmp_path_factory.mktemp("forest_inst")
     over = ["forest.instancing=true", 'forest.export="none"', 'forest.leaf_table="all"',
-            "forest.scale_range=[0.8, 1.25]", "forest.trees_per_prototype=2"]
+            "forest.scale_range=[0.8, 1.25]", "forest.trees_per_prototype=2",
+            'forest.leaf_table_format="csv"']
     return run_forest(SCENES / "forest_small.toml", out, over), out
 
 
@@ -52,6 +53,17 @@ def read_trees(path: Path) -> tuple[list[str], list[dict]]:
     with open(path, newline="") as fh:
         r = csv.DictReader(fh)
         return list(r.fieldnames), list(r)
+
+
+def read_leaf_table(path: Path) -> tuple[list[str], np.ndarray]:
+    """A leaf table file (Parquet or CSV) as its column names and a float64 matrix."""
+    if path.suffix == ".parquet":
+        import pyarrow.parquet as pq
+        t = pq.read_table(path)
+        return t.column_names, np.column_stack([t.column(k).to_numpy() for k in t.column_names])
+    with open(path) as fh:
+        names = fh.readline().strip().split(",")
+    return names, np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
 
 
 def world_max_z(forest, i: int) -> float:
@@ -277,10 +289,10 @@ def make_forest_small_full():
 def test_leaf_table_matches_the_leaf_triangles(run, request):
     r, out = request.getfixturevalue(run)
     f = r.forest
-    path = out / "leaves.csv"
-    with open(path) as fh:
-        assert fh.readline().strip().split(",") == LEAF_COLUMNS
-    t = np.loadtxt(path, delimiter=",", skiprows=1)
+    path = r.files["leaves"]
+    assert path.name == ("leaves.parquet" if run == "full_run" else "leaves.csv")
+    names, t = read_leaf_table(path)
+    assert names == LEAF_COLUMNS
     assert len(t) == int(f.n_leaves.sum()) == r.summary["leaf_rows_written"]
     tree_id = t[:, 0].astype(int)
     b, lv = f.geometry()
@@ -327,7 +339,7 @@ def test_obj_stand_rereads_with_wood_and_leaf_objects(tmp_path):
             'forest.leaf_table="none"', "forest.domain_m=[0.0, 24.0, 0.0, 24.0]"]
     r = run_forest(SCENES / "forest_small.toml", tmp_path, over)
     f = r.forest
-    assert len(f) >= 3 and not (tmp_path / "leaves.csv").exists()
+    assert len(f) >= 3 and not list(tmp_path.glob("leaves.*"))
     objs = read_obj(tmp_path / "stand.obj")
     assert set(objs) == {"wood", "leaves"}
     wv, wf = objs["wood"]
@@ -357,9 +369,8 @@ def test_prototype_tables_and_meshes(scenes_dir, tmp_path):
             'forest.export="prototypes"', "forest.domain_m=[0.0, 20.0, 0.0, 20.0]"]
     r = run_forest(scenes_dir / "forest_small.toml", tmp_path / "o", over)
     f = r.forest
-    with open(tmp_path / "o" / "prototype_leaves.csv") as fh:
-        assert fh.readline().startswith("prototype,leaf_id,x,y,z")
-    t = np.loadtxt(tmp_path / "o" / "prototype_leaves.csv", delimiter=",", skiprows=1)
+    names, t = read_leaf_table(tmp_path / "o" / "prototype_leaves.parquet")
+    assert names[:5] == ["prototype", "leaf_id", "x", "y", "z"]
     assert len(t) == sum(p.n_leaves for p in f.prototypes)
     np.testing.assert_array_equal(np.unique(t[:, 0]), np.arange(len(f.prototypes)))
     plys = sorted((tmp_path / "o" / "prototypes").glob("*.ply"))
@@ -373,7 +384,7 @@ def test_prototype_tables_and_meshes(scenes_dir, tmp_path):
         assert len(m.vertices) == 2 * FACETS * len(p.branches) + 3 * len(p.leaves)
         np.testing.assert_allclose(m.vertices[m.faces[m.face_props["part"] == PART_LEAVES]],
                                    p.leaves.vertices, atol=2e-6)   # own frame, untransformed
-    assert not (tmp_path / "o" / "leaves.csv").exists()
+    assert not list((tmp_path / "o").glob("leaves.*"))
 
 
 def test_auto_modes_switch_to_prototypes_for_big_instanced_forests(scenes_dir, tmp_path):
@@ -406,7 +417,7 @@ def test_cli_forest(scenes_dir, tmp_path, capsys):
     text = capsys.readouterr().out
     assert "trees" in text and "removed" in text and "wrote" in text
     assert {p.name for p in (tmp_path / "c").iterdir()} == {
-        "trees.csv", "leaves.csv", "layout.png", "preview.png", "stand.ply", "forest.json"}
+        "trees.csv", "leaves.parquet", "layout.png", "preview.png", "stand.ply", "forest.json"}
     rc = main(["forest", str(scenes_dir / "forest_small.toml"), "--out", str(tmp_path / "d"),
                "--set", "forest.min_distance_m=-1"])
     assert rc == 2 and "forest.min_distance_m" in capsys.readouterr().err
@@ -455,6 +466,7 @@ def scene(forest="", preset="deciduous-apex", bump=GOOD_BUMP, tree=""):
     (scene(preset="oak"), "species[0].preset", "'oak'"),
     (scene(forest="scale_range = [1.2, 0.8]"), "forest.scale_range", r"\[1.2, 0.8\]"),
     (scene(forest='leaf_table = "some"'), "forest.leaf_table", "'some'"),
+    (scene(forest='leaf_table_format = "feather"'), "forest.leaf_table_format", "'feather'"),
     (scene(forest="min_distance_m = -2.0"), "forest.min_distance_m", "-2.0"),
     (scene(forest="crown_factor = -0.5"), "forest.crown_factor", "-0.5"),
     (scene(forest='prototypes_per_species = "many"'), "forest.prototypes_per_species", "'many'"),

@@ -12,14 +12,16 @@
     placed tree: ``place_tree(random_tree(P, seed), x, y, yaw_deg, scale)``
     (:func:`simlidar_mi.forest.stand.place_tree`; ``P`` the species' parameters, and
     ``scale_mode="whole-tree"`` when the scene says so).
-``leaves.csv`` (``leaves.parquet`` when pyarrow is importable)
+``leaves.parquet`` (``leaves.csv`` with ``leaf_table_format = "csv"``)
     ``tree_id, leaf_id, x, y, z, length_m, width_m, area_m2, nx, ny, nz, hx, hy, hz``:
     blade centre, size, one-sided polygon area, upper-side unit normal and unit
-    base→tip heading, world frame. ``leaf_table = "prototypes"`` writes
-    ``prototype_leaves.csv`` instead (column ``prototype`` for ``tree_id``, prototype
-    frame; place rows with the transforms of ``trees.csv``). ``"auto"`` (default)
-    writes all leaves up to ``leaf_table_max_rows`` (1 M rows ≈ 110 MB of CSV),
-    else the prototypes' leaves when instancing; ``"none"`` writes nothing.
+    base→tip heading, world frame; int32 ids and float64 values in Parquet (zstd), the
+    CSV rounds them (``%.5f`` positions, ``%.6g`` sizes, ``%.7g`` area, ``%.6f``
+    vectors). ``leaf_table = "prototypes"`` writes ``prototype_leaves.parquet`` instead
+    (column ``prototype`` for ``tree_id``, prototype frame; place rows with the
+    transforms of ``trees.csv``). ``"auto"`` (default) writes all leaves up to
+    ``leaf_table_max_rows`` (1 M rows ≈ 110 MB of CSV, 95 MB of Parquet), else the
+    prototypes' leaves when instancing; ``"none"`` writes nothing.
 ``layout.png``
     trees as crown-sized discs coloured by species, over the intensity contours.
 ``preview.png``
@@ -37,22 +39,30 @@
     ``crown_overlap_share`` (share of trees whose nearest neighbour's trunk stands
     inside their crown), prototypes and trees per prototype, the modes chosen and
     the seconds per step.
+
+The two pictures are drawn in a forked process while this one writes the tables and
+meshes (they are independent; same bytes as drawn in turn): see :func:`_start_pictures`.
 """
 from __future__ import annotations
 
+import contextlib
 import json
+import multiprocessing
+import os
+import sys
 import time
+import traceback
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from .._progress import make_progress
 from ..config import SceneConfig, load_scene
-from ..errors import ConfigError
+from ..errors import ConfigError, SimlidarError
 from ..io.atomic import staged_dir, writes_output
 from ..plants.tree_leaves import LeafTable
-from .outputs import (_have_pyarrow, _leaf_tables_csv, _leaf_tables_parquet, _write_prototype_meshes,
-                      _write_trees_csv, plot_layout, plot_preview, write_stand)
+from .outputs import (_write_prototype_meshes, _write_trees_csv, leaf_table_format, plot_layout,
+                      plot_preview, write_leaf_tables, write_stand)
 from .stand import Forest, _bar, make_forest
 
 __all__ = ["ForestRun", "run_forest", "FOREST_OUTPUTS"]
@@ -95,13 +105,103 @@ def _resolve_modes(forest: Forest, f: dict, src: str) -> tuple[str, str]:
     return leaf_mode, export
 
 
+def _draw_pictures(forest: Forest, stage: Path, max_trees: int) -> float:
+    t0 = time.perf_counter()
+    plot_layout(forest, stage / "layout.png")
+    plot_preview(forest, stage / "preview.png", max_trees)
+    return time.perf_counter() - t0
+
+
+def _one_blas_thread():
+    """BLAS limited to one thread while the two processes share the cores: OpenBLAS's own
+    threads spin between calls and took the other process's time (after growth, load ≈ 4: 2.3–2.9 s
+    in turn, forked 1.5–2.5 s with OpenBLAS's threads, 1.3–2.0 s with one; BENCHMARKS.md §8c)."""
+    from threadpoolctl import threadpool_limits  # noqa: PLC0415
+    return threadpool_limits(1, user_api="blas")
+
+
+def _picture_child(conn, forest: Forest, stage: Path, max_trees: int) -> None:
+    """The forked process: draw, then send ("ok", seconds) or ("error", message)."""
+    try:
+        try:
+            with _one_blas_thread():
+                msg = ("ok", _draw_pictures(forest, stage, max_trees))
+        except KeyboardInterrupt:  # Ctrl-C reached the parent too: it reports that
+            return
+        except BaseException as exc:  # noqa: BLE001  (everything else goes back to the parent)
+            msg = ("error", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}")
+        conn.send(msg)
+    except OSError:  # the parent stopped listening (it failed or was interrupted first)
+        pass
+    finally:
+        conn.close()
+
+
+def _use_fork(parallel: bool | None) -> bool:
+    # Linux only: macOS offers fork too, but system frameworks are not fork-safe there
+    if parallel is False or not sys.platform.startswith("linux") \
+            or "fork" not in multiprocessing.get_all_start_methods():
+        return False
+    if parallel:
+        return True
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return cores >= 2
+
+
+class _Pictures:
+    """``layout.png`` and ``preview.png`` drawn into a staged folder, maybe in a forked process.
+
+    With two or more cores and the "fork" start method (Linux), the constructor forks a child
+    that draws them while the caller writes the tables and meshes: the child shares the
+    forest's memory (nothing is pickled) and alone imports matplotlib; the bytes are those
+    of drawing in turn.  :meth:`wait` returns the drawing's seconds, or raises
+    :class:`SimlidarError` with the child's traceback if it failed or died (the caller's
+    staged folder is then discarded: nothing half-drawn is kept); :meth:`close` ends a
+    child still drawing (the caller failed or was interrupted).  Without fork, or with
+    ``parallel=False``, :meth:`wait` draws them here, in turn."""
+
+    def __init__(self, forest: Forest, stage: Path, max_trees: int, parallel: bool | None) -> None:
+        self.args = (forest, stage, max_trees)
+        self.child = self.recv = None
+        if _use_fork(parallel):
+            ctx = multiprocessing.get_context("fork")
+            self.recv, send = ctx.Pipe(duplex=False)
+            self.child = ctx.Process(target=_picture_child, args=(send, *self.args), daemon=True)
+            self.child.start()
+            send.close()
+
+    def wait(self) -> float:
+        if self.child is None:
+            return _draw_pictures(*self.args)
+        try:
+            status, value = self.recv.recv()
+        except EOFError:  # died without a word (killed, out of memory)
+            self.child.join()
+            raise SimlidarError(f"the process drawing layout.png and preview.png died "
+                                f"(exit code {self.child.exitcode})") from None
+        self.child.join()
+        if status != "ok":
+            raise SimlidarError(f"drawing layout.png and preview.png failed: {value}")
+        return float(value)
+
+    def close(self) -> None:
+        if self.child is None:
+            return
+        self.recv.close()
+        if self.child.is_alive():
+            self.child.terminate()
+        self.child.join()
+
+
 @writes_output("out_dir")
 def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Sequence[str] = (),
-               *, progress=False) -> ForestRun:
+               *, progress=False, parallel: bool | None = None) -> ForestRun:
     """Make the forest of a scene file and write its files (see the module docstring).
 
     All files appear together when complete (staged); a failure leaves ``out_dir``
     as it was.  ``progress``: see :func:`simlidar_mi._progress.make_progress`.
+    ``parallel``: draw the pictures in a forked process (None: when fork is available
+    and the process may use two or more cores; False: in turn, in this process).
     """
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, list(overrides))
@@ -109,53 +209,57 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
         raise ConfigError("the scene has no [forest] section or [[species]] tables", file=cfg.source,
                           key="forest")
     f = cfg["forest"]
+    ext = leaf_table_format(f["leaf_table_format"], cfg.source)
     forest = make_forest(cfg, progress=progress)
     leaf_mode, export = _resolve_modes(forest, f, cfg.source)
     seconds = dict(forest.seconds)
     files: dict[str, Path] = {}
     out = Path(out_dir)
     with staged_dir(out, FOREST_OUTPUTS) as stage:
-        t0 = time.perf_counter()
-        _write_trees_csv(stage / "trees.csv", forest)
-        files["trees"] = out / "trees.csv"
-        rows = 0
-        if leaf_mode != "none":
-            ext = "parquet" if _have_pyarrow() else "csv"
-            if leaf_mode == "all":
-                name, id_name = f"leaves.{ext}", "tree_id"
-                tables: Iterable[LeafTable] = (forest.tree_leaf_table(i) for i in
-                                               _bar(range(len(forest)), progress, "leaves", len(forest)))
-            else:
-                name, id_name = f"prototype_leaves.{ext}", "prototype"
-                tables = (t.leaf_table for t in forest.prototypes)
-            writer = _leaf_tables_parquet if ext == "parquet" else _leaf_tables_csv
-            rows = writer(stage / name, tables, id_name)
-            files["leaves"] = out / name
-        seconds["tables"] = time.perf_counter() - t0
-
-        t0 = time.perf_counter()
-        with make_progress(progress).stage("pictures", 2, "picture") as st:
-            plot_layout(forest, stage / "layout.png")
-            st.update()
-            plot_preview(forest, stage / "preview.png", f["preview_max_trees"])
-            st.update()
+        pictures = _Pictures(forest, stage, f["preview_max_trees"], parallel)
+        blas = contextlib.ExitStack()
+        if pictures.child is not None:
+            blas.enter_context(_one_blas_thread())
+        try:
+            t0 = time.perf_counter()
+            _write_trees_csv(stage / "trees.csv", forest)
+            files["trees"] = out / "trees.csv"
+            rows = 0
+            if leaf_mode != "none":
+                if leaf_mode == "all":
+                    name, id_name = f"leaves.{ext}", "tree_id"
+                    tables: Iterable[LeafTable] = (forest.tree_leaf_table(i) for i in
+                                                   _bar(range(len(forest)), progress, "leaves", len(forest)))
+                else:
+                    name, id_name = f"prototype_leaves.{ext}", "prototype"
+                    tables = (t.leaf_table for t in forest.prototypes)
+                rows = write_leaf_tables(stage / name, tables, id_name, ext)
+                files["leaves"] = out / name
+            seconds["tables"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            fmt, k = f["export_format"], f["export_facets"]
+            if export == "stand":
+                write_stand(forest, stage / f"stand.{fmt}", fmt, k, progress)
+                files["stand"] = out / f"stand.{fmt}"
+            elif export == "prototypes":
+                with make_progress(progress).stage("prototype meshes", unit="mesh") as st:
+                    _write_prototype_meshes(forest, stage / "prototypes", fmt, k)
+                    st.update(len(forest.prototypes))
+                files["prototypes"] = out / "prototypes"
+            seconds["export"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            with make_progress(progress).stage("pictures", 2, "picture") as st:
+                seconds["plots"] = pictures.wait()  # the drawing's own time
+                st.update(2)
+            seconds["plots_wait"] = time.perf_counter() - t0  # what this process waited for it
+        finally:
+            blas.close()
+            pictures.close()
         files["layout"], files["preview"] = out / "layout.png", out / "preview.png"
-        seconds["plots"] = time.perf_counter() - t0
-
-        t0 = time.perf_counter()
-        fmt, k = f["export_format"], f["export_facets"]
-        if export == "stand":
-            write_stand(forest, stage / f"stand.{fmt}", fmt, k, progress)
-            files["stand"] = out / f"stand.{fmt}"
-        elif export == "prototypes":
-            with make_progress(progress).stage("prototype meshes", unit="mesh") as st:
-                _write_prototype_meshes(forest, stage / "prototypes", fmt, k)
-                st.update(len(forest.prototypes))
-            files["prototypes"] = out / "prototypes"
-        seconds["export"] = time.perf_counter() - t0
 
         summary = forest.summary()
         summary.update({"scene_file": cfg.source, "scene_sha256": cfg.sha256, "leaf_table": leaf_mode,
+                        "leaf_table_format": ext if leaf_mode != "none" else None,
                         "leaf_rows_written": rows, "export": export, "export_format": fmt,
                         "export_facets": k, "seconds": seconds,
                         "export_triangles": int((2 * k * forest.n_branches

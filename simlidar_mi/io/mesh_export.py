@@ -21,6 +21,7 @@ vertices. float32 coordinates resolve about 30 µm at 300 m from the origin.
 """
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
@@ -94,7 +95,7 @@ def _header(n_vertices: int, n_faces: int, comments: Sequence[str]) -> bytes:
 def write_ply_stream(path: str | Path, n_vertices: int, n_faces: int,
                      vertex_chunks: Iterable[np.ndarray],
                      face_chunks: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]],
-                     comments: Sequence[str] = ()) -> Path:
+                     comments: Sequence[str] = (), *, atomic: bool = True) -> Path:
     """Write a binary PLY whose counts are known in advance, chunk by chunk.
 
     Parameters
@@ -103,6 +104,9 @@ def write_ply_stream(path: str | Path, n_vertices: int, n_faces: int,
     vertex_chunks : ``(m, 3)`` float arrays, in order.
     face_chunks : ``(faces (k, 3) global vertex indices, part (k,), tree_id (k,))``.
     comments : header comment lines.
+    atomic : write a temporary file and rename it when complete; ``False`` writes ``path``
+        itself, for files inside a staged folder that appears as a whole (the forest's 284
+        prototype meshes: the renames took 0.8 of their 2.4 s).
 
     Raises
     ------
@@ -113,7 +117,7 @@ def write_ply_stream(path: str | Path, n_vertices: int, n_faces: int,
     if n_vertices >= 2**31:
         raise ConfigError("a PLY with int32 indices holds at most 2^31 − 1 vertices",
                           key="n_vertices", value=n_vertices)
-    with atomic_file(path) as tmp, open(tmp, "wb") as fh:
+    with atomic_file(path) if atomic else contextlib.nullcontext(path) as tmp, open(tmp, "wb") as fh:
         fh.write(_header(n_vertices, n_faces, comments))
         nv = nf = 0
         for v in vertex_chunks:

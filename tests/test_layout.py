@@ -18,7 +18,7 @@ REPO = Path(__file__).resolve().parents[1]
 PKG = "simlidar_mi"
 
 # Room -> rank. A module may import its own room and rooms of a lower rank only.
-BASE = {"errors", "_validate", "_llvm", "_mitsuba", "_progress", "_signals", "_version", "_dask", "config",
+BASE = {"errors", "_validate", "_llvm", "_mitsuba", "_progress", "_signals", "_version", "_dask", "_fork", "config",
         "geometry", "sensor_presets", "config_keys"}
 RANK = {"base": 0, "io": 1, "lsystem": 1, "plants": 2, "scene": 3, "forest": 4,
         "lidar": 5, "canopy": 5, "truth": 6, "plugins": 6, "cli": 7, "api": 8}

@@ -47,18 +47,15 @@ from __future__ import annotations
 
 import contextlib
 import json
-import multiprocessing
-import os
-import sys
 import time
-import traceback
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+from .._fork import Forked, use_fork
 from .._progress import make_progress
 from ..config import SceneConfig, load_scene
-from ..errors import ConfigError, SimlidarError
+from ..errors import ConfigError
 from ..io.atomic import staged_dir, writes_output
 from ..plants.tree_leaves import LeafTable
 from .outputs import (_write_prototype_meshes, _write_trees_csv, leaf_table_format, plot_layout,
@@ -120,77 +117,19 @@ def _one_blas_thread():
     return threadpool_limits(1, user_api="blas")
 
 
-def _picture_child(conn, forest: Forest, stage: Path, max_trees: int) -> None:
-    """The forked process: draw, then send ("ok", seconds) or ("error", message)."""
-    try:
-        try:
-            with _one_blas_thread():
-                msg = ("ok", _draw_pictures(forest, stage, max_trees))
-        except KeyboardInterrupt:  # Ctrl-C reached the parent too: it reports that
-            return
-        except BaseException as exc:  # noqa: BLE001  (everything else goes back to the parent)
-            msg = ("error", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}")
-        conn.send(msg)
-    except OSError:  # the parent stopped listening (it failed or was interrupted first)
-        pass
-    finally:
-        conn.close()
-
-
 def _use_fork(parallel: bool | None) -> bool:
-    # Linux only: macOS offers fork too, but system frameworks are not fork-safe there
-    if parallel is False or not sys.platform.startswith("linux") \
-            or "fork" not in multiprocessing.get_all_start_methods():
-        return False
-    if parallel:
-        return True
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    return cores >= 2
+    return use_fork(parallel)
 
 
-class _Pictures:
-    """``layout.png`` and ``preview.png`` drawn into a staged folder, maybe in a forked process.
-
-    With two or more cores and the "fork" start method (Linux), the constructor forks a child
-    that draws them while the caller writes the tables and meshes: the child shares the
-    forest's memory (nothing is pickled) and alone imports matplotlib; the bytes are those
-    of drawing in turn.  :meth:`wait` returns the drawing's seconds, or raises
-    :class:`SimlidarError` with the child's traceback if it failed or died (the caller's
-    staged folder is then discarded: nothing half-drawn is kept); :meth:`close` ends a
-    child still drawing (the caller failed or was interrupted).  Without fork, or with
-    ``parallel=False``, :meth:`wait` draws them here, in turn."""
-
-    def __init__(self, forest: Forest, stage: Path, max_trees: int, parallel: bool | None) -> None:
-        self.args = (forest, stage, max_trees)
-        self.child = self.recv = None
-        if _use_fork(parallel):
-            ctx = multiprocessing.get_context("fork")
-            self.recv, send = ctx.Pipe(duplex=False)
-            self.child = ctx.Process(target=_picture_child, args=(send, *self.args), daemon=True)
-            self.child.start()
-            send.close()
-
-    def wait(self) -> float:
-        if self.child is None:
-            return _draw_pictures(*self.args)
-        try:
-            status, value = self.recv.recv()
-        except EOFError:  # died without a word (killed, out of memory)
-            self.child.join()
-            raise SimlidarError(f"the process drawing layout.png and preview.png died "
-                                f"(exit code {self.child.exitcode})") from None
-        self.child.join()
-        if status != "ok":
-            raise SimlidarError(f"drawing layout.png and preview.png failed: {value}")
-        return float(value)
-
-    def close(self) -> None:
-        if self.child is None:
-            return
-        self.recv.close()
-        if self.child.is_alive():
-            self.child.terminate()
-        self.child.join()
+def _pictures(forest: Forest, stage: Path, max_trees: int, parallel: bool | None) -> Forked:
+    """``layout.png`` and ``preview.png`` drawn into a staged folder, in a forked process when
+    :func:`simlidar_mi._fork.use_fork` allows, while the caller writes the tables and meshes:
+    the child shares the forest's memory and alone imports matplotlib; the bytes are those of
+    drawing in turn. ``wait()`` gives the drawing's seconds; a failed or dead child raises
+    :class:`~simlidar_mi.errors.SimlidarError` with its traceback (the staged folder is then
+    discarded)."""
+    return Forked("drawing layout.png and preview.png", _draw_pictures, forest, stage, max_trees,
+                  parallel=parallel, setup=_one_blas_thread)
 
 
 @writes_output("out_dir")
@@ -216,7 +155,7 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
     files: dict[str, Path] = {}
     out = Path(out_dir)
     with staged_dir(out, FOREST_OUTPUTS) as stage:
-        pictures = _Pictures(forest, stage, f["preview_max_trees"], parallel)
+        pictures = _pictures(forest, stage, f["preview_max_trees"], parallel)
         blas = contextlib.ExitStack()
         if pictures.child is not None:
             blas.enter_context(_one_blas_thread())

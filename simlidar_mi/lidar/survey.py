@@ -9,6 +9,7 @@ Every function here is one step a user can also call from a notebook::
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import logging
@@ -19,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._fork import Forked
 from .._mitsuba import check_variant
 from .._progress import make_progress
 from ..config import SceneConfig, load_scene
@@ -415,13 +417,24 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
         seconds["scan"] = time.perf_counter() - t
         if not streamed:
             bar(f"scanned {n_beams} beams")
-    if not streamed:
+    if not streamed and out_dir is None:  # with files: while the LAS is written (below)
         measures = scan_measures(cfg, geometry, built, results)
     files: dict[str, Path] = {}
     t = time.perf_counter()
     if out_dir is not None:
         from ..io.exr import write_scan_exr  # noqa: PLC0415
-        with staged_dir(out_dir, SCAN_OUTPUTS) as stage:
+        with staged_dir(out_dir, SCAN_OUTPUTS) as stage, contextlib.ExitStack() as jobs:
+            las_job = None
+            if write_las and not streamed:  # the longest file: on the second core (simlidar_mi._fork)
+                from ..io.las import write_scan_las  # noqa: PLC0415
+                las_job = Forked("writing points.las", functools.partial(write_scan_las, crs=cfg["scene"]["crs"]),
+                                 results if len(results) > 1 else results[0], stage / "points.las")
+                jobs.callback(las_job.close)
+                t_m = time.perf_counter()
+                measures = scan_measures(cfg, geometry, built, results)
+                seconds["measures"] = time.perf_counter() - t_m
+            elif not streamed:
+                measures = scan_measures(cfg, geometry, built, results)
             if streamed:  # first returns (lidar/stream.py) or a [sensor] scan (lidar/stream_sensor.py)
                 from .stream import stream_scan  # noqa: PLC0415
                 from .stream_sensor import stream_physical_scan  # noqa: PLC0415
@@ -453,12 +466,11 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
                     leg = "" if len(results) == 1 else f", leg {j}"
                     plot_scan_png(res, stage / f"{stem}.png", title=f"{cfg['scene']['name']}: range image{leg}")
                     files[f"png{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.png"
-            if write_las and not streamed:
-                from ..io.las import write_scan_las  # noqa: PLC0415
-                write_scan_las(results if len(results) > 1 else results[0], stage / "points.las",
-                               crs=cfg["scene"]["crs"])
+            if las_job is not None:
+                las_job.wait()
                 files["las"] = Path(out_dir) / "points.las"
-            seconds["write"] = time.perf_counter() - t - (seconds["scan"] if streamed else 0.0)
+            seconds["write"] = (time.perf_counter() - t - (seconds["scan"] if streamed else 0.0)
+                                - seconds.get("measures", 0.0))
             measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}
             with atomic_file(stage / "measures.json") as tmp:
                 tmp.write_text(json.dumps(measures, indent=2, sort_keys=True) + "\n")

@@ -1,0 +1,98 @@
+"""simlidar_mi._fork: one call in a forked child (the forest's pictures, a scan's LAS file)."""
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+import pytest
+
+from simlidar_mi._fork import Forked, use_fork
+from simlidar_mi.config import load_scene
+from simlidar_mi.errors import SimlidarError
+from simlidar_mi.lidar import survey
+from tests.conftest import SCENES
+
+needs_fork = pytest.mark.skipif(not use_fork(True), reason="no fork start method here")
+
+
+def _pid_and_sum(a):
+    return os.getpid(), float(a.sum())
+
+
+def _fail(path):
+    path.write_text("half")  # what a failing writer may leave behind in the staged folder
+    raise ValueError(f"bad value in {path.name}")
+
+
+def _die(code):
+    os._exit(code)
+
+
+def _sleep():
+    time.sleep(60)
+
+
+@needs_fork
+def test_the_call_runs_in_another_process_and_its_value_comes_back():
+    a = np.arange(1_000_000, dtype=np.float64)  # seen by the child as it is: nothing sent
+    job = Forked("summing", _pid_and_sum, a, parallel=True)
+    try:
+        pid, total = job.wait()
+    finally:
+        job.close()
+    assert pid != os.getpid() and total == float(a.sum())
+
+
+def test_in_turn_when_not_parallel():
+    job = Forked("summing", _pid_and_sum, np.ones(5), parallel=False)
+    assert job.child is None and job.wait() == (os.getpid(), 5.0)
+    job.close()
+
+
+@needs_fork
+@pytest.mark.parametrize("fn, arg, message", [
+    (_fail, "x.bin", r"writing x.bin failed: ValueError: bad value in x.bin"),  # its message comes here
+    (_die, 3, r"the process writing x.bin died \(exit code 3\)"),              # so does a silent death
+])
+def test_a_failing_or_dying_child_is_raised_here(tmp_path, fn, arg, message):
+    job = Forked("writing x.bin", fn, tmp_path / arg if fn is _fail else arg, parallel=True)
+    try:
+        with pytest.raises(SimlidarError, match=message):
+            job.wait()
+    finally:
+        job.close()
+
+
+@needs_fork
+def test_close_ends_a_child_still_running():
+    job = Forked("sleeping", _sleep, parallel=True)
+    t = time.perf_counter()
+    job.close()
+    assert not job.child.is_alive() and time.perf_counter() - t < 30
+
+
+CALIB = SCENES / "calibration_cylinder.toml"
+
+
+@needs_fork
+def test_scan_files_are_the_same_bytes_with_the_las_forked_or_in_turn(tmp_path, monkeypatch):
+    cfg = load_scene(CALIB)
+    forked = survey.run_scan(cfg, tmp_path / "forked")
+    monkeypatch.setattr("simlidar_mi._fork.use_fork", lambda parallel: False)
+    in_turn = survey.run_scan(load_scene(CALIB), tmp_path / "turn")
+    for k in ("exr", "png", "las"):
+        assert forked.files[k].read_bytes() == in_turn.files[k].read_bytes(), k
+    assert "measures" in forked.measures["seconds"]
+
+
+@needs_fork
+def test_a_las_writer_failing_in_the_child_leaves_no_folder(tmp_path, monkeypatch):
+    def broken(result, path, crs=None):
+        path.write_bytes(b"LASF half")
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr("simlidar_mi.io.las.write_scan_las", broken)
+    out = tmp_path / "out"
+    with pytest.raises(SimlidarError, match=r"writing points.las failed: OSError: \[Errno 28\] No space left"):
+        survey.run_scan(load_scene(CALIB), out)
+    assert not out.exists()

@@ -33,7 +33,7 @@ def use_fork(parallel: bool | None) -> bool:
 
 
 def _child(conn, fn: Callable, args: tuple, setup: Callable | None) -> None:
-    """The forked process: run, then send ("ok", value) or ("error", message)."""
+    """The forked process: run, then send ("ok", value) or ("error", (exception, text))."""
     try:
         try:
             with setup() if setup is not None else nullcontext():
@@ -41,7 +41,12 @@ def _child(conn, fn: Callable, args: tuple, setup: Callable | None) -> None:
         except KeyboardInterrupt:  # Ctrl-C reached the parent too: it reports that
             return
         except BaseException as exc:  # noqa: BLE001  (everything else goes back to the parent)
-            msg = ("error", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}")
+            text = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
+            try:  # the exception itself, so the parent raises what an in-turn call raises
+                conn.send(("error", (exc, text)))
+                return
+            except Exception:  # noqa: BLE001  (not picklable: its text only)
+                msg = ("error", (None, text))
         conn.send(msg)
     except OSError:  # the parent stopped listening (it failed or was interrupted first)
         pass
@@ -53,10 +58,12 @@ class Forked:
     """``fn(*args)`` in a forked child started now (see :func:`use_fork`), else here at
     :meth:`wait`.
 
-    :meth:`wait` returns its value (pickled back), or raises :class:`SimlidarError` naming
-    ``what`` with the child's traceback if it failed or died; :meth:`close` ends a child
-    still running (the caller failed or was interrupted) and must always follow. ``setup``:
-    a context-manager factory entered around the call in the child only."""
+    :meth:`wait` returns its value (pickled back). If the call raised, :meth:`wait` raises the
+    same exception, as a call in turn would (with a note naming ``what`` and the child's
+    traceback on Python ≥ 3.11); if that exception cannot be sent back, or the child died, a
+    :class:`SimlidarError` naming ``what``. :meth:`close` ends a child still running (the
+    caller failed or was interrupted) and must always follow. ``setup``: a context-manager
+    factory entered around the call in the child only."""
 
     def __init__(self, what: str, fn: Callable, *args: Any, parallel: bool | None = None,
                  setup: Callable | None = None) -> None:
@@ -79,10 +86,19 @@ class Forked:
         except EOFError:  # died without a word (killed, out of memory)
             self.child.join()
             raise SimlidarError(f"the process {self.what} died (exit code {self.child.exitcode})") from None
+        except Exception as exc:  # noqa: BLE001  (an exception that pickles but does not unpickle)
+            self.child.join()
+            raise SimlidarError(f"{self.what} failed in a forked process, and its error could not be "
+                                f"read back: {type(exc).__name__}: {exc}") from None
         self.child.join()
-        if status != "ok":
-            raise SimlidarError(f"{self.what} failed: {value}")
-        return value
+        if status == "ok":
+            return value
+        exc, text = value
+        if exc is None:
+            raise SimlidarError(f"{self.what} failed: {text}")
+        if hasattr(exc, "add_note"):
+            exc.add_note(f"({self.what} failed in a forked process; its traceback:)\n{text}")
+        raise exc
 
     def close(self) -> None:
         if self.child is None:

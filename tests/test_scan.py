@@ -81,7 +81,7 @@ def test_outputs_written(calibration):
     m = json.loads((out / "measures.json").read_text())
     for key in ("A_IM_m2", "N", "M", "hits", "seconds", "origin_m", "scene_sha256"):
         assert key in m
-    assert set(m["seconds"]) == {"generate", "build", "scan", "write"}
+    assert set(m["seconds"]) == {"generate", "build", "scan", "measures", "write"}
     ch, hdr = read_scan_exr(out / "scan.exr")
     np.testing.assert_array_equal(ch["range"], run.result.range_m)
     np.testing.assert_array_equal(ch["class"], run.result.cls)

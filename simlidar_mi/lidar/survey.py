@@ -417,8 +417,15 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
         seconds["scan"] = time.perf_counter() - t
         if not streamed:
             bar(f"scanned {n_beams} beams")
+
+    def measured() -> dict:  # the measures, timed as a stage of their own
+        t_m = time.perf_counter()
+        out = scan_measures(cfg, geometry, built, results)
+        seconds["measures"] = time.perf_counter() - t_m
+        return out
+
     if not streamed and out_dir is None:  # with files: while the LAS is written (below)
-        measures = scan_measures(cfg, geometry, built, results)
+        measures = measured()
     files: dict[str, Path] = {}
     t = time.perf_counter()
     if out_dir is not None:
@@ -430,11 +437,8 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
                 las_job = Forked("writing points.las", functools.partial(write_scan_las, crs=cfg["scene"]["crs"]),
                                  results if len(results) > 1 else results[0], stage / "points.las")
                 jobs.callback(las_job.close)
-                t_m = time.perf_counter()
-                measures = scan_measures(cfg, geometry, built, results)
-                seconds["measures"] = time.perf_counter() - t_m
-            elif not streamed:
-                measures = scan_measures(cfg, geometry, built, results)
+            if not streamed:
+                measures = measured()
             if streamed:  # first returns (lidar/stream.py) or a [sensor] scan (lidar/stream_sensor.py)
                 from .stream import stream_scan  # noqa: PLC0415
                 from .stream_sensor import stream_physical_scan  # noqa: PLC0415
@@ -454,7 +458,7 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
                 if write_las:
                     files["las"] = Path(out_dir) / "points.las"
                 bar(f"scanned and wrote {n_beams} beams in chunks of {chunk}")
-                measures = scan_measures(cfg, geometry, built, results)
+                measures = measured()
             for j, res in enumerate([] if streamed else results):
                 stem = "scan" if len(results) == 1 else f"scan_leg{j}"
                 write_scan_exr(res, stage / f"{stem}.exr", seed=cfg.seed, scene_sha256=cfg.sha256,

@@ -1,6 +1,7 @@
 """simlidar_mi._fork: one call in a forked child (the forest's pictures, a scan's LAS file)."""
 from __future__ import annotations
 
+import copyreg
 import os
 import time
 
@@ -63,22 +64,36 @@ def test_a_failure_in_the_child_raises_the_same_exception_here(tmp_path):
         assert "_fail" in err.value.__notes__[0]
 
 
-class _Unpicklable(Exception):
-    def __init__(self, a, b):  # pickles, but cannot be rebuilt from its args
-        super().__init__(f"{a}/{b}")
+class _CannotPickle(Exception):
+    def __init__(self):
+        super().__init__("holds a lambda")
+        self.hook = lambda: None  # not picklable: only the text goes back
 
 
-def _raise_unpicklable():
-    raise _Unpicklable(1, 2)
+def _load_fails():
+    raise TypeError("cannot rebuild")
+
+
+class _CannotLoad(Exception):
+    def __reduce__(self):  # the class's own reduce: pickles, but fails in the parent
+        return _load_fails, ()
+
+
+def _raise(cls):
+    raise cls()
 
 
 @needs_fork
 @pytest.mark.parametrize("fn, arg, message", [
     (_die, 3, r"the process writing x.bin died \(exit code 3\)"),
-    (_raise_unpicklable, None, r"writing x.bin failed in a forked process, and its error could not be read back"),
+    (_raise, _CannotPickle, r"writing x.bin failed: _CannotPickle: holds a lambda"),
+    (_raise, _CannotLoad, r"writing x.bin failed in a forked process, and its error could not be read back"),
 ])
-def test_a_dead_child_or_an_unreadable_error_is_a_simlidar_error(fn, arg, message):
-    job = Forked("writing x.bin", fn, *([] if arg is None else [arg]), parallel=True)
+def test_a_dead_child_or_an_error_that_cannot_come_back_is_a_simlidar_error(fn, arg, message, monkeypatch):
+    # Dask's tblib registers every exception class in copyreg once imported: the classes' own
+    # pickling is what this test is about
+    monkeypatch.delitem(copyreg.dispatch_table, arg, raising=False)
+    job = Forked("writing x.bin", fn, arg, parallel=True)
     try:
         with pytest.raises(SimlidarError, match=message):
             job.wait()

@@ -14,6 +14,7 @@ import multiprocessing
 import os
 import sys
 import traceback
+import warnings
 from contextlib import nullcontext
 from typing import Any, Callable
 
@@ -75,7 +76,12 @@ class Forked:
             ctx = multiprocessing.get_context("fork")
             self.recv, send = ctx.Pipe(duplex=False)
             self.child = ctx.Process(target=_child, args=(send, fn, args, setup), daemon=True)
-            self.child.start()
+            with warnings.catch_warnings():
+                # Python ≥ 3.12 warns on every fork of a process with threads; ours are Dr.Jit's
+                # and OpenBLAS's idle workers, and the child calls neither Dr.Jit nor Mitsuba.
+                warnings.filterwarnings("ignore", r".*multi-threaded, use of fork\(\) may lead to deadlocks",
+                                        DeprecationWarning)
+                self.child.start()
             send.close()
 
     def wait(self) -> Any:

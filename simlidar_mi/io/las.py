@@ -103,24 +103,6 @@ def row_times_s(pattern, first_row: int, a: int, b: int) -> tuple[np.ndarray, st
     return (first_row + i + k / m) * ROW_PERIOD_S, TIME_SCAN_ORDER
 
 
-def row_points_m(pattern, range_m: np.ndarray, a: int, b: int) -> np.ndarray:
-    """(b − a, M, 3) first-return points of rows [a, b): ``ScanResult.points_m()[a:b]``,
-    without building the whole scan's (N, M, 3) origins and directions."""
-    p = pattern
-    o = p.row_origin_m[a:b, None, :]
-    if p.moving:
-        o = o + p.col_time_s[None, :, None] * np.asarray(p.velocity_m_s, np.float64)[None, None, :]
-    if p.beam_dirs is not None:
-        d = p.beam_dirs[a:b]
-    else:
-        yaw = np.deg2rad(p.row_yaw_deg[a:b])
-        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-        cd = p.col_dir[None, :, :]
-        d = np.stack([c * cd[..., 0] - s * cd[..., 1], s * cd[..., 0] + c * cd[..., 1],
-                      np.broadcast_to(cd[..., 2], (len(yaw), len(p.col_dir)))], axis=-1)
-    return o + np.asarray(range_m, np.float32).reshape(b - a, -1).astype(np.float64)[..., None] * d
-
-
 def kept_points_m(pattern, range_m: np.ndarray, i_idx: np.ndarray, k_idx: np.ndarray) -> np.ndarray:
     """(n, 3) first-return points of beams (i_idx, k_idx): ``ScanResult.points_m()[i_idx, k_idx]``
     with the same float64 operations, without the (N, M, 3) arrays of every beam (most beams of
@@ -246,23 +228,6 @@ def las_record(header: laspy.LasHeader, cols: dict, *, with_tree: bool, with_ech
         las.intensity = cols["intensity"]
         las.echo_width_ns = cols["width"]
     return las.points
-
-
-def block_points(pattern, leg: int, a: int, b: int, block: dict, times_s: np.ndarray) -> dict:
-    """Per-point columns (as :func:`_leg_points`) of rows [a, b) of a first-return scan
-    streamed in blocks (``block``: flat ``range``, ``cls``, ``elem``, ``tree`` of those rows)."""
-    m = pattern.n_cols
-    cls = block["cls"].reshape(b - a, m)
-    keep = cls != CLASS_CODES["escape"]
-    i_idx, k_idx = np.nonzero(keep)
-    rng = block["range"].reshape(b - a, m)
-    tree = block["tree"]
-    cols = {"xyz": row_points_m(pattern, rng, a, b)[keep], "cls": cls[keep], "range": rng[keep],
-            "elem": block["elem"].reshape(b - a, m)[keep],
-            "tree": tree.reshape(b - a, m)[keep] if tree is not None else np.full(len(i_idx), 0xFFFFFFFF, np.uint32),
-            "gps": times_s[keep], "theta": pattern.col_angle_deg[k_idx], "i": i_idx + a, "k": k_idx,
-            "source": np.full(len(i_idx), leg)}
-    return cols
 
 
 def _leg_points(res: ScanResult, leg: int, times_s: np.ndarray, with_echoes: bool) -> dict:

@@ -221,9 +221,8 @@ def stream_scan(built, patterns: list, stage: Path, *, variant: str | None, chun
     (``png_titles``) and one points.las (``las``) into ``stage`` (module docstring).
     Returns the scans' summaries and the seconds spent tracing."""
     from ..io.exr import ScanlineExrWriter, scan_exr_layout  # noqa: PLC0415
-    from ..io.las import block_points, las_header, las_record, row_points_m, row_times_s  # noqa: PLC0415
     from ..io.plots import RangeImageReducer, plot_scan_png  # noqa: PLC0415
-    import laspy  # noqa: PLC0415
+    from .las_spill import PointSpill  # noqa: PLC0415
     tracers = [BeamTracer(built, p, variant) for p in patterns]
     trace_s = 0.0
 
@@ -236,27 +235,7 @@ def stream_scan(built, patterns: list, stage: Path, *, variant: str | None, chun
             t = time.perf_counter()
 
     n_blocks = [len(range(0, t.pattern.n_rows, max(1, chunk_beams // t.pattern.n_cols))) for t in tracers]
-    cached: dict[int, tuple] = {}
-    writer = header = None
-    with_tree = False
-    if las:  # pass 1: the offsets, floor(min of the points), as write_scan_las takes them
-        lo = np.full(3, np.inf)
-        time_kind = ""
-        for j, tr in enumerate(tracers):
-            time_kind = row_times_s(tr.pattern, 0, 0, 0)[1]
-            for a, b, block in blocks(tr):
-                with_tree |= block["tree"] is not None
-                keep = block["cls"] != CLASS_CODES["escape"]
-                if keep.any():
-                    pts = row_points_m(tr.pattern, block["range"], a, b).reshape(-1, 3)[keep]
-                    lo = np.minimum(lo, pts.min(axis=0))
-                if n_blocks[j] == 1:
-                    cached[j] = (a, b, block)
-        offsets = np.floor(lo) if np.all(np.isfinite(lo)) else np.zeros(3)
-        header = las_header(offsets, time_kind, with_tree=with_tree, crs=crs)
-        # a LasData made before the writer sets the header as write_scan_las's does (same bytes)
-        laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(0, header=header))
-        writer = laspy.open(str(stage / "points.las"), mode="w", header=header)
+    spill = PointSpill(stage) if las else None
     out, first_row = [], 0
     bar = None
     if progress is not None:
@@ -271,8 +250,7 @@ def stream_scan(built, patterns: list, stage: Path, *, variant: str | None, chun
             stem = "scan" if len(tracers) == 1 else f"scan_leg{j}"
             reducer = RangeImageReducer(n, m) if png_titles is not None else None
             exr = None
-            source = [cached[j]] if j in cached else blocks(tr)
-            for a, b, block in source:
+            for a, b, block in blocks(tr):
                 if exr is None:  # the channel set needs to know whether there are tree ids
                     summary.tree_id = True if block["tree"] is not None else None
                     hdr, dtypes = scan_exr_layout(summary, **exr_kwargs)
@@ -282,15 +260,12 @@ def stream_scan(built, patterns: list, stage: Path, *, variant: str | None, chun
                                 "tree_id": None if block["tree"] is None else block["tree"].reshape(-1, m)})
                 if reducer is not None:
                     reducer.add(a, block["range"], block["cls"])
-                if writer is not None:
-                    times, _ = row_times_s(p, first_row, a, b)
-                    cols = block_points(p, j, a, b, block, times)
-                    writer.write_points(las_record(header, cols, with_tree=with_tree))
+                if spill is not None:
+                    spill.add(p, j, first_row, a, b, block)
                 summary.add(a, block)
                 if bar is not None:
                     bar.update(1, f"leg {j}" if len(tracers) > 1 else None)
             exr.close()
-            cached.pop(j, None)
             if files is not None:
                 files[f"exr{'' if len(tracers) == 1 else j}"] = f"{stem}.exr"
             if reducer is not None:
@@ -299,9 +274,12 @@ def stream_scan(built, patterns: list, stage: Path, *, variant: str | None, chun
                     files[f"png{'' if len(tracers) == 1 else j}"] = f"{stem}.png"
             first_row += n
             out.append(summary)
+        if spill is not None:
+            spill.write(stage / "points.las", [t.pattern for t in tracers], crs=crs,
+                        with_tree=any(s.tree_id is not None for s in out))
     finally:
-        if writer is not None:
-            writer.close()
+        if spill is not None:
+            spill.close()
         if bar is not None:
             bar.close()
     return out, trace_s

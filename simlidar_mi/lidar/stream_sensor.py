@@ -25,16 +25,16 @@ measures.json but for its seconds, are those of the held scan.
 from __future__ import annotations
 
 import json
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 from ..geometry import CLASS_CODES
+from .las_spill import PointSpill
 from .scan import physical_tracer
 from .stream import StreamedScan
-from .waveform import NO_ID, Echoes, echo_statistics
+from .waveform import Echoes, echo_statistics
 
 _ECHO_FIELDS = ("beam", "return_number", "number_of_returns", "range_m", "energy", "width_ns", "cls",
                 "element_id", "tree_id", "cos_incidence")
@@ -144,7 +144,7 @@ def stream_physical_scan(built, patterns: list, stage: Path, *, model, variant: 
                for j, p in enumerate(patterns)]
     sensor = model.to_dict()
     max_returns = int(sensor.get("max_returns") or 1)
-    spill = _PointSpill(stage, model.intensity) if las else None
+    spill = PointSpill(stage, model.intensity) if las else None
     bar = progress.stage("trace + write", sum(t.n_chunks for t in tracers), "chunk") if progress is not None else None
     out, trace_s, first_row = [], 0.0, 0
     try:
@@ -235,102 +235,3 @@ def _exr_rows(block: dict, rows: int, m: int, max_returns: int, escape_m: float)
                     f"echo{r}.branch_id": layer["element_id"], f"echo{r}.intensity": layer["intensity"],
                     f"echo{r}.tree_id": layer["tree_id"]})
     return out
-
-
-class _PointSpill:
-    """The LAS points of a streamed physical scan, kept on disk until the offsets are known.
-
-    Per block of rows: the points' beams (row-major within the leg), ranges, classes, ids and,
-    with echoes, return numbers, LAS intensities and widths, in an unnamed temporary file;
-    :meth:`write` reads them back block by block into ``points.las`` with the offsets
-    floor(min of every point), the columns computed as ``write_scan_las`` computes them."""
-
-    def __init__(self, stage: Path, intensity: bool):
-        self.f = tempfile.TemporaryFile(dir=stage)
-        self.intensity = intensity
-        self.index: list[tuple] = []  # (leg, first_row, a, b, columns' dtypes, count)
-        self.lo = np.full(3, np.inf)
-        self._trig: dict[int, tuple] = {}
-
-    def add(self, pattern, leg: int, first_row: int, a: int, b: int, block: dict) -> None:
-        m = pattern.n_cols
-        echoes = block["echoes"]
-        if echoes is None:  # first returns: the beams that did not escape
-            keep = block["cls"] != CLASS_CODES["escape"]
-            beam = np.flatnonzero(keep)
-            cols = {"beam": beam, "range": block["range"][keep], "cls": block["cls"][keep],
-                    "elem": block["elem"][keep],
-                    "tree": block["tree"][keep] if block["tree"] is not None else None}
-        else:
-            from ..io.las import INTENSITY_SCALE  # noqa: PLC0415
-            energy = np.asarray(echoes.energy, np.float64)
-            cols = {"beam": echoes.beam, "range": np.asarray(echoes.range_m, np.float64), "cls": echoes.cls,
-                    "elem": echoes.element_id, "tree": echoes.tree_id, "ret": echoes.return_number,
-                    "nret": echoes.number_of_returns,
-                    "intensity": (np.minimum(65535.0, np.rint(INTENSITY_SCALE * energy)).astype(np.uint16)
-                                  if self.intensity else np.zeros(len(energy), np.uint16)),
-                    "width": np.asarray(echoes.width_ns, np.float32)}
-        cols = {k: v for k, v in cols.items() if v is not None}
-        if len(cols["beam"]):
-            xyz = self._xyz(pattern, leg, a, m, cols["beam"], cols["range"])
-            self.lo = np.minimum(self.lo, xyz.min(axis=0))
-        for v in cols.values():
-            self.f.write(np.ascontiguousarray(v).tobytes())
-        self.index.append((leg, first_row, a, b, {k: v.dtype for k, v in cols.items()}, len(cols["beam"])))
-
-    def _xyz(self, pattern, leg: int, a: int, m: int, beam, range_m) -> np.ndarray:
-        """Points at ``range_m`` along beams (block-relative flat index) of rows a …: the float64
-        operations of ``ScanResult.points_m()`` / ``write_scan_las`` (origin + r·direction, the
-        direction from cos/sin of every row's yaw, picked), bit for bit."""
-        i, k = np.divmod(np.asarray(beam, np.int64), m)
-        i = i + a
-        p = pattern
-        origin = p.row_origin_m[i]
-        if p.moving:  # fired from where the platform was
-            origin = origin + np.asarray(p.col_time_s, np.float64)[k, None] * np.asarray(p.velocity_m_s, np.float64)
-        if p.beam_dirs is not None:
-            d = p.beam_dirs[i, k]
-        else:
-            if leg not in self._trig:
-                yaw = np.deg2rad(p.row_yaw_deg)
-                self._trig = {leg: (np.cos(yaw), np.sin(yaw))}
-            cos_yaw, sin_yaw = self._trig[leg]
-            c, s = cos_yaw[i], sin_yaw[i]
-            cd = p.col_dir[k]
-            d = np.stack([c * cd[:, 0] - s * cd[:, 1], s * cd[:, 0] + c * cd[:, 1], cd[:, 2]], axis=-1)
-        return origin + np.asarray(range_m).astype(np.float64)[:, None] * d
-
-    def write(self, path: Path, patterns: list, *, crs: str | None, sensor: dict, with_tree: bool,
-              with_echoes: bool) -> None:
-        import laspy  # noqa: PLC0415
-        from ..io.las import CHUNK_POINTS, las_header, las_record, row_times_s  # noqa: PLC0415
-        offsets = np.floor(self.lo) if np.all(np.isfinite(self.lo)) else np.zeros(3)
-        time_kind = row_times_s(patterns[-1], 0, 0, 0)[1]
-        header = las_header(offsets, time_kind, with_tree=with_tree, with_echoes=with_echoes, crs=crs,
-                            sensor=sensor)
-        # a LasData made before the writer sets the header as write_scan_las's does (same bytes)
-        laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(0, header=header))
-        self.f.seek(0)
-        self._trig = {}
-        with laspy.open(str(path), mode="w", header=header) as writer:
-            for leg, first_row, a, b, dtypes, count in self.index:
-                cols = {k: np.frombuffer(self.f.read(count * dt.itemsize), dt) for k, dt in dtypes.items()}
-                if not count:
-                    continue
-                p = patterns[leg]
-                m = p.n_cols
-                i, k = np.divmod(cols["beam"], m)
-                times, _ = row_times_s(p, first_row, a, b)
-                rec = {"xyz": self._xyz(p, leg, a, m, cols["beam"], cols["range"]), "cls": cols["cls"],
-                       "range": cols["range"].astype(np.float32), "elem": cols["elem"],
-                       "tree": cols["tree"] if "tree" in cols else np.full(count, NO_ID, np.uint32),
-                       "gps": times[i, k], "theta": p.col_angle_deg[k], "i": i + a, "k": k,
-                       "source": np.full(count, leg)}
-                if with_echoes:
-                    rec.update(ret=cols["ret"], nret=cols["nret"], intensity=cols["intensity"], width=cols["width"])
-                for c0 in range(0, count, CHUNK_POINTS):
-                    part = {key: v[c0:c0 + CHUNK_POINTS] for key, v in rec.items()}
-                    writer.write_points(las_record(header, part, with_tree=with_tree, with_echoes=with_echoes))
-
-    def close(self) -> None:
-        self.f.close()

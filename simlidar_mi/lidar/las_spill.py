@@ -1,0 +1,127 @@
+"""The points of a streamed scan kept on disk until points.las can be written (issue #8).
+
+A LAS file's offsets are floor(min of every point), known only once the whole scan has been
+traced.  :class:`PointSpill` takes each block of rows as it is traced, keeps the minimum and
+writes the block's points in packed columns (beam, range, class, ids and, with echoes,
+return numbers, intensity, width: 21–40 bytes a point) to an unnamed temporary file in the
+output folder (gone when closed, also after a failure); :meth:`PointSpill.write` reads them
+back and writes ``points.las`` once, so the scan is traced once.  Used by first-return scans
+(:func:`~simlidar_mi.lidar.stream.stream_scan`) and ``[sensor]`` scans
+(:func:`~simlidar_mi.lidar.stream_sensor.stream_physical_scan`).
+
+Points are computed from the kept beams only, :data:`~simlidar_mi.io.las.CHUNK_POINTS` at a
+time (the temporaries stay in cache), with the float64 operations of
+``ScanResult.points_m()`` / ``write_scan_las``: the bytes of the held scan's file.
+"""
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..geometry import CLASS_CODES
+from .waveform import NO_ID
+
+
+class PointSpill:
+    """The LAS points of a streamed scan, kept on disk until the offsets are known (module docstring).
+
+    ``intensity``: whether echo energies become LAS intensities (a ``[sensor]`` with intensity)."""
+
+    def __init__(self, stage: Path, intensity: bool = False):
+        self.f = tempfile.TemporaryFile(dir=stage)
+        self.intensity = intensity
+        self.index: list[tuple] = []  # (leg, first_row, a, b, columns' dtypes, count)
+        self.lo = np.full(3, np.inf)
+        self._trig: dict[int, tuple] = {}
+
+    def add(self, pattern, leg: int, first_row: int, a: int, b: int, block: dict) -> None:
+        """Rows [a, b) of leg ``leg`` (flat ``range``, ``cls``, ``elem``, ``tree`` and, for a
+        ``[sensor]`` scan, ``echoes`` with beams relative to the block's first)."""
+        from ..io.las import CHUNK_POINTS  # noqa: PLC0415
+        m = pattern.n_cols
+        echoes = block.get("echoes")
+        if echoes is None:  # first returns: the beams that did not escape
+            keep = block["cls"] != CLASS_CODES["escape"]
+            beam = np.flatnonzero(keep)
+            cols = {"beam": beam, "range": block["range"][keep], "cls": block["cls"][keep],
+                    "elem": block["elem"][keep],
+                    "tree": block["tree"][keep] if block["tree"] is not None else None}
+        else:
+            from ..io.las import INTENSITY_SCALE  # noqa: PLC0415
+            energy = np.asarray(echoes.energy, np.float64)
+            cols = {"beam": echoes.beam, "range": np.asarray(echoes.range_m, np.float64), "cls": echoes.cls,
+                    "elem": echoes.element_id, "tree": echoes.tree_id, "ret": echoes.return_number,
+                    "nret": echoes.number_of_returns,
+                    "intensity": (np.minimum(65535.0, np.rint(INTENSITY_SCALE * energy)).astype(np.uint16)
+                                  if self.intensity else np.zeros(len(energy), np.uint16)),
+                    "width": np.asarray(echoes.width_ns, np.float32)}
+        cols = {k: v for k, v in cols.items() if v is not None}
+        for c0 in range(0, len(cols["beam"]), CHUNK_POINTS):  # the min of the points, exact in any pieces
+            part = slice(c0, c0 + CHUNK_POINTS)
+            xyz = self._xyz(pattern, leg, a, m, cols["beam"][part], cols["range"][part])
+            self.lo = np.minimum(self.lo, xyz.min(axis=0))
+        for v in cols.values():
+            self.f.write(np.ascontiguousarray(v).data)
+        self.index.append((leg, first_row, a, b, {k: v.dtype for k, v in cols.items()}, len(cols["beam"])))
+
+    def _xyz(self, pattern, leg: int, a: int, m: int, beam, range_m) -> np.ndarray:
+        """Points at ``range_m`` along beams (block-relative flat index) of rows a …: the float64
+        operations of ``ScanResult.points_m()`` / ``write_scan_las`` (origin + r·direction, the
+        direction from cos/sin of every row's yaw, picked), bit for bit."""
+        i, k = np.divmod(np.asarray(beam, np.int64), m)
+        i = i + a
+        p = pattern
+        origin = p.row_origin_m[i]
+        if p.moving:  # fired from where the platform was
+            origin = origin + np.asarray(p.col_time_s, np.float64)[k, None] * np.asarray(p.velocity_m_s, np.float64)
+        if p.beam_dirs is not None:
+            d = p.beam_dirs[i, k]
+        else:
+            if leg not in self._trig:
+                yaw = np.deg2rad(p.row_yaw_deg)
+                self._trig = {leg: (np.cos(yaw), np.sin(yaw))}
+            cos_yaw, sin_yaw = self._trig[leg]
+            c, s = cos_yaw[i], sin_yaw[i]
+            cd = p.col_dir[k]
+            d = np.stack([c * cd[:, 0] - s * cd[:, 1], s * cd[:, 0] + c * cd[:, 1], cd[:, 2]], axis=-1)
+        return origin + np.asarray(range_m).astype(np.float64)[:, None] * d
+
+    def write(self, path: Path, patterns: list, *, crs: str | None, sensor: dict | None = None,
+              with_tree: bool, with_echoes: bool = False) -> None:
+        """``points.las`` of every point added, with the held scan's header and bytes."""
+        import laspy  # noqa: PLC0415
+        from ..io.las import CHUNK_POINTS, las_header, las_record, row_times_s  # noqa: PLC0415
+        offsets = np.floor(self.lo) if np.all(np.isfinite(self.lo)) else np.zeros(3)
+        time_kind = row_times_s(patterns[-1], 0, 0, 0)[1]
+        header = las_header(offsets, time_kind, with_tree=with_tree, with_echoes=with_echoes, crs=crs,
+                            sensor=sensor)
+        # a LasData made before the writer sets the header as write_scan_las's does (same bytes)
+        laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(0, header=header))
+        self.f.seek(0)
+        self._trig = {}
+        with laspy.open(str(path), mode="w", header=header) as writer:
+            for leg, first_row, a, b, dtypes, count in self.index:
+                cols = {k: np.frombuffer(self.f.read(count * dt.itemsize), dt) for k, dt in dtypes.items()}
+                if not count:
+                    continue
+                p = patterns[leg]
+                m = p.n_cols
+                times, _ = row_times_s(p, first_row, a, b)
+                for c0 in range(0, count, CHUNK_POINTS):
+                    part = {key: v[c0:c0 + CHUNK_POINTS] for key, v in cols.items()}
+                    n = len(part["beam"])
+                    i, k = np.divmod(np.asarray(part["beam"], np.int64), m)
+                    rec = {"xyz": self._xyz(p, leg, a, m, part["beam"], part["range"]), "cls": part["cls"],
+                           "range": part["range"].astype(np.float32), "elem": part["elem"],
+                           "tree": part["tree"] if "tree" in part else np.full(n, NO_ID, np.uint32),
+                           "gps": times[i, k], "theta": p.col_angle_deg[k], "i": i + a, "k": k,
+                           "source": np.full(n, leg)}
+                    if with_echoes:
+                        rec.update(ret=part["ret"], nret=part["nret"], intensity=part["intensity"],
+                                   width=part["width"])
+                    writer.write_points(las_record(header, rec, with_tree=with_tree, with_echoes=with_echoes))
+
+    def close(self) -> None:
+        self.f.close()

@@ -33,6 +33,11 @@ from ..geometry import CLASS_CODES
 from .scan import CLASS_NAMES, BeamTracer, ScanSettings
 
 
+#: Beams per piece when summing a block's area terms (StreamedScan.add): small temporaries,
+#: reused from cache instead of page-faulted fresh; the sums' bits do not depend on it.
+_SUM_BEAMS = 1 << 16
+
+
 class PairwiseSum:
     """``np.sum`` of n float64 values fed in order, piece by piece, with the same bits.
 
@@ -195,23 +200,29 @@ class StreamedScan:
         if s is None:
             return
         m = self.shape[1]
-        cls = block["cls"].reshape(-1, m)
-        rng = block["range"].reshape(-1, m)
-        veg = (cls == CLASS_CODES["wood"]) | (cls == CLASS_CODES["leaf"])
-        if s.footprint > 0 and s.hit_rule == "fraction":
-            w = np.where(veg, block["frac"].reshape(-1, m), 0.0).astype(np.float64)
-        else:
-            w = veg.astype(np.float64)
         th = np.deg2rad(s.theta_deg)
         half = np.deg2rad(s.dtheta_deg) / 2
         dsin = np.sin(th + half) - np.sin(th - half)
-        self._area.add(w * rng * dsin[None, :])
         with np.errstate(over="ignore", invalid="ignore"):
             dtan = np.tan(th + half) - np.tan(th - half)
-            x = rng * np.cos(th)[None, :]
-            area = w * x * dtan[None, :]
-        term = np.where(w > 0, area, 0.0)
-        self._area_yz.add(np.where(np.isnan(term), 0.0, term))  # np.nansum's zeros
+        cos_th = np.cos(th)
+        fraction = s.footprint > 0 and s.hit_rule == "fraction"
+        cls_all, rng_all = block["cls"].reshape(-1, m), block["range"].reshape(-1, m)
+        frac_all = block["frac"].reshape(-1, m) if fraction else None
+        step = max(1, _SUM_BEAMS // m)  # rows at a time: the temporaries stay in cache (same bits)
+        for r0 in range(0, len(cls_all), step):
+            cls, rng = cls_all[r0:r0 + step], rng_all[r0:r0 + step]
+            veg = (cls == CLASS_CODES["wood"]) | (cls == CLASS_CODES["leaf"])
+            if fraction:
+                w = np.where(veg, frac_all[r0:r0 + step], 0.0).astype(np.float64)
+            else:
+                w = veg.astype(np.float64)
+            self._area.add(w * rng * dsin[None, :])
+            with np.errstate(over="ignore", invalid="ignore"):
+                x = rng * cos_th[None, :]
+                area = w * x * dtan[None, :]
+            term = np.where(w > 0, area, 0.0)
+            self._area_yz.add(np.where(np.isnan(term), 0.0, term))  # np.nansum's zeros
 
 
 def stream_scan(built, patterns: list, stage: Path, *, variant: str | None, chunk_beams: int,

@@ -5,18 +5,19 @@ chunk_beams`` beams per trace, :meth:`~simlidar_mi.lidar.scan.BeamTracer.row_blo
 hands every block to the writers before tracing the next:
 
 - ``scan.exr``: appended 16 scanlines at a time (:class:`~simlidar_mi.io.exr.ScanlineExrWriter`);
-- ``points.las``: appended through laspy's chunked writer (``laspy.open(mode="w")`` +
-  ``write_points``), which keeps the header's counts and bounds.  Its offsets are
-  floor(min of the points), as for a held scan, so a first pass traces the scan once more
-  and keeps only that minimum (a scan of one chunk is traced once);
+- ``points.las``: its offsets are floor(min of the points), as for a held scan, known only
+  once the scan is traced, so each block's kept beams (beam, range, class, ids: 17–21 bytes a
+  point) go to an unnamed temporary file in the output folder
+  (:class:`~simlidar_mi.lidar.las_spill.PointSpill`, shared with ``[sensor]`` scans) and are
+  written through laspy's chunked writer at the end: the scan is traced once;
 - ``scan.png``: reduced block by block (:class:`~simlidar_mi.io.plots.RangeImageReducer`);
 - measures: class counts, and A_IM summed as ``np.sum`` sums the held scan's N × M array
   (:class:`PairwiseSum`: the same bits from values fed in pieces).
 
 Nothing of size N × M is held: memory is the scene, one chunk's arrays (~60 B a beam) and
-the reduced image (≤ 4096² pixels).  Every file's bytes, and measures.json but for its
-seconds, are those of the held scan whatever the chunk size.  What ``run_scan`` returns is
-a :class:`StreamedScan`: shape, settings, pattern, counts and areas, no per-beam arrays
+the reduced image (≤ 4096² pixels); disk, besides the files, the spilled points.  Every
+file's bytes, and measures.json but for its seconds, are those of the held scan whatever the
+chunk size.  What ``run_scan`` returns is a :class:`StreamedScan`: shape, settings, pattern, counts and areas, no per-beam arrays
 (read them from scan.exr with :func:`~simlidar_mi.lidar.scan.read_scan_exr`).
 Scans with a ``[sensor]`` stream the same way (:mod:`simlidar_mi.lidar.stream_sensor`).
 """

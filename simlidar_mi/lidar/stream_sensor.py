@@ -15,7 +15,8 @@ them and lets them go:
 - ``points.las``: one point per echo.  Its offsets are floor(min of all points), known only
   at the end, so each block's points (beam, range, class, ids, return numbers, intensity,
   width: 30–40 bytes an echo) go to an unnamed temporary file in the output folder and are
-  read back into laspy's chunked writer once the offsets are known (no second trace);
+  read back into laspy's chunked writer once the offsets are known (no second trace;
+  :class:`~simlidar_mi.lidar.las_spill.PointSpill`, shared with first-return scans);
 - measures: class counts, A_IM (:class:`~simlidar_mi.lidar.stream.PairwiseSum`, the held
   sum's bits) and the echo statistics (:class:`EchoTally`: counts, exact).
 

@@ -226,6 +226,21 @@ class StreamedScan:
             self._area_yz.add(np.where(np.isnan(term), 0.0, term))  # np.nansum's zeros
 
 
+def finish_leg(exr, reducer, summary: StreamedScan, stage: Path, stem: str, title: str | None, key: str,
+               files: dict | None) -> None:
+    """Close a streamed leg's EXR and draw its PNG from the reduced image (``reducer`` None: no
+    PNG); name both in ``files`` (``exr``/``png`` + ``key``, the leg's number when there are
+    several). Shared by first-return and ``[sensor]`` streams."""
+    from ..io.plots import plot_scan_png  # noqa: PLC0415
+    exr.close()
+    if files is not None:
+        files[f"exr{key}"] = f"{stem}.exr"
+    if reducer is not None:
+        plot_scan_png(summary, stage / f"{stem}.png", title=title, reduced=reducer)
+        if files is not None:
+            files[f"png{key}"] = f"{stem}.png"
+
+
 def stream_scan(built, patterns: list, stage: Path, *, variant: str | None, chunk_beams: int,
                 exr_kwargs: dict, png_titles: list[str] | None, las: bool, crs: str | None,
                 progress=None, files: dict | None = None) -> tuple[list[StreamedScan], float]:
@@ -233,7 +248,7 @@ def stream_scan(built, patterns: list, stage: Path, *, variant: str | None, chun
     (``png_titles``) and one points.las (``las``) into ``stage`` (module docstring).
     Returns the scans' summaries and the seconds spent tracing."""
     from ..io.exr import ScanlineExrWriter, scan_exr_layout  # noqa: PLC0415
-    from ..io.plots import RangeImageReducer, plot_scan_png  # noqa: PLC0415
+    from ..io.plots import RangeImageReducer  # noqa: PLC0415
     from .las_spill import PointSpill  # noqa: PLC0415
     tracers = [BeamTracer(built, p, variant) for p in patterns]
     trace_s = 0.0
@@ -277,13 +292,8 @@ def stream_scan(built, patterns: list, stage: Path, *, variant: str | None, chun
                 summary.add(a, block)
                 if bar is not None:
                     bar.update(1, f"leg {j}" if len(tracers) > 1 else None)
-            exr.close()
-            if files is not None:
-                files[f"exr{'' if len(tracers) == 1 else j}"] = f"{stem}.exr"
-            if reducer is not None:
-                plot_scan_png(summary, stage / f"{stem}.png", title=png_titles[j], reduced=reducer)
-                if files is not None:
-                    files[f"png{'' if len(tracers) == 1 else j}"] = f"{stem}.png"
+            finish_leg(exr, reducer, summary, stage, stem, png_titles[j] if png_titles else None,
+                       "" if len(tracers) == 1 else str(j), files)
             first_row += n
             out.append(summary)
         if spill is not None:

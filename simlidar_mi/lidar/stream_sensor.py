@@ -34,7 +34,7 @@ import numpy as np
 from ..geometry import CLASS_CODES
 from .las_spill import PointSpill
 from .scan import physical_tracer
-from .stream import StreamedScan
+from .stream import StreamedScan, finish_leg
 from .waveform import Echoes, echo_statistics
 
 _ECHO_FIELDS = ("beam", "return_number", "number_of_returns", "range_m", "energy", "width_ns", "cls",
@@ -140,7 +140,7 @@ def stream_physical_scan(built, patterns: list, stage: Path, *, model, variant: 
     :func:`~simlidar_mi.lidar.stream.stream_scan` does for first-return scans.  Returns the
     scans' summaries and the seconds spent tracing and detecting echoes."""
     from ..io.exr import ScanlineExrWriter, _plain, scan_exr_layout  # noqa: PLC0415
-    from ..io.plots import RangeImageReducer, plot_scan_png  # noqa: PLC0415
+    from ..io.plots import RangeImageReducer  # noqa: PLC0415
     tracers = [physical_tracer(built, p, model, seed=seed, leg=j, variant=variant, chunk_beams=chunk_beams)
                for j, p in enumerate(patterns)]
     sensor = model.to_dict()
@@ -183,13 +183,8 @@ def stream_physical_scan(built, patterns: list, stage: Path, *, model, variant: 
                     bar.update(cut - done, f"leg {j}" if len(tracers) > 1 else None)
                     done = cut
                 t = time.perf_counter()
-            exr.close()
-            if files is not None:
-                files[f"exr{'' if len(tracers) == 1 else j}"] = f"{stem}.exr"
-            if reducer is not None:
-                plot_scan_png(summary, stage / f"{stem}.png", title=png_titles[j], reduced=reducer)
-                if files is not None:
-                    files[f"png{'' if len(tracers) == 1 else j}"] = f"{stem}.png"
+            finish_leg(exr, reducer, summary, stage, stem, png_titles[j] if png_titles else None,
+                       "" if len(tracers) == 1 else str(j), files)
             summary.metadata.update({"trace_seconds": tr.trace_s, "echo_seconds": tr.echo_s})
             first_row += n
             out.append(summary)

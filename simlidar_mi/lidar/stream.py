@@ -226,6 +226,17 @@ class StreamedScan:
             self._area_yz.add(np.where(np.isnan(term), 0.0, term))  # np.nansum's zeros
 
 
+def feed_block(block: dict, a: int, b: int, reducer, spill, summary: StreamedScan, pattern, leg: int,
+               first_row: int) -> None:
+    """Hand rows a … b − 1 of a leg to the PNG reduction, the LAS point spill (None: no LAS) and
+    the running measures. Shared by first-return and ``[sensor]`` streams."""
+    if reducer is not None:
+        reducer.add(a, block["range"], block["cls"])
+    if spill is not None:
+        spill.add(pattern, leg, first_row, a, b, block)
+    summary.add(a, block)
+
+
 def finish_leg(exr, reducer, summary: StreamedScan, stage: Path, stem: str, title: str | None, key: str,
                files: dict | None) -> None:
     """Close a streamed leg's EXR and draw its PNG from the reduced image (``reducer`` None: no
@@ -285,11 +296,7 @@ def stream_scan(built, patterns: list, stage: Path, *, variant: str | None, chun
                 exr.write_rows({"range": block["range"].reshape(-1, m), "class": block["cls"].reshape(-1, m),
                                 "branch_id": block["elem"].reshape(-1, m), "hit_fraction": block["frac"].reshape(-1, m),
                                 "tree_id": None if block["tree"] is None else block["tree"].reshape(-1, m)})
-                if reducer is not None:
-                    reducer.add(a, block["range"], block["cls"])
-                if spill is not None:
-                    spill.add(p, j, first_row, a, b, block)
-                summary.add(a, block)
+                feed_block(block, a, b, reducer, spill, summary, p, j, first_row)
                 if bar is not None:
                     bar.update(1, f"leg {j}" if len(tracers) > 1 else None)
             finish_leg(exr, reducer, summary, stage, stem, png_titles[j] if png_titles else None,

@@ -34,7 +34,7 @@ import numpy as np
 from ..geometry import CLASS_CODES
 from .las_spill import PointSpill
 from .scan import physical_tracer
-from .stream import StreamedScan, finish_leg
+from .stream import StreamedScan, feed_block, finish_leg
 from .waveform import Echoes, echo_statistics
 
 _ECHO_FIELDS = ("beam", "return_number", "number_of_returns", "range_m", "energy", "width_ns", "cls",
@@ -171,11 +171,7 @@ def stream_physical_scan(built, patterns: list, stage: Path, *, model, variant: 
                         hdr["simlidar_sensor"] = json.dumps(sensor, sort_keys=True, default=_plain)
                     exr = ScanlineExrWriter(stage / f"{stem}.exr", hdr, dtypes, n, m)
                 exr.write_rows(_exr_rows(block, b - a, m, max_returns, p.escape_m))
-                if reducer is not None:
-                    reducer.add(a, block["range"], block["cls"])
-                if spill is not None:
-                    spill.add(p, j, first_row, a, b, block)
-                summary.add(a, block)
+                feed_block(block, a, b, reducer, spill, summary, p, j, first_row)
                 if echoes is not None:
                     summary.echoes.add(echoes, 0, (b - a) * m)
                 if bar is not None:

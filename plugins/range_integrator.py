@@ -309,7 +309,10 @@ def _kept(out: dict, skip: int, count: int, per_beam: int, traced: int) -> dict:
 def _beam_ray(sensor: mi.Sensor, beam, sub=None):
     """The ray of global beam index ``beam`` (row-major: position, angle) through dot-matrix
     sub-beam ``sub`` of the sensor's footprint (None: the beam's centre); ``trace`` and
-    ``trace_subrays`` both aim their rays here."""
+    ``trace_subrays`` both aim their rays here.  Our sensors make it from the integers
+    (``beam_ray``); any other sensor is asked through ``sample_ray`` at the beam's centre."""
+    if hasattr(sensor, "beam_ray"):
+        return sensor.beam_ray(beam, sub)
     M, N, P = sensor.n_angles, sensor.n_positions, sensor.footprint
     i, k = beam // M, beam % M
     pos = mi.Vector2f((mi.Float(k) + 0.5) / M, (mi.Float(i) + 0.5) / N)

@@ -125,7 +125,6 @@ class PatternLidar(mi.Sensor):
         return (self.footprint + 1) ** 2
 
     def sample_ray(self, time, sample1, sample2, sample3, active=True):
-        P1 = self.footprint + 1
         k = dr.minimum(mi.UInt32(sample2.x * self.n_angles), self.n_angles - 1)
         i = dr.minimum(mi.UInt32(sample2.y * self.n_positions), self.n_positions - 1)
         if self.footprint > 0:
@@ -133,20 +132,36 @@ class PatternLidar(mi.Sensor):
             a = mi.UInt32(dr.round(sample3.y * self.footprint))
         else:
             a = b = mi.UInt32(0)
+        return self._ray(i, k, a, b, time, active), mi.Spectrum(1.0)
+
+    def beam_ray(self, beam, sub=None):
+        """The ray of beam index ``beam`` (row-major: position, angle) through dot-matrix
+        sub-beam ``sub`` (a·(P+1) + b; None: the beam's centre), from the integers directly:
+        the range integrator's path, with no round trip through film coordinates (the same
+        ray as :meth:`sample_ray` at the beam's centre sample, for less arithmetic)."""
+        M, P1 = self.n_angles, self.footprint + 1
+        i, k = beam // M, beam % M
+        if sub is None or P1 == 1:
+            a = b = mi.UInt32(0)
+        else:
+            a, b = sub // P1, sub % P1
+        return self._ray(i, k, a, b, 0.0, True)
+
+    def _ray(self, i, k, a, b, time, active):
+        P1 = self.footprint + 1
         row, col = i * P1 + a, k * P1 + b
         o = mi.Point3f(*(dr.gather(mi.Float, t, row, active) for t in self._o))
         if self._velocity is not None:  # only moving platforms pay for the per-column offset
             o += mi.Vector3f(*(dr.gather(mi.Float, t, col, active) for t in self._velocity))
         if self._beam_dirs is not None:
             beam = i * self.n_angles + k
-            return (mi.Ray3f(o, mi.Vector3f(*(dr.gather(mi.Float, t, beam, active) for t in self._beam_dirs)), time),
-                    mi.Spectrum(1.0))
+            return mi.Ray3f(o, mi.Vector3f(*(dr.gather(mi.Float, t, beam, active) for t in self._beam_dirs)), time)
         dx, dy, dz = (dr.gather(mi.Float, t, col, active) for t in self._d)
         if self._has_yaw:  # only platforms that turn pay for the rotation
             c = dr.gather(mi.Float, self._cos, row, active)
             s = dr.gather(mi.Float, self._sin, row, active)
             dx, dy = c * dx - s * dy, s * dx + c * dy
-        return mi.Ray3f(o, mi.Vector3f(dx, dy, dz), time), mi.Spectrum(1.0)
+        return mi.Ray3f(o, mi.Vector3f(dx, dy, dz), time)
 
     def sample_ray_differential(self, time, sample1, sample2, sample3, active=True):
         ray, weight = self.sample_ray(time, sample1, sample2, sample3, active)

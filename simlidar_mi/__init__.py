@@ -64,7 +64,7 @@ except LLVMNotFound:
 _API = {
     "load_scene": "config", "SceneConfig": "config",
     "generate": "lidar.survey", "build": "lidar.survey", "measure": "lidar.survey",
-    "run_scan": "lidar.survey", "preview": "lidar.survey",
+    "run_scan": "lidar.survey", "preview": "lidar.preview",
     "resolve_settings": "lidar.scan", "scan": "lidar.scan", "ScanResult": "lidar.scan",
     "ScanSettings": "lidar.scan", "read_scan_exr": "lidar.scan",
     "run_study": "lidar.study",

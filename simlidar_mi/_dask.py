@@ -48,6 +48,15 @@ def _active_client():
     return client if client.status == "running" else None
 
 
+def may_use_cluster(scheduler: str | None = None) -> bool:
+    """Whether :func:`cluster_client` would hand out a Client for ``scheduler`` (without
+    connecting): an address, else an active Client or a configured address."""
+    scheduler = scheduler.strip() if isinstance(scheduler, str) else scheduler
+    if scheduler:
+        return scheduler != LOCAL
+    return _active_client() is not None or configured_address() is not None
+
+
 def configured_address() -> str | None:
     """``DASK_SCHEDULER_ADDRESS``, else Dask's ``scheduler-address`` config, else None."""
     address = os.environ.get(ENV, "").strip()

@@ -54,6 +54,11 @@ def _mitsuba(variant: str | None) -> ModuleType:
     return mi
 
 
+def variant_ready(variant: str | None = None) -> bool:
+    """Whether this process has already imported Mitsuba with ``variant`` set (no import)."""
+    return _state.get("variant") is not None and _state["variant"] == (variant or _state["variant"])
+
+
 def check_variant(variant: str | None, file: str | None = None) -> None:
     """Refuse, before any work, a variant this machine cannot run (cuda_* without a GPU).
 

@@ -226,7 +226,7 @@ def _preview_args(p: argparse.ArgumentParser) -> None:
 @command("preview", "Shaded side view of a scene, looking along +x like the scanner, to PNG",
          _preview_args)
 def _preview_run(args: argparse.Namespace) -> int:
-    from .lidar.survey import preview
+    from .lidar.preview import preview
 
     print(f"wrote {preview(args.scene, args.out, width=args.width, spp=args.spp, overrides=_overrides(args), progress=True)}")
     return 0

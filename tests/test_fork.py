@@ -133,3 +133,64 @@ def test_a_las_writer_failing_in_the_child_leaves_no_folder(tmp_path, monkeypatc
     with pytest.raises(OSError, match=r"No space left on device"):  # what writing in turn raises
         survey.run_scan(load_scene(CALIB), out)
     assert not out.exists()
+
+
+def _strip_seconds(m: dict) -> dict:
+    return {k: v for k, v in m.items() if k != "seconds"}
+
+
+@needs_fork
+def test_generation_and_wood_measures_forked_give_the_same_files(tmp_path, monkeypatch):
+    """A fresh CLI process generates in a child while it imports Mitsuba, and measures the wood in
+    a child while it builds (survey._overlap_generation, FORK_MEASURES_MIN): forced on here."""
+    cfg_path, sets = SCENES / "apple_orchard.toml", ["scan.dtheta_deg=2", "scan.dy_m=0.05"]
+    pids = tmp_path / "pids.txt"
+    plan, measures = survey._plan, survey.scene_measures
+
+    def spy(fn):
+        def run(*a):
+            with open(pids, "a") as fh:
+                fh.write(f"{fn.__name__} {os.getpid()}\n")
+            return fn(*a)
+        return run
+    monkeypatch.setattr(survey, "_plan", spy(plan))
+    monkeypatch.setattr(survey, "scene_measures", spy(measures))
+    monkeypatch.setattr(survey, "_overlap_generation", lambda cfg, scheduler: True)
+    monkeypatch.setattr(survey, "FORK_MEASURES_MIN", 0)
+    forked = survey.run_scan(load_scene(cfg_path, sets), tmp_path / "forked")
+    ran = dict(line.split() for line in pids.read_text().splitlines())
+    assert set(ran) == {"_plan", "scene_measures"}
+    assert all(int(pid) != os.getpid() for pid in ran.values())  # both in children
+    monkeypatch.setattr("simlidar_mi._fork.use_fork", lambda parallel: False)
+    in_turn = survey.run_scan(load_scene(cfg_path, sets), tmp_path / "turn")
+    for k in ("exr", "png", "las"):
+        assert forked.files[k].read_bytes() == in_turn.files[k].read_bytes(), k
+    assert _strip_seconds(forked.measures) == _strip_seconds(in_turn.measures)
+    assert forked.measures["A_PR_swept_share"] > 0 and forked.measures["V_L_m3"] > 0
+
+
+@needs_fork
+def test_a_generation_error_in_the_child_is_raised_here_as_itself(tmp_path, monkeypatch):
+    from simlidar_mi.errors import ConfigError
+
+    def bad(cfg):
+        raise ConfigError("bad grammar", file="x.toml", key="orchard.tree.axiom", value="A[")
+    monkeypatch.setattr(survey, "generate", bad)
+    monkeypatch.setattr(survey, "_overlap_generation", lambda cfg, scheduler: True)
+    with pytest.raises(ConfigError, match="bad grammar") as err:
+        survey.run_scan(load_scene(CALIB), tmp_path / "out")
+    assert err.value.key == "orchard.tree.axiom"
+    assert not (tmp_path / "out").exists()
+
+
+def test_generation_overlaps_only_a_fresh_local_process(monkeypatch):
+    from simlidar_mi._dask import ENV, may_use_cluster
+    from simlidar_mi._mitsuba import mitsuba, variant_ready
+    cfg = load_scene(CALIB)
+    mitsuba(cfg["scene"]["variant"])
+    assert variant_ready(cfg["scene"]["variant"])
+    assert not survey._overlap_generation(cfg, None)  # Mitsuba is already here: nothing to overlap
+    monkeypatch.delenv(ENV, raising=False)
+    assert may_use_cluster("tcp://127.0.0.1:1") and not may_use_cluster("local")
+    monkeypatch.setenv(ENV, "tcp://127.0.0.1:1")
+    assert may_use_cluster(None) and not may_use_cluster("local")

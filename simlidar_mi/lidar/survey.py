@@ -1,4 +1,4 @@
-"""Scene file → geometry → scan → files: the calls behind ``simlidar-mi scan/measure/preview``.
+"""Scene file → geometry → scan → files: the calls behind ``simlidar-mi scan/measure``.
 
 Every function here is one step a user can also call from a notebook::
 
@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._fork import Forked
-from .._mitsuba import check_variant
+from .._fork import Forked, use_fork
+from .._mitsuba import check_variant, mitsuba
 from .._progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError, SimlidarWarning
@@ -31,7 +31,7 @@ from ..io.atomic import atomic_file, staged_dir, writes_output
 log = logging.getLogger(__name__)
 
 __all__ = ["SceneGeometry", "ScanRun", "load_scene", "generate", "build", "run_scan",
-           "measure", "preview", "SCAN_OUTPUTS"]
+           "measure", "SCAN_OUTPUTS"]  # preview: simlidar_mi.lidar.preview
 
 # The files a scan owns in its folder (regular expressions of whole names): a re-run
 # removes those it does not write again (points.las after --no-las, a leg's EXR when
@@ -377,9 +377,12 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     seconds: dict[str, float] = {}
 
     t = time.perf_counter()
-    geometry = generate(cfg)
-    lo, hi = geometry.bounds_m()
-    patterns = scan_patterns(cfg, lo, hi, geometry.near_x_m)
+    if _overlap_generation(cfg, scheduler):  # Mitsuba imported here while a forked child generates
+        with contextlib.closing(Forked("generating the scene", _plan, cfg)) as job:
+            mitsuba(cfg["scene"]["variant"])
+            geometry, patterns = job.wait()
+    else:
+        geometry, patterns = _plan(cfg)
     n_beams = sum(p.n_beams for p in patterns)
     if n_beams * (cfg["scan"]["footprint"] + 1) ** 2 > cfg["scan"]["max_beams"]:
         raise ConfigError(f"{n_beams} beams exceed scan.max_beams = {cfg['scan']['max_beams']}",
@@ -388,6 +391,9 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     warn_scanner_inside_wood(geometry, patterns)
     seconds["generate"] = time.perf_counter() - t
     bar(f"generated {len(geometry.branches)} branches, {len(geometry.leaves)} leaf triangles")
+    # The measures that need the geometry only, on the second core while the scene is built.
+    geo_job = Forked("measuring the wood", scene_measures, cfg, geometry, patterns) \
+        if out_dir is not None and len(geometry.branches) + len(geometry.leaves) >= FORK_MEASURES_MIN else None
 
     streamed = False  # a first-return scan written chunk by chunk (below)
     with cluster_client(scheduler) as client:
@@ -420,7 +426,8 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
 
     def measured() -> dict:  # the measures, timed as a stage of their own
         t_m = time.perf_counter()
-        out = scan_measures(cfg, geometry, built, results)
+        out = scan_measures(cfg, geometry, built, results,
+                            geo_job.wait() if geo_job is not None else scene_measures(cfg, geometry, patterns))
         seconds["measures"] = time.perf_counter() - t_m
         return out
 
@@ -431,6 +438,8 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     if out_dir is not None:
         from ..io.exr import write_scan_exr  # noqa: PLC0415
         with staged_dir(out_dir, SCAN_OUTPUTS) as stage, contextlib.ExitStack() as jobs:
+            if geo_job is not None:
+                jobs.callback(geo_job.close)
             las_job = None
             if write_las and not streamed:  # the longest file: on the second core (simlidar_mi._fork)
                 from ..io.las import write_scan_las  # noqa: PLC0415
@@ -488,10 +497,29 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
 def prepare_scan(cfg: SceneConfig) -> tuple[list, object, object]:
     """(patterns, built scene, sensor) of ``cfg`` as :func:`run_scan` makes them: what a
     cluster worker builds once for the tiles it scans (:mod:`simlidar_mi.lidar.tiles`)."""
+    geometry, patterns = _plan(cfg)
+    return patterns, build(cfg, geometry, patterns), scene_sensor(cfg, geometry, patterns)
+
+
+def _plan(cfg: SceneConfig) -> tuple[SceneGeometry, list]:
+    """The geometry and the scan patterns of ``cfg`` (no Mitsuba: a forked child may run it)."""
     geometry = generate(cfg)
     lo, hi = geometry.bounds_m()
-    patterns = scan_patterns(cfg, lo, hi, geometry.near_x_m)
-    return patterns, build(cfg, geometry, patterns), scene_sensor(cfg, geometry, patterns)
+    return geometry, scan_patterns(cfg, lo, hi, geometry.near_x_m)
+
+
+#: Geometry elements (branches + leaf triangles) from which a scan with files measures the wood
+#: in a forked child while the scene is built (below that the fork costs more than it saves).
+FORK_MEASURES_MIN = 20_000
+
+
+def _overlap_generation(cfg: SceneConfig, scheduler: str | None) -> bool:
+    """Generate in a forked child while this process imports Mitsuba: only when Mitsuba is not
+    imported yet (a command's fresh process; both steps hold the GIL, so a thread would not
+    overlap them) and the scan stays in this process (no cluster)."""
+    from .._dask import may_use_cluster  # noqa: PLC0415
+    from .._mitsuba import variant_ready  # noqa: PLC0415
+    return use_fork(None) and not variant_ready(cfg["scene"]["variant"]) and not may_use_cluster(scheduler)
 
 
 def scene_sensor(cfg: SceneConfig, geometry: SceneGeometry, patterns: list):
@@ -513,12 +541,26 @@ def scene_sensor(cfg: SceneConfig, geometry: SceneGeometry, patterns: list):
         raise cfg.relabel(exc) from None
 
 
-def scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results) -> dict:
-    """measures.json of a run: the scene, the wood measures and what each scan saw."""
-    wm = {}
+def scene_measures(cfg: SceneConfig, geometry: SceneGeometry, patterns: list) -> dict:
+    """The part of measures.json that needs the geometry only: the wood measures, the share
+    of the wood the tractor's sweep can see, and the leaf area of a leaf-on orchard."""
+    out = {}
     if len(geometry.branches):
         from ..plants.measures import wood_measures  # noqa: PLC0415
         wm = wood_measures(geometry.branches).to_dict()
+        out = {k: wm[k] for k in ("V_L_m3", "A_L_m2", "A_PR_m2", "A_PR_exact_m2", "per_tree") if k in wm}
+        if patterns and hasattr(patterns[0], "swept_share"):  # the tractor's ScanSettings
+            out["A_PR_swept_share"] = patterns[0].swept_share(geometry.branches)
+    from ..plants.apple_leaves import orchard_leaf_measures  # noqa: PLC0415
+    out.update(orchard_leaf_measures(cfg, geometry.leaves))  # leaf area per tree, LAI (leaf-on)
+    return out
+
+
+def scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results, scene: dict | None = None) -> dict:
+    """measures.json of a run: the scene, what each scan saw, and :func:`scene_measures`
+    (``scene``, when already computed)."""
+    if scene is None:
+        scene = scene_measures(cfg, geometry, [r.settings if r.settings is not None else r.pattern for r in results])
     first = results[0]
     out = {
         "scene": cfg.source, "scene_sha256": cfg.sha256, "seed": cfg.seed,
@@ -535,8 +577,6 @@ def scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results) -> 
         out.update({"N": n, "M": m, "A_IM_m2": first.impacted_area_m2(),
                     "A_IM_yz_m2": first.impacted_area_yz_m2(), "hits": first.class_counts(),
                     "scan": first.settings.to_dict()})
-        if len(geometry.branches):  # how much of the wood the sweep can see at all
-            out["A_PR_swept_share"] = first.settings.swept_share(geometry.branches)
     else:
         out["legs"] = [{"N": r.shape[0], "M": r.shape[1], "hits": r.class_counts(),
                         "pattern": r.pattern.to_dict()} for r in results]
@@ -547,65 +587,5 @@ def scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results) -> 
         if first.echoes is not None:
             from .stream_sensor import scan_echo_statistics  # noqa: PLC0415
             out["echoes"] = scan_echo_statistics(results)
-    for key in ("V_L_m3", "A_L_m2", "A_PR_m2", "A_PR_exact_m2", "per_tree"):
-        if key in wm:
-            out[key] = wm[key]
-    from ..plants.apple_leaves import orchard_leaf_measures  # noqa: PLC0415
-    out.update(orchard_leaf_measures(cfg, geometry.leaves))  # leaf area per tree, LAI (leaf-on)
+    out.update(scene)
     return out
-
-
-@writes_output("path", file=True)
-def preview(cfg: SceneConfig | str | Path, path: str | Path, *, width: int = 1024,
-            spp: int = 16, overrides: list[str] | tuple = (), progress=False) -> Path:
-    """A shaded side view of the scene (looking along +x, like the scanner) as PNG.
-
-    ``progress``: see :func:`simlidar_mi._progress.make_progress` (stages generate, build,
-    render, write)."""
-    from .._mitsuba import mitsuba  # noqa: PLC0415
-    if not isinstance(cfg, SceneConfig):
-        cfg = load_scene(cfg, overrides)
-    check_variant(cfg["scene"]["variant"], cfg.source)  # before any work
-    step = make_progress(progress).stage("preview", 4, "stage").step
-    geometry = generate(cfg)
-    step(f"generated {len(geometry.branches)} branches, {len(geometry.leaves)} leaf triangles")
-    built = build(cfg, geometry)
-    step(f"built {built.representation} scene")
-    mi = mitsuba(cfg["scene"]["variant"])
-    lo, hi = built.bbox_min_m - built.origin_m, built.bbox_max_m - built.origin_m
-    centre = 0.5 * (lo + hi)
-    extent = hi - lo
-    half_w = 0.55 * max(extent[1], 0.6 * extent[2], 1e-3)
-    half_h = 0.55 * max(extent[2], 0.3 * extent[1], 1e-3)
-    height = max(16, int(round(width * half_h / half_w)))
-    eye = [lo[0] - 10.0 * max(extent.max(), 1.0), centre[1], centre[2]]
-    sensor = mi.load_dict({
-        "type": "orthographic",
-        "to_world": mi.ScalarTransform4f.look_at(origin=eye, target=centre.tolist(), up=[0, 0, 1])
-        @ mi.ScalarTransform4f.scale([half_w, half_w, 1.0]),  # Mitsuba applies the film aspect to y
-        "film": {"type": "hdrfilm", "width": width, "height": height, "pixel_format": "rgb"
-                 if "rgb" in mi.variant() else "luminance"},
-        "sampler": {"type": "independent", "sample_count": spp},
-    })
-    shapes = {f"s{j}": s for j, s in enumerate(built.scene.shapes())}
-    scene = mi.load_dict({"type": "scene", "integrator": {"type": "direct", "hide_emitters": True},
-                          "light": {"type": "constant", "radiance": {"type": "rgb", "value": 0.8}}
-                          if "rgb" in mi.variant() else {"type": "constant", "radiance": 0.8},
-                          "sun": {"type": "directional", "direction": [1.0, 0.4, -1.0], "irradiance": 2.0},
-                          **shapes})
-    img = np.array(mi.render(scene, sensor=sensor, spp=spp))
-    step(f"rendered {width}×{height} at {spp} spp")
-    if img.ndim == 2:
-        img = img[..., None]
-    lum = img.mean(axis=2)
-    fg = lum > 0
-    scale = np.percentile(lum[fg], 99.5) if fg.any() else 1.0
-    shade = np.clip(lum / max(scale, 1e-6), 0, 1) ** (1 / 2.2)
-    # Wood in bark brown on a white background (emitters hidden: background renders 0).
-    bark = np.array([0.45, 0.30, 0.18])
-    img = np.where(fg[..., None], (0.25 + 0.75 * shade[..., None]) * bark / bark.max(), 1.0)
-    from PIL import Image  # noqa: PLC0415
-    with atomic_file(path) as tmp:
-        Image.fromarray((img * 255).astype(np.uint8)).save(tmp, format="PNG")
-    step(f"wrote {path}")
-    return Path(path)

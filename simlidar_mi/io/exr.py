@@ -174,11 +174,13 @@ class ScanlineExrWriter:
         Whole blocks are written before this returns; the few rows left over are copied,
         so the caller may reuse its arrays."""
         r = len(rows[self.names[0]])
-        for k in self.names:
-            self.pending[k].append(np.asarray(rows[k]).reshape(r, self.m))
         self.buffered += r
         whole = self.buffered // self.LINES * self.LINES
-        if whole or self.row + self.buffered == self.n:
+        flush = whole or self.row + self.buffered == self.n
+        for k in self.names:  # held until a block fills: copied, fewer than 16 lines
+            x = np.asarray(rows[k]).reshape(r, self.m)
+            self.pending[k].append(x if flush else np.array(x, self.dtypes[k]))
+        if flush:
             self._flush(whole if self.row + self.buffered < self.n else self.buffered)
 
     def _flush(self, count: int) -> None:

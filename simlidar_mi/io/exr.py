@@ -20,6 +20,7 @@ nothing changes, byte for byte.
 from __future__ import annotations
 
 import json
+import threading
 import zlib
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -102,8 +103,10 @@ def result_rows(result, a: int, b: int) -> dict[str, np.ndarray]:
 
 
 def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = None,
-                   scene_sha256: str = "", extra: dict | None = None) -> Path:
-    """Write ``result`` to ``path`` (ZIP compression, scanlines); returns the path."""
+                   scene_sha256: str = "", extra: dict | None = None, threads: int = 2) -> Path:
+    """Write ``result`` to ``path`` (ZIP compression, scanlines); returns the path.
+
+    ``threads``: compressing threads (:class:`ScanlineExrWriter`); the bytes do not depend on it."""
     header, dtypes = scan_exr_layout(result, seed=seed, scene_sha256=scene_sha256, extra=extra)
     n, m = result.shape
     rows = result_rows(result, 0, n)  # views: the writer converts 16 lines at a time
@@ -112,7 +115,7 @@ def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = N
         _echo_channels(result, full, header)
         dtypes.update({k: v.dtype.type for k, v in full.items()})
         rows.update(full)
-    with atomic_file(path) as tmp, ScanlineExrWriter(tmp, header, dtypes, n, m) as w:
+    with atomic_file(path) as tmp, ScanlineExrWriter(tmp, header, dtypes, n, m, threads=threads) as w:
         w.write_rows(rows)
     return Path(path)
 
@@ -131,15 +134,16 @@ class ScanlineExrWriter:
 
     Speed (issue #8): zlib at level 4 is most of the time and cannot change (it fixes the
     bytes); around it, each block is converted, interleaved and coded in three reused
-    buffers of one block (~150 kB: they stay in cache, where whole-scan passes and fresh
-    arrays per block ran 3–6× slower), and runs of blocks go to two threads (zlib and
-    most numpy loops release the GIL).
+    buffers of one block per thread (~150 kB: they stay in cache, where whole-scan passes
+    and fresh arrays per block ran 3–6× slower), and runs of :attr:`RUN` blocks go to two
+    threads (zlib and most numpy loops release the GIL).
     """
 
     LINES = 16  # scanlines per ZIP block (the EXR format's)
-    TASKS = 4  # runs of blocks per flush handed to the two threads
+    RUN = 8  # blocks per task: few tasks, yet a busy core does not hold back the other
 
-    def __init__(self, path, header: dict, dtypes: dict, n_rows: int, n_cols: int, level: int = 4):
+    def __init__(self, path, header: dict, dtypes: dict, n_rows: int, n_cols: int, level: int = 4,
+                 threads: int = 2):
         self.names = sorted(dtypes, key=lambda k: k.encode())
         self.dtypes = {k: np.dtype(dtypes[k]).newbyteorder("<") for k in self.names}
         self.n, self.m, self.level = int(n_rows), int(n_cols), level
@@ -156,7 +160,10 @@ class ScanlineExrWriter:
         self.pending: dict[str, list] = {k: [] for k in self.names}
         self.buffered = self.row = 0
         from concurrent.futures import ThreadPoolExecutor  # noqa: PLC0415
-        self.pool = ThreadPoolExecutor(2)  # zlib releases the GIL: compress blocks on both cores
+        # zlib releases the GIL: compress blocks on both cores.  One thread costs ~5 % less
+        # CPU (BENCHMARKS §8f), the better choice when the other core is busy anyway
+        self.pool = ThreadPoolExecutor(int(threads)) if threads > 1 else None
+        self.scratch = threading.local()  # each thread's block buffers
 
     def __enter__(self):
         return self
@@ -165,7 +172,8 @@ class ScanlineExrWriter:
         if kind is None:
             self.close()
         else:
-            self.pool.shutdown()
+            if self.pool:
+                self.pool.shutdown()
             self.f.close()
 
     def write_rows(self, rows: dict[str, np.ndarray]) -> None:
@@ -186,10 +194,10 @@ class ScanlineExrWriter:
     def _flush(self, count: int) -> None:
         data = [np.concatenate([np.asarray(x, self.dtypes[k]) for x in self.pending[k]])
                 if len(self.pending[k]) > 1 else self.pending[k][0] for k in self.names]
-        n_blocks = -(-count // self.LINES)
-        per_task = max(1, -(-n_blocks // self.TASKS))
-        runs = [(a * self.LINES, min(count, (a + per_task) * self.LINES)) for a in range(0, n_blocks, per_task)]
-        for (a, _), payloads in zip(runs, self.pool.map(lambda run: self._blocks(data, *run), runs)):
+        step = self.RUN * self.LINES
+        runs = [(a, min(count, a + step)) for a in range(0, count, step)]
+        encode = self.pool.map if self.pool else map
+        for (a, _), payloads in zip(runs, encode(lambda run: self._blocks(data, *run), runs)):
             for i, payload in enumerate(payloads):
                 self.offsets.append(self.f.tell())
                 self.f.write(np.array([self.row + a + i * self.LINES, len(payload)], "<i4").tobytes())
@@ -202,7 +210,9 @@ class ScanlineExrWriter:
     def _blocks(self, chans: list[np.ndarray], a: int, b: int) -> list[bytes]:
         """The payloads of the blocks of lines [a, b) of ``chans`` (one thread's run)."""
         size = self.LINES * self.line_bytes
-        raw, split, pred = (np.empty(size, np.uint8) for _ in range(3))  # reused: stay in cache
+        if getattr(self.scratch, "size", None) != size:  # this thread's, reused: stays in cache
+            self.scratch.size, self.scratch.bufs = size, [np.empty(size, np.uint8) for _ in range(3)]
+        raw, split, pred = self.scratch.bufs
         out = []
         for y in range(a, b, self.LINES):
             lines = min(b, y + self.LINES) - y
@@ -219,7 +229,8 @@ class ScanlineExrWriter:
     def close(self) -> None:
         if self.row != self.n:
             raise ValueError(f"EXR writer got {self.row} of {self.n} rows")
-        self.pool.shutdown()
+        if self.pool:
+            self.pool.shutdown()
         self.f.seek(self.table_at)
         self.f.write(np.asarray(self.offsets, "<u8").tobytes())
         self.f.close()

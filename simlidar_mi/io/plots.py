@@ -143,27 +143,15 @@ def range_rgb(range_m: np.ndarray, cls: np.ndarray, *, max_px: int = MAX_IMAGE_P
 
 #: :func:`_colour_codes` → RGB: the 256 viridis entries, then ground and escape.
 _PALETTE = np.concatenate([VIRIDIS_LUT, [GROUND_RGB, ESCAPE_RGB]]).astype(np.uint8)
-_GROUND_CODE, _ESCAPE_CODE = 256, 257
+_ESCAPE_CODE = 257
 
 
 def _colour_codes(near: np.ndarray, gnd: np.ndarray, vmin: float, vmax: float) -> np.ndarray:
     """Entry of :data:`_PALETTE` per pixel (uint16): :func:`lut_index` of the nearest
     vegetation range where it is finite, else ground where ``gnd``, else escape."""
-    code = np.where(gnd, np.uint16(_GROUND_CODE), np.uint16(_ESCAPE_CODE))
+    code = np.subtract(np.uint16(_ESCAPE_CODE), gnd, dtype=np.uint16)  # ground is escape − 1
     hit = np.isfinite(near)
-    if vmax > vmin:
-        # lut_index's arithmetic on every pixel (no gather/scatter of the hits); the
-        # non-finite ones give meaningless entries that the mask below drops
-        t = near.astype(np.float64)
-        t -= vmin
-        t /= vmax - vmin
-        t *= 256.0
-        np.floor(t, out=t)
-        np.clip(t, 0, 255, out=t)
-        with np.errstate(invalid="ignore"):  # NaN → integer: masked out below
-            np.copyto(code, t.astype(np.uint16), where=hit)
-    else:
-        code[hit] = 0
+    code[hit] = lut_index(near[hit], vmin, vmax)  # the hits only: most pixels are not
     return code
 
 

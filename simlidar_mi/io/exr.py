@@ -140,7 +140,7 @@ class ScanlineExrWriter:
     """
 
     LINES = 16  # scanlines per ZIP block (the EXR format's)
-    RUN = 8  # blocks per task: few tasks, yet a busy core does not hold back the other
+    RUN = 8  # most blocks per task: few tasks, yet a busy core does not hold back the other
 
     def __init__(self, path, header: dict, dtypes: dict, n_rows: int, n_cols: int, level: int = 4,
                  threads: int = 2):
@@ -194,7 +194,8 @@ class ScanlineExrWriter:
     def _flush(self, count: int) -> None:
         data = [np.concatenate([np.asarray(x, self.dtypes[k]) for x in self.pending[k]])
                 if len(self.pending[k]) > 1 else self.pending[k][0] for k in self.names]
-        step = self.RUN * self.LINES
+        n_blocks = -(-count // self.LINES)  # small flushes (streamed chunks) still split in 4
+        step = self.LINES * max(1, min(self.RUN, -(-n_blocks // 4)))
         runs = [(a, min(count, a + step)) for a in range(0, count, step)]
         encode = self.pool.map if self.pool else map
         for (a, _), payloads in zip(runs, encode(lambda run: self._blocks(data, *run), runs)):

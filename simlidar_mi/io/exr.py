@@ -160,7 +160,7 @@ class ScanlineExrWriter:
         self.pending: dict[str, list] = {k: [] for k in self.names}
         self.buffered = self.row = 0
         from concurrent.futures import ThreadPoolExecutor  # noqa: PLC0415
-        # zlib releases the GIL: compress blocks on both cores.  One thread costs ~5 % less
+        # zlib releases the GIL: compress blocks on both cores.  One thread costs 3–5 % less
         # CPU (BENCHMARKS §8f), the better choice when the other core is busy anyway
         self.pool = ThreadPoolExecutor(int(threads)) if threads > 1 else None
         self.scratch = threading.local()  # each thread's block buffers

@@ -20,6 +20,7 @@ nothing changes, byte for byte.
 from __future__ import annotations
 
 import json
+import threading
 import zlib
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -102,20 +103,20 @@ def result_rows(result, a: int, b: int) -> dict[str, np.ndarray]:
 
 
 def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = None,
-                   scene_sha256: str = "", extra: dict | None = None) -> Path:
-    """Write ``result`` to ``path`` (ZIP compression, scanlines); returns the path."""
+                   scene_sha256: str = "", extra: dict | None = None, threads: int = 2) -> Path:
+    """Write ``result`` to ``path`` (ZIP compression, scanlines); returns the path.
+
+    ``threads``: compressing threads (:class:`ScanlineExrWriter`); the bytes do not depend on it."""
     header, dtypes = scan_exr_layout(result, seed=seed, scene_sha256=scene_sha256, extra=extra)
     n, m = result.shape
-    full = {}
+    rows = result_rows(result, 0, n)  # views: the writer converts 16 lines at a time
     if getattr(result, "echoes", None) is not None:
+        full: dict = {}
         _echo_channels(result, full, header)
         dtypes.update({k: v.dtype.type for k, v in full.items()})
-    with atomic_file(path) as tmp, ScanlineExrWriter(tmp, header, dtypes, n, m) as w:
-        step = max(16, (1 << 20) // max(m, 1) // 16 * 16)  # ~1 M beams of conversions at a time
-        for a in range(0, n, step):
-            rows = result_rows(result, a, a + step)
-            rows.update({k: v[a:a + step] for k, v in full.items()})
-            w.write_rows(rows)
+        rows.update(full)
+    with atomic_file(path) as tmp, ScanlineExrWriter(tmp, header, dtypes, n, m, threads=threads) as w:
+        w.write_rows(rows)
     return Path(path)
 
 
@@ -130,14 +131,26 @@ class ScanlineExrWriter:
     in name order, bytes split into even/odd halves, delta-coded (+128), zlib-deflated (or
     stored raw when that is not smaller), behind a table of block offsets.  Block contents
     depend only on the rows, so the file's bytes do not depend on how rows are fed.
+
+    Speed (issue #8): zlib at level 4 is most of the time and cannot change (it fixes the
+    bytes); around it, each block is converted, interleaved and coded in three reused
+    buffers of one block per thread (~150 kB: they stay in cache, where whole-scan passes
+    and fresh arrays per block ran 3–6× slower), and runs of :attr:`RUN` blocks go to two
+    threads (zlib and most numpy loops release the GIL).
     """
 
     LINES = 16  # scanlines per ZIP block (the EXR format's)
+    RUN = 8  # most blocks per task: few tasks, yet a busy core does not hold back the other
 
-    def __init__(self, path, header: dict, dtypes: dict, n_rows: int, n_cols: int, level: int = 4):
+    def __init__(self, path, header: dict, dtypes: dict, n_rows: int, n_cols: int, level: int = 4,
+                 threads: int = 2):
         self.names = sorted(dtypes, key=lambda k: k.encode())
         self.dtypes = {k: np.dtype(dtypes[k]).newbyteorder("<") for k in self.names}
         self.n, self.m, self.level = int(n_rows), int(n_cols), level
+        # byte columns of each channel within one scanline
+        widths = [self.dtypes[k].itemsize * self.m for k in self.names]
+        self.spans = [(int(a), int(a + w)) for a, w in zip(np.cumsum([0] + widths[:-1]), widths)]
+        self.line_bytes = sum(widths)
         head = _header_bytes(header, self.dtypes, self.n, self.m)
         self.f = open(path, "wb")
         self.f.write(head)
@@ -147,7 +160,10 @@ class ScanlineExrWriter:
         self.pending: dict[str, list] = {k: [] for k in self.names}
         self.buffered = self.row = 0
         from concurrent.futures import ThreadPoolExecutor  # noqa: PLC0415
-        self.pool = ThreadPoolExecutor(2)  # zlib releases the GIL: compress blocks on both cores
+        # zlib releases the GIL: compress blocks on both cores.  One thread costs 3–5 % less
+        # CPU (BENCHMARKS §8f), the better choice when the other core is busy anyway
+        self.pool = ThreadPoolExecutor(int(threads)) if threads > 1 else None
+        self.scratch = threading.local()  # each thread's block buffers
 
     def __enter__(self):
         return self
@@ -156,50 +172,87 @@ class ScanlineExrWriter:
         if kind is None:
             self.close()
         else:
-            self.pool.shutdown()
+            if self.pool:
+                self.pool.shutdown()
             self.f.close()
 
     def write_rows(self, rows: dict[str, np.ndarray]) -> None:
-        """Append rows (every channel of the header, each (r, M) any castable dtype)."""
+        """Append rows (every channel of the header, each (r, M) any castable dtype).
+
+        Whole blocks are written before this returns; the few rows left over are copied,
+        so the caller may reuse its arrays."""
         r = len(rows[self.names[0]])
-        for k in self.names:
-            self.pending[k].append(np.ascontiguousarray(rows[k], self.dtypes[k]).reshape(r, self.m))
         self.buffered += r
         whole = self.buffered // self.LINES * self.LINES
-        if whole or self.row + self.buffered == self.n:
+        flush = whole or self.row + self.buffered == self.n
+        for k in self.names:  # held until a block fills: copied, fewer than 16 lines
+            x = np.asarray(rows[k]).reshape(r, self.m)
+            self.pending[k].append(x if flush else np.array(x, self.dtypes[k]))
+        if flush:
             self._flush(whole if self.row + self.buffered < self.n else self.buffered)
 
     def _flush(self, count: int) -> None:
-        data = {k: np.concatenate(v) if len(v) > 1 else v[0] for k, v in self.pending.items()}
-        blocks = []
-        for a in range(0, count, self.LINES):
-            b = min(count, a + self.LINES)
-            blocks.append((self.row + a, [data[k][a:b] for k in self.names]))
-        for y, payload in zip([y for y, _ in blocks], self.pool.map(self._block, [c for _, c in blocks])):
-            self.offsets.append(self.f.tell())
-            self.f.write(np.array([y, len(payload)], "<i4").tobytes())
-            self.f.write(payload)
+        data = [np.concatenate([np.asarray(x, self.dtypes[k]) for x in self.pending[k]])
+                if len(self.pending[k]) > 1 else self.pending[k][0] for k in self.names]
+        n_blocks = -(-count // self.LINES)  # small flushes (streamed chunks) still split in 4
+        step = self.LINES * max(1, min(self.RUN, -(-n_blocks // 4)))
+        runs = [(a, min(count, a + step)) for a in range(0, count, step)]
+        encode = self.pool.map if self.pool else map
+        for (a, _), payloads in zip(runs, encode(lambda run: self._blocks(data, *run), runs)):
+            for i, payload in enumerate(payloads):
+                self.offsets.append(self.f.tell())
+                self.f.write(np.array([self.row + a + i * self.LINES, len(payload)], "<i4").tobytes())
+                self.f.write(payload)
         self.row += count
         self.buffered -= count
-        self.pending = {k: [data[k][count:]] if self.buffered else [] for k in self.names}
+        self.pending = {k: [np.array(d[count:], self.dtypes[k])] if self.buffered else []
+                        for k, d in zip(self.names, data)}
 
-    def _block(self, chans: list[np.ndarray]) -> bytes:
-        # line-interleaved: for each scanline, every channel's row in name order
-        raw = np.concatenate([c[:, None, :].view(np.uint8).reshape(len(c), 1, -1) for c in chans],
-                             axis=1).ravel()
-        buf = np.concatenate([raw[0::2], raw[1::2]])
-        pred = buf.copy()
-        pred[1:] = buf[1:] - buf[:-1] + np.uint8(128)  # uint8 wraps as the format's mod 256
-        packed = zlib.compress(pred.tobytes(), self.level)
-        return packed if len(packed) < raw.size else raw.tobytes()
+    def _blocks(self, chans: list[np.ndarray], a: int, b: int) -> list[bytes]:
+        """The payloads of the blocks of lines [a, b) of ``chans`` (one thread's run)."""
+        size = self.LINES * self.line_bytes
+        if getattr(self.scratch, "size", None) != size:  # this thread's, reused: stays in cache
+            self.scratch.size, self.scratch.bufs = size, [np.empty(size, np.uint8) for _ in range(3)]
+        raw, split, pred = self.scratch.bufs
+        out = []
+        for y in range(a, b, self.LINES):
+            lines = min(b, y + self.LINES) - y
+            k = lines * self.line_bytes
+            # line-interleaved: for each scanline, every channel's row in name order
+            grid = raw[:k].reshape(lines, self.line_bytes)
+            for (c0, c1), name, c in zip(self.spans, self.names, chans):
+                grid[:, c0:c1].view(self.dtypes[name])[...] = c[y:y + lines]
+            _predict(raw[:k], split[:k], pred[:k])
+            packed = zlib.compress(pred[:k], self.level)
+            out.append(packed if len(packed) < k else raw[:k].tobytes())
+        return out
 
     def close(self) -> None:
         if self.row != self.n:
             raise ValueError(f"EXR writer got {self.row} of {self.n} rows")
-        self.pool.shutdown()
+        if self.pool:
+            self.pool.shutdown()
         self.f.seek(self.table_at)
         self.f.write(np.asarray(self.offsets, "<u8").tobytes())
         self.f.close()
+
+
+def _predict(raw: np.ndarray, split: np.ndarray, pred: np.ndarray) -> None:
+    """The EXR ZIP predictor of one block's bytes ``raw`` into ``pred`` (``split``: scratch):
+    bytes at even offsets then those at odd ones, each byte minus the one before + 128
+    (mod 256; the first byte as it is)."""
+    k, h = raw.size, (raw.size + 1) // 2
+    if k % 2 == 0:  # as uint16 words the even bytes are the low halves: no strided byte copy
+        words = raw.view("<u2")
+        np.copyto(split[:h], words, casting="unsafe")  # keeps the low byte
+        np.right_shift(words, 8, out=split[h:], casting="unsafe")
+    else:
+        split[:h] = raw[0::2]
+        split[h:] = raw[1::2]
+    if k:
+        pred[0] = split[0]
+    np.subtract(split[1:], split[:-1], out=pred[1:])
+    np.bitwise_xor(pred[1:], 128, out=pred[1:])  # + 128 mod 256 flips the top bit
 
 
 def _header_bytes(header: dict, dtypes: dict, n: int, m: int) -> bytes:

@@ -472,7 +472,8 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
                 stem = "scan" if len(results) == 1 else f"scan_leg{j}"
                 write_scan_exr(res, stage / f"{stem}.exr", seed=cfg.seed, scene_sha256=cfg.sha256,
                                extra={"scene_file": cfg.source, "representation": built.representation,
-                                      "facets": built.facets})
+                                      "facets": built.facets},
+                               threads=1 if las_job is not None and las_job.child is not None else 2)  # a core each
                 files[f"exr{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.exr"
                 if write_png:
                     from ..io.plots import plot_scan_png  # noqa: PLC0415

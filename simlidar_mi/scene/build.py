@@ -175,7 +175,8 @@ def clean_branches(branches: Branches) -> tuple[Branches, int, np.ndarray]:
     n_dropped = int((~keep).sum())
     if n_dropped:
         log.info("dropped %d zero-length branch segment(s)", n_dropped)
-    return branches.subset(keep), n_dropped, np.flatnonzero(keep)
+    kept = branches.subset(keep) if n_dropped else branches  # all kept: no copy (read only)
+    return kept, n_dropped, np.flatnonzero(keep)
 
 
 def default_origin(points_m: np.ndarray) -> np.ndarray:

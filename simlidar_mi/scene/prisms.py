@@ -35,36 +35,35 @@ def prism_arrays(p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, k: int, cap
     jn = (j + 1) % k
     if isinstance(caps, (bool, np.bool_)):
         caps = (np.full(n, bool(caps)), np.full(n, bool(caps)))
-    local, which = [], []  # which: 0 side, 1 cap at p0, 2 cap at p1
+    local = []  # the sides (2k faces, if any), then the cap at p0 (k − 2), then the cap at p1
     if sides:
         local += [np.stack([j, jn, k + j], 1), np.stack([jn, k + jn, k + j], 1)]
-        which += [0] * (2 * k)
     t = np.arange(1, k - 1)
     local += [np.stack([np.zeros_like(t), t + 1, t], 1), np.stack([k + np.zeros_like(t), k + t, k + t + 1], 1)]
-    which += [1] * len(t) + [2] * len(t)
     local = np.concatenate(local).astype(np.uint32).reshape(1, -1)  # Mitsuba's index type
-    which = np.asarray(which)
+    n_side = 2 * k if sides else 0
+    at_p0, at_p1 = slice(n_side, n_side + k - 2), slice(n_side + k - 2, None)
     cap0, cap1 = np.asarray(caps[0], bool), np.asarray(caps[1], bool)
-    counts = (2 * k if sides else 0) + (k - 2) * (cap0.astype(np.int64) + cap1)
+    counts = n_side + (k - 2) * (cap0.astype(np.int64) + cap1)
     all_caps = bool(cap0.all() and cap1.all())
     verts = np.empty((n, 2 * k, 3), dtype)
     faces = np.empty((int(counts.sum()), 3), np.uint32)
+    item = np.dtype((np.void, 12))  # a face as one 12-byte item: 2.7x faster to select than (3,) rows
     f0 = 0
     for a in range(0, n, PRISM_BLOCK):
         b = min(a + PRISM_BLOCK, n)
         _prism_vertices(p0[a:b], p1[a:b], radius[a:b], cos_phi, sin_phi, verts[a:b])
         # (m, 3F): each branch's faces in one row, so the add runs over long rows
         f = local + (2 * k * np.arange(a, b, dtype=np.uint32))[:, None]
-        if not all_caps:
-            keep = np.empty((b - a, len(which)), bool)
-            keep[:, which == 0] = True
-            keep[:, which == 1] = cap0[a:b, None]
-            keep[:, which == 2] = cap1[a:b, None]
-            # Kept faces as 12-byte items: one copy per face (2.7x faster than selecting (3,) rows)
-            f = f.view(np.dtype((np.void, 12)))[keep].view(np.uint32)
-        f = f.reshape(-1, 3)
-        faces[f0:f0 + len(f)] = f
-        f0 += len(f)
+        f1 = f0 + int(counts[a:b].sum())
+        if all_caps:
+            faces[f0:f1] = f.reshape(-1, 3)
+        else:
+            keep = np.ones((b - a, local.shape[1] // 3), bool)
+            keep[:, at_p0] = cap0[a:b, None]
+            keep[:, at_p1] = cap1[a:b, None]
+            faces[f0:f1].view(item)[:, 0] = f.view(item)[keep]  # (np.compress(out=) is 3x slower)
+        f0 = f1
     return verts.reshape(-1, 3), faces, counts
 
 

@@ -329,22 +329,31 @@ class ScanResult:
         s = self.settings
         th = np.deg2rad(s.theta_deg)
         half = np.deg2rad(s.dtheta_deg) / 2
-        w = self._hit_weight()
+        fraction = self._weighs_fraction()
+        # Terms w·(l·cos θ)·Δtan θ where w > 0, else 0 (NaN: 0, as np.nansum), in one float64
+        # array and no weight array: the weight is 1 (a product that changes nothing) or the
+        # beam's float32 hit fraction, multiplied in the same order, so the bits are the same.
+        hit = self.vegetation()
         with np.errstate(over="ignore", invalid="ignore"):
             dtan = np.tan(th + half) - np.tan(th - half)
-            # w·(l·cos θ)·Δtan θ in place in one array (products in the same order, same bits)
             area = np.multiply(self.range_m, np.cos(th), dtype=np.float64)
-            area *= w
+            if fraction:
+                area *= self.hit_fraction
+                hit &= self.hit_fraction > 0
             area *= dtan
-        np.copyto(area, 0.0, where=~(w > 0))
-        np.copyto(area, 0.0, where=np.isnan(area))  # np.nansum's zeros
+        np.copyto(area, 0.0, where=~hit)
+        np.copyto(area, 0.0, where=np.isnan(area))
         return float(s.dy_m * np.sum(area))
+
+    def _weighs_fraction(self) -> bool:
+        """Whether a beam weighs its hit fraction (else 1) in the impacted areas."""
+        if self.settings is None:
+            raise ValueError("impacted areas are defined for the tractor scan (paper eq. 2) only")
+        return self.settings.footprint > 0 and self.settings.hit_rule == "fraction"
 
     def _hit_weight(self) -> np.ndarray:
         """Float64 (N, M) weight of each beam in the impacted areas (0 off vegetation)."""
-        if self.settings is None:
-            raise ValueError("impacted areas are defined for the tractor scan (paper eq. 2) only")
-        if self.settings.footprint > 0 and self.settings.hit_rule == "fraction":
+        if self._weighs_fraction():
             # a float64 zero: the float32 fractions widen (exactly) in the same single pass
             return np.where(self.vegetation(), self.hit_fraction, np.float64(0.0))
         return self.vegetation().astype(np.float64)

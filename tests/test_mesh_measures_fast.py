@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from simlidar_mi.geometry import Branches, Leaves
+from simlidar_mi.geometry import CLASS_CODES, Branches, Leaves
 from simlidar_mi.lidar.scan import ScanResult, ScanSettings
 from simlidar_mi.plants.measures import _per_cylinder, _summary, _unit_view, wood_measures
 from simlidar_mi.scene import prisms
@@ -156,7 +156,7 @@ def test_vegetation_is_wood_or_leaf_for_every_code():
     cls = np.arange(256, dtype=np.uint8).reshape(16, 16)
     r = ScanResult(_settings(n_positions=16, n_angles=16), np.ones((16, 16), np.float32), cls,
                    np.zeros((16, 16), np.uint32), np.zeros((16, 16), np.float32), np.zeros(3))
-    assert np.array_equal(r.vegetation(), (cls == 2) | (cls == 3))
+    assert np.array_equal(r.vegetation(), (cls == CLASS_CODES["wood"]) | (cls == CLASS_CODES["leaf"]))
     assert sum(r.class_counts().values()) == 4  # one beam of each class code 0..3
 
 

@@ -108,7 +108,9 @@ def exposed_ends(p0: np.ndarray, p1: np.ndarray, diameter: np.ndarray,
     down in diameter stay open to beams and are capped.
     """
     n = len(diameter)
-    keys = np.round(np.concatenate([p0, p1]) / tol_m).astype(np.int64)
+    keys = np.concatenate([p0, p1])
+    keys /= tol_m
+    keys = np.round(keys, out=keys).astype(np.int64)  # in place: the same round(x / tol)
     order, new = _group_order(keys)
     inv = np.empty(len(keys), np.int64)
     inv[order] = np.cumsum(new) - 1
@@ -138,11 +140,12 @@ def _group_order(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     h ^= u[:, 1] * _KEY_MIX[1]
     h ^= u[:, 2] * _KEY_MIX[2]
     order = np.argsort(h)
-    ks = keys[order]
-    new = np.ones(len(ks), bool)
-    new[1:] = np.any(ks[1:] != ks[:-1], axis=1)
     hs = h[order]
-    if np.any(new[1:] & (hs[1:] == hs[:-1])):  # a collision: sort the rows themselves
+    new = np.ones(len(hs), bool)
+    np.not_equal(hs[1:], hs[:-1], out=new[1:])
+    # Equal hashes side by side must be equal rows; else (a collision) sort the rows themselves.
+    same = np.flatnonzero(~new[1:])
+    if np.any(keys[order[same]] != keys[order[same + 1]]):
         order = np.lexsort(keys.T[::-1])
         ks = keys[order]
         new[1:] = np.any(ks[1:] != ks[:-1], axis=1)

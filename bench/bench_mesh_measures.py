@@ -1,6 +1,6 @@
 """Mesh arrays of ``build_scene`` and the scan's measures, before/after (§8f, issue #8).
 
-    .venv/bin/python bench/bench_mesh_measures.py [--before /work/main] [--repeat 7] [--fresh 5]
+    PYTHONPATH=. .venv/bin/python bench/bench_mesh_measures.py [--before /work/main] [--repeat 7] [--fresh 5]
                                                  [--scene scenes/simlidar_table3_7x4.toml]
 
 The scene's geometry is generated once; then, in this process, the ``BEFORE`` tree's
@@ -11,6 +11,8 @@ and this checkout's run interleaved, warm, ``--repeat`` times each; medians of w
 The first call in a process is slower (fresh pages), so ``--fresh`` pairs of new processes,
 before and after alternately, time one ``build_scene`` and one round of measures each.
 Every pair of results is checked to be equal (values bit for bit).  Prints markdown.
+Relative imports of the BEFORE modules resolve to this checkout (e.g. ``scene/prisms.py``,
+which a BEFORE tree's ``build.py`` imports once it has one).
 """
 from __future__ import annotations
 

@@ -71,8 +71,8 @@ def load_dict(d, *a, **k):
 mi.load_dict = load_dict
 wrap(survey, "load_scene", "scene file")
 wrap(survey, "generate", "generate (L-systems)")
-wrap(build_mod, "exposed_ends", "build: mesh arrays (exposed_ends, prism_mesh)")
-wrap(build_mod, "prism_mesh", "build: mesh arrays (exposed_ends, prism_mesh)")
+wrap(build_mod, "exposed_ends", "build: mesh arrays (exposed_ends, prism_arrays)")
+wrap(build_mod, "prism_arrays", "build: mesh arrays (exposed_ends, prism_arrays)")
 wrap(build_mod, "_mi_mesh", "build: Mitsuba meshes (_mi_mesh)")
 wrap(survey, "build", "build stage")
 wrap(scan_mod, "scan", "scan (trace)")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simlidar_mi.scene.build import _orthonormal, prism_mesh
+from simlidar_mi.scene.prisms import _orthonormal, prism_mesh
 
 
 def _broadcast_prisms(p0, p1, radius, k, caps, sides=True):

@@ -109,11 +109,17 @@ class ScanSettings:
         scanner, within the beams' y footprints [y_1 − Δy/2, y_N + Δy/2] and their elevations
         [θ_1 − Δθ/2, θ_M + Δθ/2]."""
         p = np.asarray(points_m, float).reshape(-1, 3)
-        y, th = self.y_m, self.theta_deg
-        el = np.degrees(np.arctan2(p[:, 2] - self.z0_m, p[:, 0] - self.x0_m))
-        return ((p[:, 0] > self.x0_m)
-                & (p[:, 1] >= y[0] - self.dy_m / 2) & (p[:, 1] <= y[-1] + self.dy_m / 2)
-                & (el >= th[0] - self.dtheta_deg / 2) & (el <= th[-1] + self.dtheta_deg / 2))
+        return self._covers_xyz(p[:, 0], p[:, 1], p[:, 2])
+
+    def _covers_xyz(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """:meth:`covers` of points given as coordinate arrays."""
+        ys, th = self.y_m, self.theta_deg
+        inside = (x > self.x0_m) & (y >= ys[0] - self.dy_m / 2)
+        inside &= y <= ys[-1] + self.dy_m / 2
+        el = np.degrees(np.arctan2(z - self.z0_m, x - self.x0_m))
+        inside &= el >= th[0] - self.dtheta_deg / 2
+        inside &= el <= th[-1] + self.dtheta_deg / 2
+        return inside
 
     def swept_share(self, branches, samples: int = 17) -> float:
         """Share of A_PR = Σ d·h whose branch axes lie inside the sweep (:meth:`covers`),
@@ -121,9 +127,14 @@ class ScanSettings:
         if not len(branches):
             return float("nan")
         t = np.linspace(0.0, 1.0, samples)
-        pts = branches.p0[:, None, :] + t[None, :, None] * (branches.p1 - branches.p0)[:, None, :]
-        inside = self.covers(pts).reshape(len(branches), samples).mean(axis=1)
-        apr = branches.diameter * np.linalg.norm(branches.p1 - branches.p0, axis=1)
+        p0, axis = branches.p0, branches.p1 - branches.p0
+        # One sample point per branch at a time: (n,) arrays that stay in the cache instead
+        # of (n, samples, 3) points; p0 + t·(p1 − p0) and the tests are the same float ops.
+        count = np.zeros(len(branches), np.int64)
+        for ts in t:
+            count += self._covers_xyz(*(p0[:, c] + ts * axis[:, c] for c in range(3)))
+        inside = count / samples  # the mean of the samples' 0/1 (exact sums)
+        apr = branches.diameter * np.linalg.norm(axis, axis=1)
         return float(np.sum(apr * inside) / np.sum(apr))
 
 
@@ -281,12 +292,13 @@ class ScanResult:
         return self.range_m.shape
 
     def class_counts(self) -> dict[str, int]:
-        counts = np.bincount(self.cls.ravel(), minlength=4)
-        return {CLASS_NAMES[c]: int(counts[c]) for c in range(4)}
+        # uint8 compares and counts: no int64 copy of every beam as np.bincount makes
+        return {CLASS_NAMES[c]: int(np.count_nonzero(self.cls == c)) for c in range(4)}
 
     def vegetation(self) -> np.ndarray:
         """Boolean (N, M): first return is wood or leaf."""
-        return (self.cls == CLASS_CODES["wood"]) | (self.cls == CLASS_CODES["leaf"])
+        # Codes 2 and 3 (wood, leaf) are the ones whose bit 0 set gives 3: one pass fewer
+        return np.bitwise_or(self.cls, 1) == CLASS_CODES["leaf"]
 
     def points_m(self) -> np.ndarray:
         """(N, M, 3) float64 first-return points in real coordinates (escapes included)."""
@@ -306,7 +318,10 @@ class ScanResult:
         th = np.deg2rad(s.theta_deg)
         half = np.deg2rad(s.dtheta_deg) / 2
         dsin = np.sin(th + half) - np.sin(th - half)
-        return float(s.dy_m * np.sum(self._hit_weight() * self.range_m * dsin[None, :]))
+        term = self._hit_weight()  # w·l·Δsin θ in place: one float64 (N, M) array, same bits
+        term *= self.range_m
+        term *= dsin
+        return float(s.dy_m * np.sum(term))
 
     def impacted_area_yz_m2(self) -> float:
         """The beam footprint projected on the YZ plane at the hit's depth, summed over hits:
@@ -314,17 +329,33 @@ class ScanResult:
         s = self.settings
         th = np.deg2rad(s.theta_deg)
         half = np.deg2rad(s.dtheta_deg) / 2
+        fraction = self._weighs_fraction()
+        # Terms w·(l·cos θ)·Δtan θ where w > 0, else 0 (NaN: 0, as np.nansum), in one float64
+        # array and no weight array: the weight is 1 (a product that changes nothing) or the
+        # beam's float32 hit fraction, multiplied in the same order, so the bits are the same.
+        hit = self.vegetation()
         with np.errstate(over="ignore", invalid="ignore"):
             dtan = np.tan(th + half) - np.tan(th - half)
-            x = self.range_m * np.cos(th)[None, :]
-            area = self._hit_weight() * x * dtan[None, :]
-        return float(s.dy_m * np.nansum(np.where(self._hit_weight() > 0, area, 0.0)))
+            area = np.multiply(self.range_m, np.cos(th), dtype=np.float64)
+            if fraction:
+                area *= self.hit_fraction
+                hit &= self.hit_fraction > 0
+            area *= dtan
+        np.copyto(area, 0.0, where=~hit)
+        np.copyto(area, 0.0, where=np.isnan(area))
+        return float(s.dy_m * np.sum(area))
 
-    def _hit_weight(self) -> np.ndarray:
+    def _weighs_fraction(self) -> bool:
+        """Whether a beam weighs its hit fraction (else 1) in the impacted areas."""
         if self.settings is None:
             raise ValueError("impacted areas are defined for the tractor scan (paper eq. 2) only")
-        if self.settings.footprint > 0 and self.settings.hit_rule == "fraction":
-            return np.where(self.vegetation(), self.hit_fraction, 0.0).astype(np.float64)
+        return self.settings.footprint > 0 and self.settings.hit_rule == "fraction"
+
+    def _hit_weight(self) -> np.ndarray:
+        """Float64 (N, M) weight of each beam in the impacted areas (0 off vegetation)."""
+        if self._weighs_fraction():
+            # a float64 zero: the float32 fractions widen (exactly) in the same single pass
+            return np.where(self.vegetation(), self.hit_fraction, np.float64(0.0))
         return self.vegetation().astype(np.float64)
 
 

@@ -131,6 +131,15 @@ def wood_measures(branches: Branches, view_dir=DEFAULT_VIEW_DIR) -> MeasuresResu
     """
     v = _unit_view(view_dir)
     values = _per_cylinder(branches, v)
-    ids = np.asarray(branches.tree_id)
-    per_tree = {int(t): _summary(values[ids == t]) for t in np.unique(ids)}
-    return MeasuresResult(_summary(values), per_tree, tuple(float(x) for x in v))
+    return MeasuresResult(_summary(values), _per_tree(values, np.asarray(branches.tree_id)),
+                          tuple(float(x) for x in v))
+
+
+def _per_tree(values: np.ndarray, ids: np.ndarray) -> dict[int, WoodMeasures]:
+    """Summaries of each tree's rows of ``values``, in increasing tree id."""
+    if len(ids) > 1 and np.all(ids[1:] >= ids[:-1]):
+        # Generated trees come one after another: each tree's rows are a slice (a view, no
+        # copy), summed row after row like the masked copy (the same bits).
+        starts = np.flatnonzero(np.concatenate([[True], ids[1:] != ids[:-1], [True]]))
+        return {int(ids[a]): _summary(values[a:b]) for a, b in zip(starts[:-1], starts[1:])}
+    return {int(t): _summary(values[ids == t]) for t in np.unique(ids)}

@@ -37,6 +37,7 @@ from .._mitsuba import mitsuba
 from ..errors import ConfigError, SimlidarWarning
 from ..geometry import CLASS_CODES, Branches, Leaves, Primitive
 from ..io.mesh_export import parse_obj
+from .prisms import exposed_ends, prism_arrays, prism_mesh
 
 log = logging.getLogger(__name__)
 
@@ -146,92 +147,6 @@ class BuiltScene:
         return tables
 
 
-def _orthonormal(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors perpendicular to each row of ``axis`` (unit rows)."""
-    helper = np.where(np.abs(axis[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
-    u = np.cross(axis, helper)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    return u, np.cross(axis, u)
-
-
-def prism_mesh(p0: np.ndarray, p1: np.ndarray, radius: np.ndarray, k: int,
-               caps=True, sides: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Vertices (V,3), faces (F,3) and owner (F,) of k-gon prisms around segments.
-
-    ``radius`` is the circumradius used as given (callers scale it).  ``caps`` is a bool,
-    or a pair of (n,) bool arrays saying which p0 and p1 ends get a k-gon cap.
-    Coordinates stay float64 here; the caller converts after subtracting the origin.
-    """
-    n = len(radius)
-    axis = p1 - p0
-    axis = axis / np.linalg.norm(axis, axis=1, keepdims=True)
-    u, v = _orthonormal(axis)
-    phi = 2 * np.pi * np.arange(k) / k
-    cos_phi, sin_phi = np.cos(phi), np.sin(phi)
-    # One coordinate at a time as (k, n) arrays (long inner loops; numpy's broadcasting over
-    # a last axis of 3 was 1.6x slower), the same float64 operations in the same order:
-    # ring = (cos·u + sin·v)·r, then ring + p0 and ring + p1.
-    verts = np.empty((n, 2 * k, 3))
-    for c in range(3):
-        ring = np.multiply.outer(cos_phi, u[:, c])
-        ring += np.multiply.outer(sin_phi, v[:, c])
-        ring *= radius
-        verts[:, k:, c] = (ring + p1[:, c]).T
-        ring += p0[:, c]
-        verts[:, :k, c] = ring.T
-    j = np.arange(k)
-    jn = (j + 1) % k
-    if isinstance(caps, (bool, np.bool_)):
-        caps = (np.full(n, bool(caps)), np.full(n, bool(caps)))
-    local, which = [], []  # which: 0 side, 1 cap at p0, 2 cap at p1
-    if sides:
-        local += [np.stack([j, jn, k + j], 1), np.stack([jn, k + jn, k + j], 1)]
-        which += [0] * (2 * k)
-    t = np.arange(1, k - 1)
-    local += [np.stack([np.zeros_like(t), t + 1, t], 1), np.stack([k + np.zeros_like(t), k + t, k + t + 1], 1)]
-    which += [1] * len(t) + [2] * len(t)
-    local = np.concatenate(local).astype(np.uint32)  # Mitsuba's index type: no int64 copy
-    which = np.asarray(which)
-    cap0, cap1 = np.asarray(caps[0], bool), np.asarray(caps[1], bool)
-    # (n, 3F): each branch's faces in one row, so the add runs over long rows
-    faces = local.reshape(1, -1) + (2 * k * np.arange(n, dtype=np.uint32))[:, None]
-    if cap0.all() and cap1.all():
-        return verts.reshape(-1, 3), faces.reshape(-1, 3), np.repeat(np.arange(n), len(local))
-    keep = np.empty((n, len(local)), bool)
-    keep[:, which == 0] = True
-    keep[:, which == 1] = cap0[:, None]
-    keep[:, which == 2] = cap1[:, None]
-    # Kept faces as 12-byte items: one copy per face (2.7x faster than selecting (3,) rows)
-    kept = faces.view(np.dtype((np.void, 12)))[keep].view(np.uint32).reshape(-1, 3)
-    return verts.reshape(-1, 3), kept, np.repeat(np.arange(n), keep.sum(axis=1))
-
-
-def exposed_ends(p0: np.ndarray, p1: np.ndarray, diameter: np.ndarray,
-                 tol_m: float = 1e-7) -> tuple[np.ndarray, np.ndarray]:
-    """Which segment ends need a cap: those not continued by a segment at least as thick.
-
-    A joint where the next segment (same or larger diameter) starts covers the end
-    disc up to a thin wedge on the outer side of the bend; free tips, bases and steps
-    down in diameter stay open to beams and are capped.
-    """
-    n = len(diameter)
-    keys = np.round(np.concatenate([p0, p1]) / tol_m).astype(np.int64)
-    # Group equal points by a lexicographic sort (3x faster than np.unique(axis=0)).
-    order = np.lexsort(keys.T[::-1])
-    ks = keys[order]
-    new = np.ones(len(ks), bool)
-    new[1:] = np.any(ks[1:] != ks[:-1], axis=1)
-    inv = np.empty(len(ks), np.int64)
-    inv[order] = np.cumsum(new) - 1
-    start_d = np.zeros(inv.max() + 1 if n else 0)  # thickest segment starting at each point
-    end_d = np.zeros_like(start_d)  # thickest segment ending at each point
-    np.maximum.at(start_d, inv[:n], diameter)
-    np.maximum.at(end_d, inv[n:], diameter)
-    cap0 = end_d[inv[:n]] < diameter
-    cap1 = start_d[inv[n:]] < diameter
-    return cap0, cap1
-
-
 def _mi_mesh(mi, name: str, vertices: np.ndarray, faces: np.ndarray):
     mesh = mi.Mesh(name, len(vertices), len(faces))
     params = mi.traverse(mesh)
@@ -260,7 +175,8 @@ def clean_branches(branches: Branches) -> tuple[Branches, int, np.ndarray]:
     n_dropped = int((~keep).sum())
     if n_dropped:
         log.info("dropped %d zero-length branch segment(s)", n_dropped)
-    return branches.subset(keep), n_dropped, np.flatnonzero(keep)
+    kept = branches.subset(keep) if n_dropped else branches  # all kept: no copy (read only)
+    return kept, n_dropped, np.flatnonzero(keep)
 
 
 def default_origin(points_m: np.ndarray) -> np.ndarray:
@@ -395,12 +311,15 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     p0, p1 = kept.p0 - origin, kept.p1 - origin
     radius = 0.5 * kept.diameter
     elem_of_branch = kept_index.astype(np.uint32)  # ids refer to rows of the input branches
+    faces_per_branch = {}  # wood meshes: their faces per kept branch (element ids repeat so)
     if len(kept):
         if representation == "mesh":
             caps = exposed_ends(kept.p0, kept.p1, kept.diameter)
-            v, f, owner = prism_mesh(p0, p1, radius * np.pi / (k * np.sin(np.pi / k)), k, caps=caps)
+            v, f, per = prism_arrays(p0, p1, radius * np.pi / (k * np.sin(np.pi / k)), k, caps=caps,
+                                     dtype=np.float32)
             shapes["wood_mesh"] = _mi_mesh(mi, "wood_mesh", v, f)
-            groups.append(("wood_mesh", CLASS_CODES["wood"], elem_of_branch[owner]))
+            groups.append(("wood_mesh", CLASS_CODES["wood"], np.repeat(elem_of_branch, per)))
+            faces_per_branch["wood_mesh"] = per
             n_tri += len(f)
         elif representation == "cylinder":
             for j in range(len(kept)):
@@ -408,10 +327,11 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
                 shapes[key] = mi.load_dict({"type": "cylinder", "p0": p0[j].tolist(),
                                             "p1": p1[j].tolist(), "radius": float(radius[j])})
                 groups.append((key, CLASS_CODES["wood"], elem_of_branch[j:j + 1]))
-            v, f, owner = prism_mesh(p0, p1, radius, CAP_SIDES, sides=False,
+            v, f, per = prism_arrays(p0, p1, radius, CAP_SIDES, sides=False, dtype=np.float32,
                                      caps=exposed_ends(kept.p0, kept.p1, kept.diameter))
             shapes["wood_caps"] = _mi_mesh(mi, "wood_caps", v, f)
-            groups.append(("wood_caps", CLASS_CODES["wood"], elem_of_branch[owner]))
+            groups.append(("wood_caps", CLASS_CODES["wood"], np.repeat(elem_of_branch, per)))
+            faces_per_branch["wood_caps"] = per
             n_tri += len(f)
         else:  # linearcurve: Mitsuba reads curves from a text file, one blank line between curves
             with tempfile.NamedTemporaryFile("w", suffix=".txt", delete=False) as fh:
@@ -424,8 +344,10 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
                 os.unlink(curve_path)
             groups.append(("wood_curves", CLASS_CODES["wood"], elem_of_branch))
     if len(leaves):
-        v = (leaves.vertices - origin).reshape(-1, 3)
-        f = np.arange(len(v)).reshape(-1, 3)
+        # float64 subtraction rounded once to float32 (the bits of converting afterwards)
+        v = np.subtract(leaves.vertices, origin, out=np.empty(leaves.vertices.shape, np.float32),
+                        casting="unsafe").reshape(-1, 3)
+        f = np.arange(len(v), dtype=np.uint32).reshape(-1, 3)
         shapes["leaf_mesh"] = _mi_mesh(mi, "leaf_mesh", v, f)
         groups.append(("leaf_mesh", CLASS_CODES["leaf"], leaves.leaf_id.astype(np.uint32)))
         n_tri += len(f)
@@ -499,28 +421,39 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
                 inst["instance_yaw_rad"][by_key[key]] = np.deg2rad(instances.yaw_deg[int(key[5:])])
             inst["instance_proto"][by_key[key]] = proto * n_groups  # premultiplied row
         inst["n_instances"] = len(instance_keys) - grouped  # placed trees only
-    prim_element = np.concatenate(prim_parts) if prim_parts else np.zeros(1, np.uint32)
+    prim_element = _joined(prim_parts) if prim_parts else np.zeros(1, np.uint32)
     # Several plants without instancing (an orchard, a flattened forest): a tree id per
     # primitive, so hits report their tree; one plant needs no extra lookup.
-    n_plants = len(np.unique(np.concatenate([branches.tree_id, leaves.plant_id])))
-    if not real_instances and n_plants > 1:
+    plants = np.concatenate([branches.tree_id, leaves.plant_id])
+    if not real_instances and len(plants) and plants.min() < plants.max():
         trees = []  # laid out like prim_element: top-level shapes, then group rows
         for key, _, elems in groups + (flat if grouped else []):
-            trees.append(_plant_ids(key, elems, branches, leaves))
-        inst["prim_tree"] = np.concatenate(trees)
+            trees.append(_plant_ids(key, elems, branches, leaves, kept_index, faces_per_branch.get(key)))
+        inst["prim_tree"] = _joined(trees)
     if len(shapes):
         bb = scene.bbox()
         lo, hi = np.array(bb.min, float) + origin, np.array(bb.max, float) + origin
     else:
         lo = hi = origin.copy()
-    return BuiltScene(scene, origin, shape_class, shape_base, prim_element.astype(np.uint32),
+    return BuiltScene(scene, origin, shape_class, shape_base, prim_element.astype(np.uint32, copy=False),
                       len(kept), n_dropped, n_tri, representation, k, lo, hi, **inst,
                       shape_reflectance=shape_rho, prim_shapes=prim_shapes)
 
 
-def _plant_ids(key: str, elems: np.ndarray, branches: Branches, leaves: Leaves) -> np.ndarray:
-    """Tree or plant id of every primitive of one shape (none for calibration primitives)."""
+def _joined(parts: list) -> np.ndarray:
+    """The parts end to end: the part itself when there is one (no copy)."""
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def _plant_ids(key: str, elems: np.ndarray, branches: Branches, leaves: Leaves,
+               kept_index: np.ndarray, faces_per_branch: np.ndarray | None = None) -> np.ndarray:
+    """Tree or plant id of every primitive of one shape (none for calibration primitives).
+
+    A wood mesh's ids repeat its kept branches' tree ids ``faces_per_branch`` times (as its
+    element ids repeat the branch rows): no gather over every face."""
     if key.startswith("wood"):
+        if faces_per_branch is not None:
+            return np.repeat(branches.tree_id[kept_index].astype(np.uint32), faces_per_branch)
         return branches.tree_id[elems].astype(np.uint32)
     if key == "leaf_mesh":
         return leaves.plant_id.astype(np.uint32)
@@ -584,14 +517,15 @@ def _add_instances(mi, instances: Instances, origin: np.ndarray, k: int, shapes:
         if len(kept):
             caps = exposed_ends(kept.p0, kept.p1, kept.diameter)
             r = 0.5 * kept.diameter * np.pi / (k * np.sin(np.pi / k))
-            v, f, owner = prism_mesh(kept.p0, kept.p1, r, k, caps=caps)
+            v, f, per = prism_arrays(kept.p0, kept.p1, r, k, caps=caps, dtype=np.float32)
             members["a_wood"] = _mi_mesh(mi, f"proto{p}_wood", v, f)
-            group_rows.append((p, len(members) - 1, CLASS_CODES["wood"], kept_index[owner].astype(np.uint32)))
+            group_rows.append((p, len(members) - 1, CLASS_CODES["wood"],
+                               np.repeat(kept_index.astype(np.uint32), per)))
             group_meshes.append(members["a_wood"])
             n_tri += len(f)
         if leaves is not None and len(leaves):
             v = leaves.vertices.reshape(-1, 3)
-            members["b_leaf"] = _mi_mesh(mi, f"proto{p}_leaf", v, np.arange(len(v)).reshape(-1, 3))
+            members["b_leaf"] = _mi_mesh(mi, f"proto{p}_leaf", v, np.arange(len(v), dtype=np.uint32).reshape(-1, 3))
             group_meshes.append(members["b_leaf"])
             group_rows.append((p, len(members) - 1, CLASS_CODES["leaf"], leaves.leaf_id.astype(np.uint32)))
             n_tri += len(leaves)

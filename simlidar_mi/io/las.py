@@ -39,6 +39,10 @@ scale, record 3 holds the resolved sensor as JSON.  The Extra Bytes record carri
 min/max statistics (its option bits 1 and 2 are 0), so a file's bytes do not depend on
 how many chunks wrote it.  Without echoes the file is the
 first-return cloud above (return numbers 0, intensity 0), byte for byte as before.
+
+laspy is imported on first use, not with this module: with pyproj, which laspy imports, it takes
+0.1 s, and ``run_scan`` writes the LAS in a forked child (simlidar_mi._fork), so the child pays
+it, not the process that writes the EXR and the PNG meanwhile (issue #8, BENCHMARKS.md §8f).
 """
 from __future__ import annotations
 
@@ -46,14 +50,14 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import laspy
 import numpy as np
-from laspy.vlrs.known import WktCoordinateSystemVlr
 
 from ..geometry import CLASS_CODES
 from .atomic import atomic_file
 
 if TYPE_CHECKING:  # annotations only: io sits below the workflows
+    import laspy
+
     from ..lidar.scan import ScanResult
 
 LAS_CLASS = {CLASS_CODES["ground"]: 2, CLASS_CODES["leaf"]: 5, CLASS_CODES["wood"]: 64}
@@ -303,7 +307,9 @@ class RecordWriter:
         # an empty file (atomic_file's) is opened without O_TRUNC: ext4 starts the write-back
         # of a file truncated to zero when it is closed (auto_da_alloc), 2-30 ms here
         empty = Path(path).is_file() and Path(path).stat().st_size == 0
+        import laspy  # noqa: PLC0415 - on first use (module docstring)
         self.writer = laspy.open(open(path, "r+b" if empty else "wb"), mode="w", header=header)
+        self.packed = laspy.PackedPointRecord
         self.record = np.zeros(0, header.point_format.dtype())
         self.gps = [np.inf, -np.inf]
         self.returns = np.zeros(16, np.uint64)
@@ -332,7 +338,7 @@ class RecordWriter:
         arr["branch_id"] = cols["elem"]
         if with_tree:
             arr["tree_id"] = cols["tree"]
-        rec = laspy.PackedPointRecord(arr, h.point_format)
+        rec = self.packed(arr, h.point_format)
         if with_echoes:
             if max(cols["ret"].max(), cols["nret"].max()) > 15:
                 raise ValueError("LAS point format 6 holds at most 15 returns per pulse; "
@@ -362,6 +368,8 @@ class RecordWriter:
 def las_header(offsets_m, time_kind: str, *, with_tree: bool, with_echoes: bool = False,
                crs: str | None = None, sensor: dict | None = None) -> laspy.LasHeader:
     """The LAS header of a scan (module docstring) with the given offsets."""
+    import laspy  # noqa: PLC0415 - on first use (module docstring)
+    from laspy.vlrs.known import WktCoordinateSystemVlr  # noqa: PLC0415
     header = laspy.LasHeader(point_format=6, version="1.4")
     range_text = "echo range (m)" if with_echoes else "first-return range (m)"
     header.add_extra_dims([
@@ -401,6 +409,7 @@ def las_record(header: laspy.LasHeader, cols: dict, *, with_tree: bool, with_ech
     (x = round((x − offset) / scale), plain fields cast on assignment): the same bytes, without
     laspy's per-field dispatch (issue #8: a third of the streamed LAS write)."""
     pts = cols["xyz"]
+    import laspy  # noqa: PLC0415 - on first use (module docstring)
     rec = laspy.ScaleAwarePointRecord.zeros(len(pts), header=header)
     arr = rec.array
     for c, name in enumerate("XYZ"):

@@ -53,9 +53,19 @@ def _reference(results, path, crs=None):
     for leg, res in enumerate(results):
         t, time_kind = las.scan_times_s(res, first_row)
         first_row += res.shape[0]
-        cols = las._leg_points(res, leg, t, with_echoes)
-        if res.echoes is None:  # not kept_points_m: the full array of every beam, picked
-            cols["xyz"] = res.points_m()[res.cls != ESCAPE]
+        if res.echoes is not None:
+            parts.append(las._echo_points(res, leg, t))
+            continue
+        keep = res.cls != ESCAPE  # every beam's point, gps time and angle, then picked
+        i, k = np.nonzero(keep)
+        n = len(i)
+        cols = {"xyz": res.points_m()[keep], "cls": res.cls[keep], "range": res.range_m[keep],
+                "elem": res.element_id[keep],
+                "tree": res.tree_id[keep] if res.tree_id is not None else np.full(n, 0xFFFFFFFF, np.uint32),
+                "gps": t[keep], "theta": res.pattern.col_angle_deg[k], "i": i, "k": k, "source": np.full(n, leg)}
+        if with_echoes:  # a first-return leg among echo legs: one return per pulse
+            cols.update(ret=np.ones(n, np.uint8), nret=np.ones(n, np.uint8), intensity=np.zeros(n, np.uint16),
+                        width=np.zeros(n, np.float32))
         parts.append(cols)
     cols = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
     with_tree = any(r.tree_id is not None for r in results)
@@ -136,3 +146,15 @@ def test_fast_writer_with_echoes_equals_the_straightforward_one(tmp_path):
                          minlength=16)[1:]
     assert list(back.header.number_of_points_by_return) == list(counts)
     assert back.header.point_count == counts.sum()
+
+
+@pytest.mark.parametrize("name", list(PATTERNS))
+def test_beam_geometry_is_points_m_bit_for_bit(name):
+    """The float64 points themselves (the LAS keeps them to 0.1 mm only): the direction table
+    of the tractors and the swath, the per-point directions of the rotating head, the rosette's."""
+    res = _result(PATTERNS[name], seed=11)
+    keep = res.cls != ESCAPE
+    i, k = np.nonzero(keep)
+    geometry = las.BeamGeometry(res.pattern)
+    assert (geometry.table is not None) == (name in ("tractor", "tractor-moving", "airborne"))
+    assert geometry.points_m(i, k, res.range_m[i, k]).T.tobytes() == res.points_m()[keep].tobytes()

@@ -108,14 +108,6 @@ def row_times_s(pattern, first_row: int, a: int, b: int) -> tuple[np.ndarray, st
     return (first_row + i + k / m) * ROW_PERIOD_S, TIME_SCAN_ORDER
 
 
-def kept_points_m(pattern, range_m: np.ndarray, i_idx: np.ndarray, k_idx: np.ndarray) -> np.ndarray:
-    """(n, 3) first-return points of beams (i_idx, k_idx): ``ScanResult.points_m()[i_idx, k_idx]``
-    with the same float64 operations, without the (N, M, 3) arrays of every beam (most beams of
-    a tractor scan escape; the full arrays cost 0.2 s at 2.5 M beams)."""
-    i_idx, k_idx = np.asarray(i_idx, np.int64), np.asarray(k_idx, np.int64)
-    return BeamGeometry(pattern).points_m(i_idx, k_idx, np.asarray(range_m)[i_idx, k_idx]).T
-
-
 class BeamGeometry:
     """Points along the beams of one pattern, ``origin + r · direction`` with the float64
     operations of ``ScanResult.points_m()`` (origin moved by ``col_time · velocity`` on a moving
@@ -231,7 +223,7 @@ class _LegPoints:
         self.m = res.shape[1]
         self.echo_cols = None
         if getattr(res, "echoes", None) is not None:
-            self.echo_cols = _leg_points(res, leg, scan_times_s(res, first_row)[0], with_echoes)
+            self.echo_cols = _echo_points(res, leg, scan_times_s(res, first_row)[0])
             self.n = len(self.echo_cols["cls"])
         else:
             self.geometry = BeamGeometry(res.pattern)
@@ -404,7 +396,7 @@ def las_header(offsets_m, time_kind: str, *, with_tree: bool, with_echoes: bool 
 
 
 def las_record(header: laspy.LasHeader, cols: dict, *, with_tree: bool, with_echoes: bool = False):
-    """One point record of ``cols`` (see :func:`_leg_points`), packed field by field into the
+    """One point record of ``cols`` (:func:`_echo_points`' columns), packed field by field into the
     record's numpy array (``PackedPointRecord.array``) with the operations laspy's setters use
     (x = round((x − offset) / scale), plain fields cast on assignment): the same bytes, without
     laspy's per-field dispatch (issue #8: a third of the streamed LAS write)."""
@@ -438,39 +430,26 @@ def las_record(header: laspy.LasHeader, cols: dict, *, with_tree: bool, with_ech
     return rec
 
 
-def _leg_points(res: ScanResult, leg: int, times_s: np.ndarray, with_echoes: bool) -> dict:
-    """Per-point columns of one leg: its first returns, or its echoes (module docstring)."""
-    n, m = res.shape
-    echoes = getattr(res, "echoes", None)
-    if echoes is None:
-        keep = res.cls != CLASS_CODES["escape"]
-        i_idx, k_idx = np.nonzero(keep)
-        cols = {"xyz": kept_points_m(res.pattern, res.range_m, i_idx, k_idx), "cls": res.cls[keep],
-                "range": res.range_m[keep],
-                "elem": res.element_id[keep],
-                "tree": res.tree_id[keep] if res.tree_id is not None else np.full(len(i_idx), 0xFFFFFFFF, np.uint32),
-                "gps": times_s[keep]}
-        if with_echoes:  # a first-return leg among echo legs: one return per pulse
-            ones = np.ones(len(i_idx), np.uint8)
-            cols.update(ret=ones, nret=ones, intensity=np.zeros(len(i_idx), np.uint16),
-                        width=np.zeros(len(i_idx), np.float32))
-    else:
-        i_idx, k_idx = np.divmod(np.asarray(echoes.beam, np.int64), m)
-        p = res.pattern
-        origin = p.row_origin_m[i_idx]
-        velocity, col_time = getattr(p, "velocity_m_s", None), getattr(p, "col_time_s", None)
-        if velocity is not None and col_time is not None:  # fired from where the platform was
-            origin = origin + np.asarray(col_time, np.float64)[k_idx, None] * np.asarray(velocity, np.float64)
-        rng = np.asarray(echoes.range_m, np.float64)
-        intensity_on = getattr(res, "intensity", None) is not None
-        energy = np.asarray(echoes.energy, np.float64)
-        cols = {"xyz": origin + rng[:, None] * p.world_dirs()[i_idx, k_idx],
-                "cls": echoes.cls, "range": rng.astype(np.float32), "elem": echoes.element_id,
-                "tree": echoes.tree_id if echoes.tree_id is not None else np.full(len(i_idx), 0xFFFFFFFF, np.uint32),
-                "gps": times_s[i_idx, k_idx], "ret": echoes.return_number, "nret": echoes.number_of_returns,
-                "intensity": (np.minimum(65535.0, np.rint(INTENSITY_SCALE * energy)).astype(np.uint16)
-                              if intensity_on else np.zeros(len(i_idx), np.uint16)),
-                "width": np.asarray(echoes.width_ns, np.float32)}
+def _echo_points(res: ScanResult, leg: int, times_s: np.ndarray) -> dict:
+    """Per-point columns of a ``[sensor]`` leg: its echoes (module docstring)."""
+    m = res.shape[1]
+    echoes = res.echoes
+    i_idx, k_idx = np.divmod(np.asarray(echoes.beam, np.int64), m)
+    p = res.pattern
+    origin = p.row_origin_m[i_idx]
+    velocity, col_time = getattr(p, "velocity_m_s", None), getattr(p, "col_time_s", None)
+    if velocity is not None and col_time is not None:  # fired from where the platform was
+        origin = origin + np.asarray(col_time, np.float64)[k_idx, None] * np.asarray(velocity, np.float64)
+    rng = np.asarray(echoes.range_m, np.float64)
+    intensity_on = getattr(res, "intensity", None) is not None
+    energy = np.asarray(echoes.energy, np.float64)
+    cols = {"xyz": origin + rng[:, None] * p.world_dirs()[i_idx, k_idx],
+            "cls": echoes.cls, "range": rng.astype(np.float32), "elem": echoes.element_id,
+            "tree": echoes.tree_id if echoes.tree_id is not None else np.full(len(i_idx), 0xFFFFFFFF, np.uint32),
+            "gps": times_s[i_idx, k_idx], "ret": echoes.return_number, "nret": echoes.number_of_returns,
+            "intensity": (np.minimum(65535.0, np.rint(INTENSITY_SCALE * energy)).astype(np.uint16)
+                          if intensity_on else np.zeros(len(i_idx), np.uint16)),
+            "width": np.asarray(echoes.width_ns, np.float32)}
     cols["theta"] = res.pattern.col_angle_deg[k_idx]
     cols["i"], cols["k"] = i_idx, k_idx
     cols["source"] = np.full(len(i_idx), leg)

@@ -10,7 +10,8 @@ this checkout's, each into a fresh file name beside the other (no file replaced)
 wall and CPU seconds (``time.process_time``), their ratio, and whether the files are the same
 bytes.  Also: both in a forked child as ``run_scan`` runs them (``simlidar_mi._fork.Forked``,
 wall from the fork to the child's answer), the two passes of the new writer alone (points;
-records packed without the file), a forked child that does nothing, and the import cost of laspy and pyproj in fresh processes.
+records packed without the file), a forked child that does nothing, and the import cost of
+laspy and pyproj in fresh processes.
 Prints markdown; the load average before and after.
 """
 from __future__ import annotations

@@ -280,11 +280,12 @@ class RecordWriter:
     """laspy's writer for ``header``, fed blocks of points packed into one reused record.
 
     ``lo_m``, ``hi_m``: the per-axis minimum and maximum of every point to be written (None:
-    no points), known beforehand (the offsets need the minimum anyway).  X = round((x − offset) / scale) is
-    monotone in x, so the extremes of X, which laspy's ``header.grow`` takes from the records of
-    every ``write_points`` call, are those of x: the header gets the same statistics (point
-    count, mins, maxs, gps-time range, points by return) without a pass over the records, and
-    the records go to laspy's point writer as they are.  Same bytes as ``write_points(las_record(…))``.
+    no points), known beforehand (the offsets need the minimum anyway).  X = round((x − offset)
+    / scale) is monotone in x, so the extremes of X, which laspy's ``header.grow`` takes from the
+    records of every ``write_points`` call, are those of x: the header gets the same statistics
+    (point count, mins, maxs, gps-time range, points by return) without a pass over the records,
+    and the records go to laspy's point writer as they are.  Same bytes as
+    ``write_points(las_record(…))`` (tests/test_las_fast.py).
     """
 
     def __init__(self, path: str | Path, header: laspy.LasHeader, lo_m, hi_m):
@@ -341,7 +342,7 @@ class RecordWriter:
             arr["echo_width_ns"] = cols["width"]
             self.returns += np.bincount(cols["ret"], minlength=16).astype(np.uint64)
         self.gps = [min(self.gps[0], cols["gps"].min()), max(self.gps[1], cols["gps"].max())]
-        self.writer.point_writer.write_points(rec)
+        self.writer.point_writer.write_points(rec)  # laspy 2.x: what write_points does after grow
         h.point_count += n
 
     def __enter__(self):

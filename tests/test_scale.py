@@ -13,7 +13,7 @@ import pytest
 
 from simlidar_mi._dask import _dask_config_dirs
 from simlidar_mi.geometry import CLASS_CODES
-from simlidar_mi.io.las import kept_points_m
+from simlidar_mi.io.las import BeamGeometry
 from simlidar_mi.lidar.platforms import airborne_pattern, rosette_patterns, rotating_patterns
 from simlidar_mi.lidar.scan import ScanResult
 
@@ -42,7 +42,7 @@ def test_kept_points_are_the_full_points_array_picked_bit_for_bit(pattern):
     keep = cls != CLASS_CODES["escape"]
     i, k = np.nonzero(keep)
     assert 0 < len(i) < n * m
-    fast = kept_points_m(pattern, rng_m, i, k)
+    fast = BeamGeometry(pattern).points_m(i, k, rng_m[i, k]).T
     assert fast.dtype == np.float64 and fast.shape == (len(i), 3)
     assert fast.tobytes() == res.points_m()[keep].tobytes()  # the same float64 operations
 

@@ -39,6 +39,10 @@ scale, record 3 holds the resolved sensor as JSON.  The Extra Bytes record carri
 min/max statistics (its option bits 1 and 2 are 0), so a file's bytes do not depend on
 how many chunks wrote it.  Without echoes the file is the
 first-return cloud above (return numbers 0, intensity 0), byte for byte as before.
+
+laspy is imported on first use, not with this module: with pyproj, which laspy imports, it takes
+0.1 s, and ``run_scan`` writes the LAS in a forked child (simlidar_mi._fork), so the child pays
+it, not the process that writes the EXR and the PNG meanwhile (issue #8, BENCHMARKS.md §8f).
 """
 from __future__ import annotations
 
@@ -46,14 +50,14 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import laspy
 import numpy as np
-from laspy.vlrs.known import WktCoordinateSystemVlr
 
 from ..geometry import CLASS_CODES
 from .atomic import atomic_file
 
 if TYPE_CHECKING:  # annotations only: io sits below the workflows
+    import laspy
+
     from ..lidar.scan import ScanResult
 
 LAS_CLASS = {CLASS_CODES["ground"]: 2, CLASS_CODES["leaf"]: 5, CLASS_CODES["wood"]: 64}
@@ -104,33 +108,62 @@ def row_times_s(pattern, first_row: int, a: int, b: int) -> tuple[np.ndarray, st
     return (first_row + i + k / m) * ROW_PERIOD_S, TIME_SCAN_ORDER
 
 
-def kept_points_m(pattern, range_m: np.ndarray, i_idx: np.ndarray, k_idx: np.ndarray) -> np.ndarray:
-    """(n, 3) first-return points of beams (i_idx, k_idx): ``ScanResult.points_m()[i_idx, k_idx]``
-    with the same float64 operations, without the (N, M, 3) arrays of every beam (most beams of
-    a tractor scan escape; the full arrays cost 0.2 s at 2.5 M beams).  Computed in blocks of
-    :data:`CHUNK_POINTS` so that the temporaries stay small and are reused: fresh (n, 3)
-    temporaries cost more in first-touch page faults than in arithmetic (0.40 → 0.1 s at 1.4 M)."""
-    p = pattern
-    out = np.empty((len(i_idx), 3), np.float64)
-    velocity = np.asarray(p.velocity_m_s, np.float64)[None, :] if p.moving else None
-    if p.beam_dirs is None:  # cos/sin over the rows as world_dirs computes them, then picked
+class BeamGeometry:
+    """Points along the beams of one pattern, ``origin + r · direction`` with the float64
+    operations of ``ScanResult.points_m()`` (origin moved by ``col_time · velocity`` on a moving
+    platform; direction the column's, turned by the row's yaw through cos/sin of every row),
+    one axis at a time.
+
+    Rows whose (cos, sin) of the yaw are the same bits share one direction per column, so
+    their directions are computed once per group (a tractor has one yaw: one row of M
+    directions) and picked: the same operations on the same values, the same bits."""
+
+    def __init__(self, pattern):
+        p = self.pattern = pattern
+        self.m = p.n_cols
+        self.origin = [np.ascontiguousarray(p.row_origin_m[:, c]) for c in range(3)]
+        self.velocity = np.asarray(p.velocity_m_s, np.float64) if p.moving else None
+        self.table = self.cos_sin = self.group = None
+        if p.beam_dirs is not None:
+            return
         yaw = np.deg2rad(p.row_yaw_deg)
         cos_yaw, sin_yaw = np.cos(yaw), np.sin(yaw)
-    range_m = np.asarray(range_m)
-    for a in range(0, len(i_idx), CHUNK_POINTS):
-        i, k = i_idx[a:a + CHUNK_POINTS], k_idx[a:a + CHUNK_POINTS]
-        o = p.row_origin_m[i]
-        if velocity is not None:
-            o = o + p.col_time_s[k, None] * velocity
+        pairs = np.ascontiguousarray(np.stack([cos_yaw, sin_yaw], axis=1))
+        keys = pairs.view(np.dtype((np.void, pairs.itemsize * 2))).ravel()
+        _, first, group = np.unique(keys, return_index=True, return_inverse=True)
+        cd = p.col_dir
+        if len(first) * 8 > len(yaw) or len(first) * self.m > 1 << 20:  # yaws mostly distinct: per point
+            self.cos_sin = (cos_yaw, sin_yaw)
+            return
+        c, s = cos_yaw[first][:, None], sin_yaw[first][:, None]
+        self.group = group.ravel().astype(np.int64) * self.m
+        self.table = [(c * cd[None, :, 0] - s * cd[None, :, 1]).ravel(),
+                      (s * cd[None, :, 0] + c * cd[None, :, 1]).ravel(), cd[:, 2]]
+
+    def points_m(self, i: np.ndarray, k: np.ndarray, range_m: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """(3, n) float64 points at ``range_m`` along beams (row i, column k), into ``out`` if given."""
+        p = self.pattern
+        r = range_m.astype(np.float64)
+        out = np.empty((3, len(i)), np.float64) if out is None else out
         if p.beam_dirs is not None:
             d = p.beam_dirs[i, k]
-        else:
-            c, s = cos_yaw[i], sin_yaw[i]
+        elif self.table is None:
+            c, s = self.cos_sin[0][i], self.cos_sin[1][i]
             cd = p.col_dir[k]
             d = np.stack([c * cd[:, 0] - s * cd[:, 1], s * cd[:, 0] + c * cd[:, 1], cd[:, 2]], axis=-1)
-        r = range_m[i, k].astype(np.float64)
-        np.add(o, r[:, None] * d, out=out[a:a + CHUNK_POINTS])
-    return out
+        else:
+            at = self.group[i] + k
+        for c in range(3):
+            if p.beam_dirs is not None or self.table is None:
+                dc = d[:, c]
+            else:
+                dc = self.table[c].take(k if c == 2 else at)
+            np.multiply(r, dc, out=out[c])
+            o = self.origin[c].take(i)
+            if self.velocity is not None:  # fired from where the platform was
+                o = o + p.col_time_s[k] * self.velocity[c]
+            np.add(o, out[c], out=out[c])
+        return out
 
 
 def crs_wkt(crs: str) -> str:
@@ -147,31 +180,189 @@ def write_scan_las(result: ScanResult | list[ScanResult], path: str | Path,
     With several results, ``point_source_id`` is the leg index and ``scan_position``
     counts rows within each leg.  ``crs`` (``"EPSG:<code>"``, the scene's
     ``[scene] crs``) is written as an OGC WKT record; None writes none.
+
+    Two passes over blocks of rows (or of :data:`CHUNK_POINTS` echoes), so that every
+    temporary stays in cache: the points first (their minimum gives the offsets), then the
+    records, packed into one reused buffer and written as they are filled (:class:`RecordWriter`).
+    The bytes are those of :func:`las_record` through laspy's writer (tests/test_las_fast.py).
     """
     results = result if isinstance(result, list) else [result]
     with_echoes = any(getattr(r, "echoes", None) is not None for r in results)
-    parts, first_row, time_kind = [], 0, TIME_SCAN_ORDER
-    for leg, res in enumerate(results):
-        t, time_kind = scan_times_s(res, first_row)
-        first_row += res.shape[0]
-        parts.append(_leg_points(res, leg, t, with_echoes))
-    cols = parts[0] if len(parts) == 1 else {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
-    pts = cols["xyz"]
     with_tree = any(r.tree_id is not None for r in results)
-    offsets = np.floor(pts.min(axis=0)) if len(pts) else np.zeros(3)
+    legs, first_row = [], 0
+    for leg, res in enumerate(results):
+        legs.append(_LegPoints(res, leg, first_row, with_echoes))
+        first_row += res.shape[0]
+    time_kind = row_times_s(results[-1].pattern, 0, 0, 0)[1]
+    xyz = np.empty((3, sum(lp.n for lp in legs)), np.float64)  # (3, n): each axis contiguous
+    lo, hi, at = np.full(3, np.inf), np.full(3, -np.inf), 0
+    for lp in legs:
+        leg_lo, leg_hi = lp.points(xyz[:, at:at + lp.n])
+        lo, hi, at = np.minimum(lo, leg_lo), np.maximum(hi, leg_hi), at + lp.n
+    offsets = np.floor(lo) if at else np.zeros(3)
     sensor = next((r.sensor for r in results if getattr(r, "sensor", None) is not None), None)
     header = las_header(offsets, time_kind, with_tree=with_tree, with_echoes=with_echoes, crs=crs,
                         sensor=sensor)
-    with atomic_file(path) as tmp, laspy.open(str(tmp), mode="w", header=header) as w:
-        for a in range(0, len(pts), CHUNK_POINTS):  # same bytes as one record (module docstring)
-            chunk = {key: v[a:a + CHUNK_POINTS] for key, v in cols.items()}
-            w.write_points(las_record(header, chunk, with_tree=with_tree, with_echoes=with_echoes))
+    with atomic_file(path) as tmp, RecordWriter(tmp, header, *((lo, hi) if at else (None, None))) as w:
+        at = 0
+        for lp in legs:
+            for cols in lp.columns():
+                n = len(cols["cls"])
+                w.write(xyz[:, at:at + n], cols, leg=lp.leg, with_tree=with_tree, with_echoes=with_echoes)
+                at += n
     return Path(path)
+
+
+class _LegPoints:
+    """The points of one leg for :func:`write_scan_las`, in pieces: first returns by blocks of
+    rows (the kept beams of each block found again in the second pass, which is cheaper than
+    keeping their indices), echoes (a ``[sensor]`` leg) by :data:`CHUNK_POINTS`."""
+
+    def __init__(self, res: ScanResult, leg: int, first_row: int, with_echoes: bool):
+        self.res, self.leg, self.first_row, self.with_echoes = res, leg, first_row, with_echoes
+        self.m = res.shape[1]
+        self.echo_cols = None
+        if getattr(res, "echoes", None) is not None:
+            self.echo_cols = _echo_points(res, leg, scan_times_s(res, first_row)[0])
+            self.n = len(self.echo_cols["cls"])
+        else:
+            self.geometry = BeamGeometry(res.pattern)
+            self.n = int(np.count_nonzero(res.cls != CLASS_CODES["escape"]))
+        self.angle = np.round(res.pattern.col_angle_deg / 0.006).astype(np.int16)  # per column
+
+    def _blocks(self):
+        """(a, b, kept beams of rows [a, b) as flat indices from row a, their rows, columns)."""
+        rows = max(1, CHUNK_POINTS // self.m)
+        for a in range(0, self.res.shape[0], rows):
+            b = min(a + rows, self.res.shape[0])
+            flat = np.flatnonzero(self.res.cls[a:b] != CLASS_CODES["escape"])
+            i = flat // self.m  # not np.divmod: a third slower
+            yield a, b, flat, i + a, flat - i * self.m
+
+    def points(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Fill ``xyz`` (3, n) with the points; their per-axis minimum and maximum."""
+        lo, hi, at = np.full(3, np.inf), np.full(3, -np.inf), 0
+        if self.echo_cols is not None:
+            xyz[:] = self.echo_cols["xyz"].T
+            return (xyz.min(axis=1), xyz.max(axis=1)) if self.n else (lo, hi)
+        for a, b, flat, i, k in self._blocks():
+            part = self.geometry.points_m(i, k, self.res.range_m[a:b].reshape(-1).take(flat),
+                                          out=xyz[:, at:at + len(flat)])
+            if len(flat):  # while the block is in cache
+                lo, hi = np.minimum(lo, part.min(axis=1)), np.maximum(hi, part.max(axis=1))
+            at += len(flat)
+        return lo, hi
+
+    def columns(self):
+        """The other columns of :func:`las_record` (but ``xyz``, ``source``), piece by piece."""
+        if self.echo_cols is not None:
+            cols = self.echo_cols
+            for a in range(0, self.n, CHUNK_POINTS):
+                part = {key: v[a:a + CHUNK_POINTS] for key, v in cols.items() if key != "xyz"}
+                yield {**part, "angle": self.angle.take(part["k"])}
+            return
+        res = self.res
+        for a, b, flat, i, k in self._blocks():
+            n = len(flat)
+            cols = {"cls": res.cls[a:b].reshape(-1).take(flat), "range": res.range_m[a:b].reshape(-1).take(flat),
+                    "elem": res.element_id[a:b].reshape(-1).take(flat),
+                    "tree": (res.tree_id[a:b].reshape(-1).take(flat) if res.tree_id is not None
+                             else np.full(n, 0xFFFFFFFF, np.uint32)),
+                    "gps": row_times_s(res.pattern, self.first_row, a, b)[0].reshape(-1).take(flat),
+                    "angle": self.angle.take(k), "i": i, "k": k}
+            if self.with_echoes:  # a first-return leg among echo legs: one return per pulse
+                ones = np.ones(n, np.uint8)
+                cols.update(ret=ones, nret=ones, intensity=np.zeros(n, np.uint16), width=np.zeros(n, np.float32))
+            yield cols
+
+
+class RecordWriter:
+    """laspy's writer for ``header``, fed blocks of points packed into one reused record.
+
+    ``lo_m``, ``hi_m``: the per-axis minimum and maximum of every point to be written (None:
+    no points), known beforehand (the offsets need the minimum anyway).  X = round((x − offset)
+    / scale) is monotone in x, so the extremes of X, which laspy's ``header.grow`` takes from the
+    records of every ``write_points`` call, are those of x: the header gets the same statistics
+    (point count, mins, maxs, gps-time range, points by return) without a pass over the records,
+    and the records go to laspy's point writer as they are.  Same bytes as
+    ``write_points(las_record(…))`` (tests/test_las_fast.py).
+    """
+
+    def __init__(self, path: str | Path, header: laspy.LasHeader, lo_m, hi_m):
+        self.ext = None
+        if lo_m is not None:
+            if not np.all(np.isfinite(np.concatenate([lo_m, hi_m]))):
+                raise ValueError("a LAS point has a non-finite coordinate")
+            self.ext = np.round((np.array([lo_m, hi_m], np.float64) - header.offsets) / header.scales)
+            for c, name in enumerate("xyz"):
+                if self.ext[1, c] > _INT32.max or self.ext[0, c] < _INT32.min:
+                    raise OverflowError(f"{name} does not fit LAS int32 after offset and scale")
+        # an empty file (atomic_file's) is opened without O_TRUNC: ext4 starts the write-back
+        # of a file truncated to zero when it is closed (auto_da_alloc), 2-30 ms here
+        empty = Path(path).is_file() and Path(path).stat().st_size == 0
+        import laspy  # noqa: PLC0415 - on first use (module docstring)
+        self.writer = laspy.open(open(path, "r+b" if empty else "wb"), mode="w", header=header)
+        self.packed = laspy.PackedPointRecord
+        self.record = np.zeros(0, header.point_format.dtype())
+        self.gps = [np.inf, -np.inf]
+        self.returns = np.zeros(16, np.uint64)
+
+    def write(self, xyz: np.ndarray, cols: dict, *, leg: int, with_tree: bool, with_echoes: bool) -> None:
+        """Points ``xyz`` (3, n) and their ``cols`` (``las_record``'s, ``angle`` the packed scan angle)."""
+        n = xyz.shape[1]
+        if not n:
+            return
+        if len(self.record) < n:
+            self.record = np.zeros(max(n, CHUNK_POINTS), self.record.dtype)
+        arr = self.record[:n]  # every field written below is written for every point
+        h, t = self.writer.header, np.empty(n, np.float64)
+        for c, name in enumerate("XYZ"):  # laspy's x setter: round((x - offset) / scale)
+            np.subtract(xyz[c], h.offsets[c], out=t)
+            np.divide(t, h.scales[c], out=t)
+            np.round(t, out=t)
+            arr[name] = t
+        arr["classification"] = LAS_CLASS_LUT[cols["cls"]]
+        arr["scan_angle"] = cols["angle"]
+        arr["point_source_id"] = leg
+        arr["gps_time"] = cols["gps"]
+        arr["range_m"] = cols["range"]
+        arr["scan_position"] = cols["i"]
+        arr["scan_angle_index"] = cols["k"]
+        arr["branch_id"] = cols["elem"]
+        if with_tree:
+            arr["tree_id"] = cols["tree"]
+        rec = self.packed(arr, h.point_format)
+        if with_echoes:
+            if max(cols["ret"].max(), cols["nret"].max()) > 15:
+                raise ValueError("LAS point format 6 holds at most 15 returns per pulse; "
+                                 f"this scan has {int(cols['nret'].max())}")
+            rec["return_number"] = cols["ret"]  # bit fields: laspy's own setter
+            rec["number_of_returns"] = cols["nret"]
+            arr["intensity"] = cols["intensity"]
+            arr["echo_width_ns"] = cols["width"]
+            self.returns += np.bincount(cols["ret"], minlength=16).astype(np.uint64)
+        self.gps = [min(self.gps[0], cols["gps"].min()), max(self.gps[1], cols["gps"].max())]
+        self.writer.point_writer.write_points(rec)  # laspy 2.x: what write_points does after grow
+        h.point_count += n
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        h = self.writer.header
+        if h.point_count and exc_type is None:  # header.grow's statistics (class docstring)
+            h.mins = self.ext[0] * h.scales + h.offsets
+            h.maxs = self.ext[1] * h.scales + h.offsets
+            h.min_gps_time, h.max_gps_time = self.gps
+            h.number_of_points_by_return += self.returns[1:]
+        self.writer.__exit__(exc_type, exc, tb)
 
 
 def las_header(offsets_m, time_kind: str, *, with_tree: bool, with_echoes: bool = False,
                crs: str | None = None, sensor: dict | None = None) -> laspy.LasHeader:
     """The LAS header of a scan (module docstring) with the given offsets."""
+    import laspy  # noqa: PLC0415 - on first use (module docstring)
+    from laspy.vlrs.known import WktCoordinateSystemVlr  # noqa: PLC0415
     header = laspy.LasHeader(point_format=6, version="1.4")
     range_text = "echo range (m)" if with_echoes else "first-return range (m)"
     header.add_extra_dims([
@@ -206,11 +397,12 @@ def las_header(offsets_m, time_kind: str, *, with_tree: bool, with_echoes: bool 
 
 
 def las_record(header: laspy.LasHeader, cols: dict, *, with_tree: bool, with_echoes: bool = False):
-    """One point record of ``cols`` (see :func:`_leg_points`), packed field by field into the
+    """One point record of ``cols`` (:func:`_echo_points`' columns), packed field by field into the
     record's numpy array (``PackedPointRecord.array``) with the operations laspy's setters use
     (x = round((x − offset) / scale), plain fields cast on assignment): the same bytes, without
     laspy's per-field dispatch (issue #8: a third of the streamed LAS write)."""
     pts = cols["xyz"]
+    import laspy  # noqa: PLC0415 - on first use (module docstring)
     rec = laspy.ScaleAwarePointRecord.zeros(len(pts), header=header)
     arr = rec.array
     for c, name in enumerate("XYZ"):
@@ -239,39 +431,26 @@ def las_record(header: laspy.LasHeader, cols: dict, *, with_tree: bool, with_ech
     return rec
 
 
-def _leg_points(res: ScanResult, leg: int, times_s: np.ndarray, with_echoes: bool) -> dict:
-    """Per-point columns of one leg: its first returns, or its echoes (module docstring)."""
-    n, m = res.shape
-    echoes = getattr(res, "echoes", None)
-    if echoes is None:
-        keep = res.cls != CLASS_CODES["escape"]
-        i_idx, k_idx = np.nonzero(keep)
-        cols = {"xyz": kept_points_m(res.pattern, res.range_m, i_idx, k_idx), "cls": res.cls[keep],
-                "range": res.range_m[keep],
-                "elem": res.element_id[keep],
-                "tree": res.tree_id[keep] if res.tree_id is not None else np.full(len(i_idx), 0xFFFFFFFF, np.uint32),
-                "gps": times_s[keep]}
-        if with_echoes:  # a first-return leg among echo legs: one return per pulse
-            ones = np.ones(len(i_idx), np.uint8)
-            cols.update(ret=ones, nret=ones, intensity=np.zeros(len(i_idx), np.uint16),
-                        width=np.zeros(len(i_idx), np.float32))
-    else:
-        i_idx, k_idx = np.divmod(np.asarray(echoes.beam, np.int64), m)
-        p = res.pattern
-        origin = p.row_origin_m[i_idx]
-        velocity, col_time = getattr(p, "velocity_m_s", None), getattr(p, "col_time_s", None)
-        if velocity is not None and col_time is not None:  # fired from where the platform was
-            origin = origin + np.asarray(col_time, np.float64)[k_idx, None] * np.asarray(velocity, np.float64)
-        rng = np.asarray(echoes.range_m, np.float64)
-        intensity_on = getattr(res, "intensity", None) is not None
-        energy = np.asarray(echoes.energy, np.float64)
-        cols = {"xyz": origin + rng[:, None] * p.world_dirs()[i_idx, k_idx],
-                "cls": echoes.cls, "range": rng.astype(np.float32), "elem": echoes.element_id,
-                "tree": echoes.tree_id if echoes.tree_id is not None else np.full(len(i_idx), 0xFFFFFFFF, np.uint32),
-                "gps": times_s[i_idx, k_idx], "ret": echoes.return_number, "nret": echoes.number_of_returns,
-                "intensity": (np.minimum(65535.0, np.rint(INTENSITY_SCALE * energy)).astype(np.uint16)
-                              if intensity_on else np.zeros(len(i_idx), np.uint16)),
-                "width": np.asarray(echoes.width_ns, np.float32)}
+def _echo_points(res: ScanResult, leg: int, times_s: np.ndarray) -> dict:
+    """Per-point columns of a ``[sensor]`` leg: its echoes (module docstring)."""
+    m = res.shape[1]
+    echoes = res.echoes
+    i_idx, k_idx = np.divmod(np.asarray(echoes.beam, np.int64), m)
+    p = res.pattern
+    origin = p.row_origin_m[i_idx]
+    velocity, col_time = getattr(p, "velocity_m_s", None), getattr(p, "col_time_s", None)
+    if velocity is not None and col_time is not None:  # fired from where the platform was
+        origin = origin + np.asarray(col_time, np.float64)[k_idx, None] * np.asarray(velocity, np.float64)
+    rng = np.asarray(echoes.range_m, np.float64)
+    intensity_on = getattr(res, "intensity", None) is not None
+    energy = np.asarray(echoes.energy, np.float64)
+    cols = {"xyz": origin + rng[:, None] * p.world_dirs()[i_idx, k_idx],
+            "cls": echoes.cls, "range": rng.astype(np.float32), "elem": echoes.element_id,
+            "tree": echoes.tree_id if echoes.tree_id is not None else np.full(len(i_idx), 0xFFFFFFFF, np.uint32),
+            "gps": times_s[i_idx, k_idx], "ret": echoes.return_number, "nret": echoes.number_of_returns,
+            "intensity": (np.minimum(65535.0, np.rint(INTENSITY_SCALE * energy)).astype(np.uint16)
+                          if intensity_on else np.zeros(len(i_idx), np.uint16)),
+            "width": np.asarray(echoes.width_ns, np.float32)}
     cols["theta"] = res.pattern.col_angle_deg[k_idx]
     cols["i"], cols["k"] = i_idx, k_idx
     cols["source"] = np.full(len(i_idx), leg)

@@ -33,8 +33,8 @@ class PointSpill:
         self.f = tempfile.TemporaryFile(dir=stage)
         self.intensity = intensity
         self.index: list[tuple] = []  # (leg, first_row, a, b, columns' dtypes, count)
-        self.lo = np.full(3, np.inf)
-        self._trig: dict[int, tuple] = {}
+        self.lo, self.hi = np.full(3, np.inf), np.full(3, -np.inf)
+        self._geometry: dict[int, object] = {}  # leg → io.las.BeamGeometry
 
     def add(self, pattern, leg: int, first_row: int, a: int, b: int, block: dict) -> None:
         """Rows [a, b) of leg ``leg`` (flat ``range``, ``cls``, ``elem``, ``tree`` and, for a
@@ -58,50 +58,37 @@ class PointSpill:
                                   if self.intensity else np.zeros(len(energy), np.uint16)),
                     "width": np.asarray(echoes.width_ns, np.float32)}
         cols = {k: v for k, v in cols.items() if v is not None}
-        for c0 in range(0, len(cols["beam"]), CHUNK_POINTS):  # the min of the points, exact in any pieces
+        for c0 in range(0, len(cols["beam"]), CHUNK_POINTS):  # min and max of the points, exact in any pieces
             part = slice(c0, c0 + CHUNK_POINTS)
             xyz = self._xyz(pattern, leg, a, m, cols["beam"][part], cols["range"][part])
-            self.lo = np.minimum(self.lo, xyz.min(axis=0))
+            self.lo, self.hi = np.minimum(self.lo, xyz.min(axis=1)), np.maximum(self.hi, xyz.max(axis=1))
         for v in cols.values():
             self.f.write(np.ascontiguousarray(v).data)
         self.index.append((leg, first_row, a, b, {k: v.dtype for k, v in cols.items()}, len(cols["beam"])))
 
     def _xyz(self, pattern, leg: int, a: int, m: int, beam, range_m) -> np.ndarray:
-        """Points at ``range_m`` along beams (block-relative flat index) of rows a …: the float64
-        operations of ``ScanResult.points_m()`` / ``write_scan_las`` (origin + r·direction, the
-        direction from cos/sin of every row's yaw, picked), bit for bit."""
+        """(3, n) points at ``range_m`` along beams (block-relative flat index) of rows a …, by
+        :class:`~simlidar_mi.io.las.BeamGeometry`: the float64 operations of
+        ``ScanResult.points_m()`` / ``write_scan_las``, bit for bit."""
+        from ..io.las import BeamGeometry  # noqa: PLC0415
+        if leg not in self._geometry:
+            self._geometry = {leg: BeamGeometry(pattern)}  # legs come one after the other
         i, k = np.divmod(np.asarray(beam, np.int64), m)
-        i = i + a
-        p = pattern
-        origin = p.row_origin_m[i]
-        if p.moving:  # fired from where the platform was
-            origin = origin + np.asarray(p.col_time_s, np.float64)[k, None] * np.asarray(p.velocity_m_s, np.float64)
-        if p.beam_dirs is not None:
-            d = p.beam_dirs[i, k]
-        else:
-            if leg not in self._trig:
-                yaw = np.deg2rad(p.row_yaw_deg)
-                self._trig = {leg: (np.cos(yaw), np.sin(yaw))}
-            cos_yaw, sin_yaw = self._trig[leg]
-            c, s = cos_yaw[i], sin_yaw[i]
-            cd = p.col_dir[k]
-            d = np.stack([c * cd[:, 0] - s * cd[:, 1], s * cd[:, 0] + c * cd[:, 1], cd[:, 2]], axis=-1)
-        return origin + np.asarray(range_m).astype(np.float64)[:, None] * d
+        return self._geometry[leg].points_m(i + a, k, np.asarray(range_m))
 
     def write(self, path: Path, patterns: list, *, crs: str | None, sensor: dict | None = None,
               with_tree: bool, with_echoes: bool = False) -> None:
-        """``points.las`` of every point added, with the held scan's header and bytes."""
-        import laspy  # noqa: PLC0415
-        from ..io.las import CHUNK_POINTS, las_header, las_record, row_times_s  # noqa: PLC0415
-        offsets = np.floor(self.lo) if np.all(np.isfinite(self.lo)) else np.zeros(3)
+        """``points.las`` of every point added, with the held scan's header and bytes
+        (:class:`~simlidar_mi.io.las.RecordWriter`, as ``write_scan_las`` writes them)."""
+        from ..io.las import CHUNK_POINTS, RecordWriter, las_header, row_times_s  # noqa: PLC0415
+        any_point = any(entry[-1] for entry in self.index)
+        offsets = np.floor(self.lo) if any_point else np.zeros(3)
         time_kind = row_times_s(patterns[-1], 0, 0, 0)[1]
         header = las_header(offsets, time_kind, with_tree=with_tree, with_echoes=with_echoes, crs=crs,
                             sensor=sensor)
-        # a LasData made before the writer sets the header as write_scan_las's does (same bytes)
-        laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(0, header=header))
         self.f.seek(0)
-        self._trig = {}
-        with laspy.open(str(path), mode="w", header=header) as writer:
+        angles = [np.round(p.col_angle_deg / 0.006).astype(np.int16) for p in patterns]  # per column
+        with RecordWriter(path, header, *((self.lo, self.hi) if any_point else (None, None))) as writer:
             for leg, first_row, a, b, dtypes, count in self.index:
                 cols = {k: np.frombuffer(self.f.read(count * dt.itemsize), dt) for k, dt in dtypes.items()}
                 if not count:
@@ -113,15 +100,14 @@ class PointSpill:
                     part = {key: v[c0:c0 + CHUNK_POINTS] for key, v in cols.items()}
                     n = len(part["beam"])
                     i, k = np.divmod(np.asarray(part["beam"], np.int64), m)
-                    rec = {"xyz": self._xyz(p, leg, a, m, part["beam"], part["range"]), "cls": part["cls"],
-                           "range": part["range"].astype(np.float32), "elem": part["elem"],
+                    xyz = self._xyz(p, leg, a, m, part["beam"], part["range"])
+                    rec = {"cls": part["cls"], "range": part["range"].astype(np.float32), "elem": part["elem"],
                            "tree": part["tree"] if "tree" in part else np.full(n, NO_ID, np.uint32),
-                           "gps": times[i, k], "theta": p.col_angle_deg[k], "i": i + a, "k": k,
-                           "source": np.full(n, leg)}
+                           "gps": times[i, k], "angle": angles[leg][k], "i": i + a, "k": k}
                     if with_echoes:
                         rec.update(ret=part["ret"], nret=part["nret"], intensity=part["intensity"],
                                    width=part["width"])
-                    writer.write_points(las_record(header, rec, with_tree=with_tree, with_echoes=with_echoes))
+                    writer.write(xyz, rec, leg=leg, with_tree=with_tree, with_echoes=with_echoes)
 
     def close(self) -> None:
         self.f.close()

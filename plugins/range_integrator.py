@@ -144,7 +144,9 @@ class RangeIntegrator(mi.SamplingIntegrator):
         else:
             hit_fraction = dr.select(veg, 1.0, 0.0)
         rng = dr.select(dr.isinf(t), self.escape, t)
-        out = {"range": rng, "class": cls, "element_id": elem, "hit_fraction": hit_fraction}
+        # class as uint8 from the kernel: a quarter of the bytes, and no host-side conversion
+        out = {"range": rng, "class": dr.uint8_array_t(mi.UInt32)(cls), "element_id": elem,
+               "hit_fraction": hit_fraction}
         if tree is not None:
             out["tree_id"] = tree
         dr.eval(out)  # one kernel: reading the arrays one by one would trace twice

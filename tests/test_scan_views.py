@@ -76,3 +76,19 @@ def test_beam_ray_is_sample_ray_at_the_beam_centre(footprint, moving):
     for a, b in ((new.o, old.o), (new.d, old.d)):
         for c in range(3):
             assert np.array_equal(a[c].numpy(), b[c].numpy())
+
+
+def test_mi_render_through_the_range_integrator_gives_the_scan():
+    """``mi.render`` (the plugin's ``render``) returns range, class, element id and hit fraction
+    as floats: the scan's arrays (class now leaves the kernel as uint8)."""
+    mi = mitsuba()
+    from simlidar_mi.lidar.scan import BeamTracer
+    built = build_scene(_two_trees())
+    tracer = BeamTracer(built, _settings())
+    img = np.array(mi.render(built.scene, sensor=tracer._lidar, integrator=tracer._integrator))
+    res = scan(built, _settings())
+    assert img.shape == (*res.shape, 4)
+    assert np.array_equal(img[..., 0], res.range_m)
+    assert np.array_equal(img[..., 1], res.cls.astype(np.float32))
+    assert np.array_equal(img[..., 2], np.where(res.element_id == 0xFFFFFFFF, -1.0, res.element_id).astype(np.float32))
+    assert np.array_equal(img[..., 3], res.hit_fraction)

@@ -386,7 +386,7 @@ class BeamTracer:
         out = self._integrator.trace(self._scene, self._lidar, self._lead + int(beam_start), count)
         # .numpy() is a writable view whose base (a memoryview) keeps the Dr.Jit array alive, so
         # no copy is needed (tests/test_scan_views.py): 50 MB of copies a 2.5 M-beam scan saves.
-        return {"range": out["range"].numpy(), "cls": out["class"].numpy().astype(np.uint8),
+        return {"range": out["range"].numpy(), "cls": np.asarray(out["class"].numpy(), np.uint8),
                 "elem": out["element_id"].numpy(), "frac": out["hit_fraction"].numpy(),
                 "tree": out["tree_id"].numpy() if "tree_id" in out else None}
 

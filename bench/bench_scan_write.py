@@ -13,6 +13,8 @@
    start, imports, Mitsuba import and variant, scene file, generation, mesh arrays, the
    Mitsuba meshes, Embree's scene load, the scan, the measures, each writer, the folder
    commit, process exit); medians; then the limits of ``bench_scale.py`` in the same run.
+   The breakdown imports Mitsuba up front, in turn: it times each component on its own, not
+   the command's overlap of generation with that import (simlidar_mi.lidar.survey.run_scan).
 Prints markdown; the load average is printed before and after.
 """
 from __future__ import annotations
@@ -59,7 +61,7 @@ mi = _mitsuba.mitsuba()
 span("Mitsuba import, set_variant (AD reload), plugins", t0, time.time())
 t0 = time.time()
 from simlidar_mi.io import exr, las, plots
-span("imports: OpenEXR, laspy (+pyproj), PIL", t0, time.time())
+span("imports: OpenEXR, PIL (laspy is imported by the LAS writer, in its forked child)", t0, time.time())
 orig_load = mi.load_dict
 def load_dict(d, *a, **k):
     t0 = time.time()

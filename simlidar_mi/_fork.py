@@ -34,13 +34,14 @@ def use_fork(parallel: bool | None) -> bool:
 
 
 def _child(conn, fn: Callable, args: tuple, setup: Callable | None) -> None:
-    """The forked process: run, then send ("ok", value) or ("error", (exception, text))."""
+    """The forked process: run, then send ("ok", value), ("error", (exception, text)) or
+    ("interrupted", None)."""
     try:
         try:
             with setup() if setup is not None else nullcontext():
                 msg = ("ok", fn(*args))
-        except KeyboardInterrupt:  # Ctrl-C reached the parent too: it reports that
-            return
+        except KeyboardInterrupt:  # Ctrl-C: the parent got it too (then nobody listens), or
+            msg = ("interrupted", None)  # a SIGINT sent to this child alone: the parent's to raise
         except BaseException as exc:  # noqa: BLE001  (everything else goes back to the parent)
             text = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
             try:  # the exception itself, so the parent raises what an in-turn call raises
@@ -60,7 +61,7 @@ class Forked:
     :meth:`wait`.
 
     :meth:`wait` returns its value (pickled back). If the call raised, :meth:`wait` raises the
-    same exception, as a call in turn would (with a note naming ``what`` and the child's
+    same exception (KeyboardInterrupt when the child alone was interrupted), as a call in turn would (with a note naming ``what`` and the child's
     traceback on Python ≥ 3.11); if that exception cannot be sent back, or the child died, a
     :class:`SimlidarError` naming ``what``. :meth:`close` ends a child still running (the
     caller failed or was interrupted) and must always follow. ``setup``: a context-manager
@@ -99,6 +100,8 @@ class Forked:
         self.child.join()
         if status == "ok":
             return value
+        if status == "interrupted":  # the call was interrupted: so is the caller, as in turn
+            raise KeyboardInterrupt
         exc, text = value
         if exc is None:
             raise SimlidarError(f"{self.what} failed: {text}")

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import copyreg
 import os
+import signal
 import time
 
 import numpy as np
@@ -32,6 +33,12 @@ def _die(code):
 
 def _sleep():
     time.sleep(60)
+
+
+def _interrupted():
+    os.kill(os.getpid(), signal.SIGINT)  # a SIGINT to the child alone
+    time.sleep(5)
+    return "not interrupted"
 
 
 @needs_fork
@@ -102,6 +109,18 @@ def test_a_dead_child_or_an_error_that_cannot_come_back_is_a_simlidar_error(fn, 
 
 
 @needs_fork
+@needs_fork
+def test_a_child_interrupted_alone_interrupts_the_caller():
+    """A SIGINT that reaches only the child (a real Ctrl-C reaches both) ends the call as an
+    interrupted call in turn would: KeyboardInterrupt here, not 'the process died'."""
+    job = Forked("sleeping", _interrupted, parallel=True)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            job.wait()
+    finally:
+        job.close()
+
+
 def test_close_ends_a_child_still_running():
     job = Forked("sleeping", _sleep, parallel=True)
     t = time.perf_counter()

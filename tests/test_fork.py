@@ -213,3 +213,29 @@ def test_generation_overlaps_only_a_fresh_local_process(monkeypatch):
     assert may_use_cluster("tcp://127.0.0.1:1") and not may_use_cluster("local")
     monkeypatch.setenv(ENV, "tcp://127.0.0.1:1")
     assert may_use_cluster(None) and not may_use_cluster("local")
+
+
+def _sleep_and_tell(pid_file):
+    pid_file.write_text(str(os.getpid()))
+    time.sleep(60)
+
+
+@needs_fork
+def test_a_failed_build_ends_the_measuring_child(tmp_path, monkeypatch):
+    from simlidar_mi.errors import ConfigError
+    pid_file = tmp_path / "pid"
+    monkeypatch.setattr(survey, "FORK_MEASURES_MIN", 0)
+    monkeypatch.setattr(survey, "scene_measures", lambda cfg, geometry, patterns: _sleep_and_tell(pid_file))
+
+    def broken(*a, **k):
+        for _ in range(500):  # until the child has started
+            if pid_file.exists() and pid_file.read_text():
+                break
+            time.sleep(0.01)
+        raise ConfigError("cannot build", key="scene.representation", value="x")
+    monkeypatch.setattr(survey, "build", broken)
+    with pytest.raises(ConfigError, match="cannot build"):
+        survey.run_scan(load_scene(CALIB), tmp_path / "out")
+    pid = int(pid_file.read_text())
+    with pytest.raises(ProcessLookupError):  # terminated and reaped, not left sleeping
+        os.kill(pid, 0)

@@ -395,104 +395,106 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     geo_job = Forked("measuring the wood", scene_measures, cfg, geometry, patterns) \
         if out_dir is not None and len(geometry.branches) + len(geometry.leaves) >= FORK_MEASURES_MIN else None
 
-    streamed = False  # a first-return scan written chunk by chunk (below)
-    with cluster_client(scheduler) as client:
-        if client is not None:  # tiles on the cluster's workers, each building the scene once
-            from .tiles import scan_on_cluster  # noqa: PLC0415
-            scene_sensor(cfg, geometry, patterns)  # a bad [sensor] fails here, before any task
+    try:
+        streamed = False  # a first-return scan written chunk by chunk (below)
+        with cluster_client(scheduler) as client:
+            if client is not None:  # tiles on the cluster's workers, each building the scene once
+                from .tiles import scan_on_cluster  # noqa: PLC0415
+                scene_sensor(cfg, geometry, patterns)  # a bad [sensor] fails here, before any task
+                t = time.perf_counter()
+                built, results, facts = scan_on_cluster(client, cfg, patterns, prepare_scan,
+                                                        tile_rows=tile_rows, progress=shown)
+                seconds["build"] = facts["build_seconds"]  # the slowest worker's (inside the scan's time)
+                seconds["scan"] = time.perf_counter() - t
+                bar(f"built {built.representation} scene on {len(facts['workers'])} workers")
+                bar(f"scanned {n_beams} beams in {facts['tiles']} tiles")
+        if client is None:
             t = time.perf_counter()
-            built, results, facts = scan_on_cluster(client, cfg, patterns, prepare_scan,
-                                                    tile_rows=tile_rows, progress=shown)
-            seconds["build"] = facts["build_seconds"]  # the slowest worker's (inside the scan's time)
+            built = build(cfg, geometry, patterns)
+            seconds["build"] = time.perf_counter() - t
+            bar(f"built {built.representation} scene")
+
+            sensor = scene_sensor(cfg, geometry, patterns)
+            chunk = cfg["scan"]["chunk_beams"]
+            # More than one chunk to files: traced and written chunk by chunk (lidar/stream.py).
+            streamed = out_dir is not None and max(p.n_beams for p in patterns) > chunk
+            t = time.perf_counter()
+            results = [] if streamed else [scan(built, p, cfg["scene"]["variant"], sensor, seed=cfg.seed, leg=j,
+                                                chunk_beams=chunk) for j, p in enumerate(patterns)]
             seconds["scan"] = time.perf_counter() - t
-            bar(f"built {built.representation} scene on {len(facts['workers'])} workers")
-            bar(f"scanned {n_beams} beams in {facts['tiles']} tiles")
-    if client is None:
-        t = time.perf_counter()
-        built = build(cfg, geometry, patterns)
-        seconds["build"] = time.perf_counter() - t
-        bar(f"built {built.representation} scene")
-
-        sensor = scene_sensor(cfg, geometry, patterns)
-        chunk = cfg["scan"]["chunk_beams"]
-        # More than one chunk to files: traced and written chunk by chunk (lidar/stream.py).
-        streamed = out_dir is not None and max(p.n_beams for p in patterns) > chunk
-        t = time.perf_counter()
-        results = [] if streamed else [scan(built, p, cfg["scene"]["variant"], sensor, seed=cfg.seed, leg=j,
-                                            chunk_beams=chunk) for j, p in enumerate(patterns)]
-        seconds["scan"] = time.perf_counter() - t
-        if not streamed:
-            bar(f"scanned {n_beams} beams")
-
-    def measured() -> dict:  # the measures, timed as a stage of their own
-        t_m = time.perf_counter()
-        out = scan_measures(cfg, geometry, built, results,
-                            geo_job.wait() if geo_job is not None else scene_measures(cfg, geometry, patterns))
-        seconds["measures"] = time.perf_counter() - t_m
-        return out
-
-    if not streamed and out_dir is None:  # with files: while the LAS is written (below)
-        measures = measured()
-    files: dict[str, Path] = {}
-    t = time.perf_counter()
-    if out_dir is not None:
-        from ..io.exr import write_scan_exr  # noqa: PLC0415
-        with staged_dir(out_dir, SCAN_OUTPUTS) as stage, contextlib.ExitStack() as jobs:
-            if geo_job is not None:
-                jobs.callback(geo_job.close)
-            las_job = None
-            if write_las and not streamed:  # the longest file: on the second core (simlidar_mi._fork)
-                from ..io.las import write_scan_las  # noqa: PLC0415
-                las_job = Forked("writing points.las", functools.partial(write_scan_las, crs=cfg["scene"]["crs"]),
-                                 results if len(results) > 1 else results[0], stage / "points.las")
-                jobs.callback(las_job.close)
             if not streamed:
-                measures = measured()
-            if streamed:  # first returns (lidar/stream.py) or a [sensor] scan (lidar/stream_sensor.py)
-                from .stream import stream_scan  # noqa: PLC0415
-                from .stream_sensor import stream_physical_scan  # noqa: PLC0415
-                names: dict = {}
-                many = len(patterns) > 1
-                how = stream_scan if sensor is None else functools.partial(stream_physical_scan, model=sensor,
-                                                                             seed=cfg.seed)
-                results, seconds["scan"] = how(
-                    built, patterns, stage, variant=cfg["scene"]["variant"], chunk_beams=chunk,
-                    exr_kwargs={"seed": cfg.seed, "scene_sha256": cfg.sha256,
-                                "extra": {"scene_file": cfg.source, "representation": built.representation,
-                                          "facets": built.facets}},
-                    png_titles=[f"{cfg['scene']['name']}: range image{f', leg {j}' if many else ''}"
-                                for j in range(len(patterns))] if write_png else None,
-                    las=write_las, crs=cfg["scene"]["crs"], progress=shown, files=names)
-                files.update({k: Path(out_dir) / v for k, v in names.items()})
-                if write_las:
+                bar(f"scanned {n_beams} beams")
+
+        def measured() -> dict:  # the measures, timed as a stage of their own
+            t_m = time.perf_counter()
+            out = scan_measures(cfg, geometry, built, results,
+                                geo_job.wait() if geo_job is not None else scene_measures(cfg, geometry, patterns))
+            seconds["measures"] = time.perf_counter() - t_m
+            return out
+
+        if not streamed and out_dir is None:  # with files: while the LAS is written (below)
+            measures = measured()
+        files: dict[str, Path] = {}
+        t = time.perf_counter()
+        if out_dir is not None:
+            from ..io.exr import write_scan_exr  # noqa: PLC0415
+            with staged_dir(out_dir, SCAN_OUTPUTS) as stage, contextlib.ExitStack() as jobs:
+                las_job = None
+                if write_las and not streamed:  # the longest file: on the second core (simlidar_mi._fork)
+                    from ..io.las import write_scan_las  # noqa: PLC0415
+                    las_job = Forked("writing points.las", functools.partial(write_scan_las, crs=cfg["scene"]["crs"]),
+                                     results if len(results) > 1 else results[0], stage / "points.las")
+                    jobs.callback(las_job.close)
+                if not streamed:
+                    measures = measured()
+                if streamed:  # first returns (lidar/stream.py) or a [sensor] scan (lidar/stream_sensor.py)
+                    from .stream import stream_scan  # noqa: PLC0415
+                    from .stream_sensor import stream_physical_scan  # noqa: PLC0415
+                    names: dict = {}
+                    many = len(patterns) > 1
+                    how = stream_scan if sensor is None else functools.partial(stream_physical_scan, model=sensor,
+                                                                                 seed=cfg.seed)
+                    results, seconds["scan"] = how(
+                        built, patterns, stage, variant=cfg["scene"]["variant"], chunk_beams=chunk,
+                        exr_kwargs={"seed": cfg.seed, "scene_sha256": cfg.sha256,
+                                    "extra": {"scene_file": cfg.source, "representation": built.representation,
+                                              "facets": built.facets}},
+                        png_titles=[f"{cfg['scene']['name']}: range image{f', leg {j}' if many else ''}"
+                                    for j in range(len(patterns))] if write_png else None,
+                        las=write_las, crs=cfg["scene"]["crs"], progress=shown, files=names)
+                    files.update({k: Path(out_dir) / v for k, v in names.items()})
+                    if write_las:
+                        files["las"] = Path(out_dir) / "points.las"
+                    bar(f"scanned and wrote {n_beams} beams in chunks of {chunk}")
+                    measures = measured()
+                for j, res in enumerate([] if streamed else results):
+                    stem = "scan" if len(results) == 1 else f"scan_leg{j}"
+                    write_scan_exr(res, stage / f"{stem}.exr", seed=cfg.seed, scene_sha256=cfg.sha256,
+                                   extra={"scene_file": cfg.source, "representation": built.representation,
+                                          "facets": built.facets},
+                                   threads=1 if las_job is not None and las_job.child is not None else 2)  # a core each
+                    files[f"exr{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.exr"
+                    if write_png:
+                        from ..io.plots import plot_scan_png  # noqa: PLC0415
+                        leg = "" if len(results) == 1 else f", leg {j}"
+                        plot_scan_png(res, stage / f"{stem}.png", title=f"{cfg['scene']['name']}: range image{leg}")
+                        files[f"png{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.png"
+                if las_job is not None:
+                    las_job.wait()
                     files["las"] = Path(out_dir) / "points.las"
-                bar(f"scanned and wrote {n_beams} beams in chunks of {chunk}")
-                measures = measured()
-            for j, res in enumerate([] if streamed else results):
-                stem = "scan" if len(results) == 1 else f"scan_leg{j}"
-                write_scan_exr(res, stage / f"{stem}.exr", seed=cfg.seed, scene_sha256=cfg.sha256,
-                               extra={"scene_file": cfg.source, "representation": built.representation,
-                                      "facets": built.facets},
-                               threads=1 if las_job is not None and las_job.child is not None else 2)  # a core each
-                files[f"exr{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.exr"
-                if write_png:
-                    from ..io.plots import plot_scan_png  # noqa: PLC0415
-                    leg = "" if len(results) == 1 else f", leg {j}"
-                    plot_scan_png(res, stage / f"{stem}.png", title=f"{cfg['scene']['name']}: range image{leg}")
-                    files[f"png{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.png"
-            if las_job is not None:
-                las_job.wait()
-                files["las"] = Path(out_dir) / "points.las"
-            seconds["write"] = (time.perf_counter() - t - (seconds["scan"] if streamed else 0.0)
-                                - seconds.get("measures", 0.0))
+                seconds["write"] = (time.perf_counter() - t - (seconds["scan"] if streamed else 0.0)
+                                    - seconds.get("measures", 0.0))
+                measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}
+                with atomic_file(stage / "measures.json") as tmp:
+                    tmp.write_text(json.dumps(measures, indent=2, sort_keys=True) + "\n")
+                files["measures"] = Path(out_dir) / "measures.json"
+        else:
             measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}
-            with atomic_file(stage / "measures.json") as tmp:
-                tmp.write_text(json.dumps(measures, indent=2, sort_keys=True) + "\n")
-            files["measures"] = Path(out_dir) / "measures.json"
-    else:
-        measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}
-    bar("written")
-    return ScanRun(results[0] if len(results) == 1 else results, measures, files)
+        bar("written")
+        return ScanRun(results[0] if len(results) == 1 else results, measures, files)
+    finally:  # the measuring child ends with the run, however it ends
+        if geo_job is not None:
+            geo_job.close()
 
 
 def prepare_scan(cfg: SceneConfig) -> tuple[list, object, object]:

@@ -321,25 +321,11 @@ class RecordWriter:
             np.divide(t, h.scales[c], out=t)
             np.round(t, out=t)
             arr[name] = t
-        arr["classification"] = LAS_CLASS_LUT[cols["cls"]]
         arr["scan_angle"] = cols["angle"]
         arr["point_source_id"] = leg
-        arr["gps_time"] = cols["gps"]
-        arr["range_m"] = cols["range"]
-        arr["scan_position"] = cols["i"]
-        arr["scan_angle_index"] = cols["k"]
-        arr["branch_id"] = cols["elem"]
-        if with_tree:
-            arr["tree_id"] = cols["tree"]
         rec = self.packed(arr, h.point_format)
+        _fill_fields(arr, rec, cols, with_tree=with_tree, with_echoes=with_echoes)
         if with_echoes:
-            if max(cols["ret"].max(), cols["nret"].max()) > 15:
-                raise ValueError("LAS point format 6 holds at most 15 returns per pulse; "
-                                 f"this scan has {int(cols['nret'].max())}")
-            rec["return_number"] = cols["ret"]  # bit fields: laspy's own setter
-            rec["number_of_returns"] = cols["nret"]
-            arr["intensity"] = cols["intensity"]
-            arr["echo_width_ns"] = cols["width"]
             self.returns += np.bincount(cols["ret"], minlength=16).astype(np.uint64)
         self.gps = [min(self.gps[0], cols["gps"].min()), max(self.gps[1], cols["gps"].max())]
         self.writer.point_writer.write_points(rec)  # laspy 2.x: what write_points does after grow
@@ -410,9 +396,16 @@ def las_record(header: laspy.LasHeader, cols: dict, *, with_tree: bool, with_ech
         if len(v) and (v.max() > _INT32.max or v.min() < _INT32.min):
             raise OverflowError(f"{name.lower()} does not fit LAS int32 after offset and scale")
         arr[name] = v
-    arr["classification"] = LAS_CLASS_LUT[cols["cls"]]
     arr["scan_angle"] = np.round(cols["theta"] / 0.006).astype(np.int16)
     arr["point_source_id"] = cols["source"]
+    _fill_fields(arr, rec, cols, with_tree=with_tree, with_echoes=with_echoes)
+    return rec
+
+
+def _fill_fields(arr: np.ndarray, rec, cols: dict, *, with_tree: bool, with_echoes: bool) -> None:
+    """The fields both writers fill alike from ``cols`` (all but X/Y/Z, scan angle and source):
+    into the record's array ``arr``, the return bit fields through ``rec`` (laspy's setter)."""
+    arr["classification"] = LAS_CLASS_LUT[cols["cls"]]
     arr["gps_time"] = cols["gps"]
     arr["range_m"] = cols["range"]
     arr["scan_position"] = cols["i"]
@@ -421,14 +414,13 @@ def las_record(header: laspy.LasHeader, cols: dict, *, with_tree: bool, with_ech
     if with_tree:
         arr["tree_id"] = cols["tree"]
     if with_echoes:
-        if len(pts) and max(cols["ret"].max(), cols["nret"].max()) > 15:
+        if len(arr) and max(cols["ret"].max(), cols["nret"].max()) > 15:
             raise ValueError("LAS point format 6 holds at most 15 returns per pulse; "
                              f"this scan has {int(cols['nret'].max())}")
         rec["return_number"] = cols["ret"]  # bit fields: laspy's own setter
         rec["number_of_returns"] = cols["nret"]
         arr["intensity"] = cols["intensity"]
         arr["echo_width_ns"] = cols["width"]
-    return rec
 
 
 def _echo_points(res: ScanResult, leg: int, times_s: np.ndarray) -> dict:

@@ -71,18 +71,16 @@ def load_dict(d, *a, **k):
         if isinstance(d, dict) and d.get("type") == "scene":
             span("build: Embree, load_dict(scene)", t0, time.time())
 mi.load_dict = load_dict
-wrap(survey, "load_scene", "scene file")
-wrap(survey, "generate", "generate (L-systems)")
-wrap(build_mod, "exposed_ends", "build: mesh arrays (exposed_ends, prism_arrays)")
-wrap(build_mod, "prism_arrays", "build: mesh arrays (exposed_ends, prism_arrays)")
-wrap(build_mod, "_mi_mesh", "build: Mitsuba meshes (_mi_mesh)")
-wrap(survey, "build", "build stage")
-wrap(scan_mod, "scan", "scan (trace)")
-wrap(survey, "scan_measures", "measures (A_IM, A_IM_yz, swept share, wood)")
-wrap(exr, "write_scan_exr", "write: EXR")
-wrap(las, "write_scan_las", "write: LAS")
-wrap(plots, "plot_scan_png", "write: PNG (range image)")
-wrap(atomic, "_commit", "folder commit (renames)")
+MESH = "build: mesh arrays (exposed_ends, prism_arrays)"
+for mod, name, label in [
+        (survey, "load_scene", "scene file"), (survey, "generate", "generate (L-systems)"),
+        (build_mod, "exposed_ends", MESH), (build_mod, "prism_arrays", MESH),
+        (build_mod, "_mi_mesh", "build: Mitsuba meshes (_mi_mesh)"), (survey, "build", "build stage"),
+        (scan_mod, "scan", "scan (trace)"),
+        (survey, "scan_measures", "measures (A_IM, A_IM_yz, swept share, wood)"),
+        (exr, "write_scan_exr", "write: EXR"), (las, "write_scan_las", "write: LAS"),
+        (plots, "plot_scan_png", "write: PNG (range image)"), (atomic, "_commit", "folder commit (renames)")]:
+    wrap(mod, name, label)
 t0 = time.time()
 rc = cli.main(["scan", sys.argv[2], "--out", sys.argv[3]])
 T["main"] = (t0, time.time())

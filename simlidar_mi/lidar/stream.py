@@ -23,6 +23,7 @@ Scans with a ``[sensor]`` stream the same way (:mod:`simlidar_mi.lidar.stream_se
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import time
 from dataclasses import dataclass, field
@@ -226,6 +227,18 @@ class StreamedScan:
             self._area_yz.add(np.where(np.isnan(term), 0.0, term))  # np.nansum's zeros
 
 
+@contextlib.contextmanager
+def closed_after(*things):
+    """Close each of ``things`` that is not None (a point spill, a progress bar) when the block
+    ends, however it ends: both streams' cleanup."""
+    try:
+        yield
+    finally:
+        for thing in things:
+            if thing is not None:
+                thing.close()
+
+
 def feed_block(block: dict, a: int, b: int, reducer, spill, summary: StreamedScan, pattern, leg: int,
                first_row: int) -> None:
     """Hand rows a … b − 1 of a leg to the PNG reduction, the LAS point spill (None: no LAS) and
@@ -278,7 +291,7 @@ def stream_scan(built, patterns: list, stage: Path, *, variant: str | None, chun
     bar = None
     if progress is not None:
         bar = progress.stage("trace + write", sum(n_blocks), "chunk")
-    try:
+    with closed_after(spill, bar):
         for j, tr in enumerate(tracers):
             p = tr.pattern
             n, m = p.n_rows, p.n_cols
@@ -306,9 +319,4 @@ def stream_scan(built, patterns: list, stage: Path, *, variant: str | None, chun
         if spill is not None:
             spill.write(stage / "points.las", [t.pattern for t in tracers], crs=crs,
                         with_tree=any(s.tree_id is not None for s in out))
-    finally:
-        if spill is not None:
-            spill.close()
-        if bar is not None:
-            bar.close()
     return out, trace_s

@@ -34,7 +34,7 @@ import numpy as np
 from ..geometry import CLASS_CODES
 from .las_spill import PointSpill
 from .scan import physical_tracer
-from .stream import StreamedScan, feed_block, finish_leg
+from .stream import StreamedScan, closed_after, feed_block, finish_leg
 from .waveform import Echoes, echo_statistics
 
 _ECHO_FIELDS = ("beam", "return_number", "number_of_returns", "range_m", "energy", "width_ns", "cls",
@@ -148,7 +148,7 @@ def stream_physical_scan(built, patterns: list, stage: Path, *, model, variant: 
     spill = PointSpill(stage, model.intensity) if las else None
     bar = progress.stage("trace + write", sum(t.n_chunks for t in tracers), "chunk") if progress is not None else None
     out, trace_s, first_row = [], 0.0, 0
-    try:
+    with closed_after(spill, bar):
         for j, tr in enumerate(tracers):
             p = tr.pattern
             n, m = p.n_rows, p.n_cols
@@ -187,11 +187,6 @@ def stream_physical_scan(built, patterns: list, stage: Path, *, model, variant: 
         if spill is not None:
             spill.write(stage / "points.las", [t.pattern for t in tracers], crs=crs, sensor=sensor,
                         with_tree=any(s.tree_id is not None for s in out), with_echoes=tracers[0].energy)
-    finally:
-        if spill is not None:
-            spill.close()
-        if bar is not None:
-            bar.close()
     return out, trace_s
 
 

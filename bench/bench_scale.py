@@ -336,13 +336,16 @@ def main() -> None:
     if "b" in only:
         rays = in_process(RAYS, T3, str(args.repeat))
         big = in_process(RAYS, T3, str(args.repeat), "scan.dtheta_deg=0.0625")
-        for r, label in ((rays, "2.52 M"), (big, f"{big['beams'] / 1e6:.1f} M")):
+        small = in_process(RAYS, T3, str(args.repeat), "scan.dtheta_deg=0.625")  # the target's 1 M
+        for r, label in ((small, f"{small['beams'] / 1e6:.2f} M"), (rays, "2.52 M"),
+                         (big, f"{big['beams'] / 1e6:.1f} M")):
             bps = r["beams"] / r["scan_s"]
             rows.append((f"(b) scan-only throughput at {label} beams (7×4 orchard, warm)", "≥ 30 M beams/s",
                          "–", f"{bps / 1e6:.1f} M beams/s ({r['scan_s']:.3f} s)", "–",
                          f"raw ray_intersect_preliminary {r['beams'] / r['raw_s'] / 1e6:.1f} M rays/s "
                          f"({r['raw_s']:.3f} s)",
-                         f"{r['scan_s'] / r['raw_s']:.2f}× raw", "met" if bps >= 30e6 else "missed"))
+                         f"{r['scan_s'] / r['raw_s']:.2f}× raw", "met" if bps >= 30e6 else
+                         "missed (so is the raw ray cast)" if r["beams"] / r["raw_s"] < 30e6 else "missed"))
         if args.with_50m:
             r = timed_cli(REPO, ["scan", T3, "--out", str(work / "b50"), "--set", "scan.dtheta_deg=0.0125"], REPO)
             nbytes, nfiles = dir_bytes(work / "b50"), dir_files(work / "b50")

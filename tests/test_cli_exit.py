@@ -55,13 +55,21 @@ def test_main_with_argv_returns(capsys):
 
 
 def test_other_threads_finish_first(tmp_path):
-    code = ("import threading, time\n"
-            "threading.Thread(target=lambda: (time.sleep(0.3), print('thread done', flush=True))).start()\n"
+    """A non-daemon thread still running when the command ends is waited for before the exit
+    handlers run. The thread is released only once the command has finished (from inside
+    ``_exit_now``), so the order is forced by an event, not by a sleep."""
+    code = ("import threading\n"
+            "import simlidar_mi.cli as cli\n"
+            "done = threading.Event()\n"
+            "threading.Thread(target=lambda: (done.wait(), print('thread done', flush=True))).start()\n"
+            "_exit_now = cli._exit_now\n"
+            "cli._exit_now = lambda rc: (done.set(), _exit_now(rc))\n"
             + AFTER_MAIN)
     proc = subprocess.run([sys.executable, "-c", code, "sensors"], capture_output=True, text=True,
                           cwd=tmp_path, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.splitlines()[-2:] == ["thread done", "atexit ran"]
+    assert "recalled, not checked" in proc.stdout  # the command's own output came first
 
 
 def test_the_command_runs_with_one_openblas_thread_unless_the_user_chose():

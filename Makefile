@@ -26,19 +26,21 @@ llvm:
 	  echo "WARNING: no libLLVM >= 17; install it with: sudo apt-get install -y libllvm19"; \
 	fi
 
-# The interop tests' C readers (tests/test_interop_grid.py): cfchecker needs the udunits2 library,
-# the classic-format check runs netCDF's nccopy. apt-get runs only when one is missing, and only as
-# root; otherwise those checks skip with a message saying what to install.
+# The interop tests' C readers (tests/test_interop_grid.py): cfchecker needs the udunits2 library
+# (looked up as cfunits looks it up), the classic-format check runs netCDF's nccopy. apt-get runs
+# only when one is missing, and only as root; without them the CF checks skip saying what to
+# install and the nccopy conversions are left out (the netCDF4 classic copy still runs).
 TEST_APT := libudunits2-0 netcdf-bin
 test-tools:
-	@if { ldconfig -p 2>/dev/null | grep -q libudunits2; } && command -v nccopy >/dev/null; then :; \
+	@if $(PY) -c "import ctypes.util as u, sys; sys.exit(u.find_library('udunits2') is None)" && \
+	   command -v nccopy >/dev/null; then :; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 	  echo "installing $(TEST_APT) with apt-get (the interop tests' readers)"; \
 	  { apt-get install -y --no-install-recommends $(TEST_APT) || \
 	    { apt-get update && apt-get install -y --no-install-recommends $(TEST_APT); }; } >/dev/null || \
 	  { echo "apt-get could not install $(TEST_APT) (dpkg locked or offline?); install them and rerun"; exit 1; }; \
 	else \
-	  echo "WARNING: the CF and netCDF classic checks need: sudo apt-get install -y $(TEST_APT) (they skip without)"; \
+	  echo "WARNING: the CF and netCDF classic checks need: sudo apt-get install -y $(TEST_APT)"; \
 	fi
 
 # The install shows pip's own progress on a terminal and one line per stage when piped.

@@ -235,3 +235,22 @@ def test_scan_exr_channels_read_by_openexr_and_openimageio(tmp_path):
     stats = oiio.ImageBufAlgo.computePixelStats(buf)
     assert stats.max[names.index("class_half")] == 2.0
     assert stats.max[names.index("class")] == pytest.approx(2 / (2**32 - 1))  # uint32 normalised
+
+
+def test_estimate_files_are_read_by_dimension_name_in_any_order(tmp_path):
+    """The command plug-in contract: a PAD_m2_m3 on dimensions named x, y, z, in the CF order
+    (z, y, x) as we write it or in any other, gives the same [i, j, k] array."""
+    import xarray as xr
+
+    from simlidar_mi.truth.grid import read_grid
+    from simlidar_mi.truth.scoring import check_estimate
+    grid = VoxelGrid((1.0, -2.0, 0.0), 0.5, (2, 3, 4))
+    pad = np.arange(24, dtype=np.float64).reshape(grid.shape)  # pad[i, j, k]
+    coords = {a: grid.centres(i) for i, a in enumerate("xyz")}
+    for dims, arr in ((("z", "y", "x"), pad.transpose(2, 1, 0)), (("x", "y", "z"), pad),
+                      (("y", "z", "x"), pad.transpose(1, 2, 0))):
+        path = tmp_path / f"{''.join(dims)}.nc"
+        xr.Dataset({"PAD_m2_m3": (dims, arr)}, coords=coords).to_netcdf(path)
+        got_grid, ds = read_grid(path, "PAD_m2_m3")
+        assert got_grid == grid and ds["PAD_m2_m3"].dims == ("z", "y", "x")
+        np.testing.assert_array_equal(check_estimate(ds, grid, str(path))["PAD_m2_m3"], pad)

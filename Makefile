@@ -6,7 +6,7 @@ STAMP   := $(VENV)/.installed
 SCENE   ?= scenes/apple_orchard.toml
 OUT     ?= out
 
-.PHONY: demo test bench llvm bytecode clean
+.PHONY: demo test bench llvm test-tools bytecode clean
 
 # Dr.Jit needs libLLVM >= 17; Debian 12 ships libllvm19. The package's own finder
 # (simlidar_mi/_llvm.py, standard library only, so it runs before the venv exists)
@@ -24,6 +24,23 @@ llvm:
 	  { echo "apt-get could not install libllvm19 (dpkg locked or offline?); install it and rerun"; exit 1; }; \
 	else \
 	  echo "WARNING: no libLLVM >= 17; install it with: sudo apt-get install -y libllvm19"; \
+	fi
+
+# The interop tests' C readers (tests/test_interop_grid.py): cfchecker needs the udunits2 library
+# (looked up as cfunits looks it up), the classic-format check runs netCDF's nccopy. apt-get runs
+# only when one is missing, and only as root; without them the CF checks skip saying what to
+# install and the nccopy conversions are left out (the netCDF4 classic copy still runs).
+TEST_APT := libudunits2-0 netcdf-bin
+test-tools:
+	@if $(PY) -c "import ctypes.util as u, sys; sys.exit(u.find_library('udunits2') is None)" && \
+	   command -v nccopy >/dev/null; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "installing $(TEST_APT) with apt-get (the interop tests' readers)"; \
+	  { apt-get install -y --no-install-recommends $(TEST_APT) || \
+	    { apt-get update && apt-get install -y --no-install-recommends $(TEST_APT); }; } >/dev/null || \
+	  { echo "apt-get could not install $(TEST_APT) (dpkg locked or offline?); install them and rerun"; exit 1; }; \
+	else \
+	  echo "WARNING: the CF and netCDF classic checks need: sudo apt-get install -y $(TEST_APT)"; \
 	fi
 
 # The install shows pip's own progress on a terminal and one line per stage when piped.
@@ -49,7 +66,7 @@ demo: llvm $(STAMP) bytecode
 	$(VENV)/bin/simlidar-mi compare scenes/strawberry_manifest.csv --out $(OUT)/compare
 	@echo "outputs in $(OUT)/"
 
-test: llvm $(STAMP) bytecode
+test: llvm test-tools $(STAMP) bytecode
 	$(VPY) -m pytest -q
 
 bench: llvm $(STAMP) bytecode

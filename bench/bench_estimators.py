@@ -64,6 +64,7 @@ def leaf_box(quick: bool) -> list[dict]:
     from simlidar_mi.geometry import Branches
     from simlidar_mi.lidar.survey import SceneGeometry
     from simlidar_mi.truth.compute import compute_truth
+    from simlidar_mi.truth.grid import grid_values
     rows = []
     steps = [(0.02, 0.4), (0.01, 0.2)] if quick else [(0.02, 0.4), (0.01, 0.2), (0.005, 0.1)]
     for dy, dth in steps:
@@ -72,7 +73,7 @@ def leaf_box(quick: bool) -> list[dict]:
             beams, grid, _, canopy = leaf_box_scan(dy_m=dy, dtheta_deg=dth, voxel_m=voxel)
             scan_s = time.perf_counter() - t
             truth = compute_truth(SceneGeometry(Branches.empty(), canopy.leaves, []), grid, progress=False)
-            pad_t = truth["PAD_m2_m3"].values
+            pad_t = grid_values(truth, "PAD_m2_m3")  # [i, j, k], as the estimates
             t = time.perf_counter()
             c = traverse(grid, beams)
             walk_s = time.perf_counter() - t

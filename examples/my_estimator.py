@@ -3,14 +3,16 @@
 A callable plug-in (``--estimator examples/my_estimator.py:contact_frequency``) is a
 function ``f(scan_dir, grid)``: ``scan_dir`` holds the scan's ``scan.exr``,
 ``points.las`` and ``measures.json``; ``grid`` is the
-:class:`simlidar_mi.truth.grid.VoxelGrid` the truth is on (``origin_m``, ``voxel_m``,
-``shape``, ``centres(axis)``). It returns an xarray Dataset or a dict of arrays of
-``grid.shape`` holding ``PAD_m2_m3`` (or ``LAD_m2_m3``), NaN where it makes no estimate.
+:class:`simlidar_mi.truth.grid.VoxelGrid` the truth is on (``corner_m``, ``voxel_m``,
+``shape``, ``centres(axis)``). It returns a dict of arrays of ``grid.shape`` (indexed
+[i, j, k] along x, y, z) or an xarray Dataset with dimensions named x, y, z, holding
+``PAD_m2_m3`` (or ``LAD_m2_m3``), NaN where it makes no estimate.
 
 A command plug-in (``--estimator-cmd "python examples/my_estimator.py {las} {grid} {out}"``)
 reads the files and writes a NetCDF grid with x, y, z voxel-centre coordinates (as
-``{grid}`` has them) and a ``PAD_m2_m3`` variable on (x, y, z). Running this file as a
-script does that with :func:`point_density_pad`.
+``{grid}`` has them) and a ``PAD_m2_m3`` variable on named dimensions; like our files, this
+one stores it on (z, y, x), the CF order. Running this file as a script does that with
+:func:`point_density_pad`.
 """
 from __future__ import annotations
 
@@ -33,7 +35,8 @@ def contact_frequency(scan_dir, grid):
 def point_density_pad(points_m: np.ndarray, centres: list[np.ndarray], voxel_m: float,
                       m2_per_point: float = 0.002) -> np.ndarray:
     """A deliberately naive estimator from the points alone: PAD = points per voxel ×
-    an assumed area per point / voxel volume. Only the LAS is needed."""
+    an assumed area per point / voxel volume, indexed [i, j, k] along x, y, z. Only the
+    LAS is needed."""
     edges = [np.append(c - voxel_m / 2, c[-1] + voxel_m / 2) for c in centres]
     count, _ = np.histogramdd(points_m, bins=edges)
     return count * m2_per_point / voxel_m ** 3
@@ -50,8 +53,8 @@ def main(las_path: str, grid_path: str, out_path: str) -> None:
     centres = [grid[a].values for a in "xyz"]
     voxel = float(grid.attrs["voxel_m"])
     pad = point_density_pad(pts, centres, voxel)
-    xr.Dataset({"PAD_m2_m3": (("x", "y", "z"), pad)}, coords={a: grid[a] for a in "xyz"},
-               attrs={"voxel_m": voxel}).to_netcdf(out_path)
+    xr.Dataset({"PAD_m2_m3": (("z", "y", "x"), pad.transpose(2, 1, 0), {"units": "m2 m-3"})},
+               coords={a: grid[a] for a in "xyz"}, attrs={"voxel_m": voxel}).to_netcdf(out_path)
 
 
 if __name__ == "__main__":

@@ -61,8 +61,11 @@ def test_exr_has_every_echo_layer_and_the_sensor(tmp_path):
     path = write_scan_exr(res, tmp_path / "e.exr", seed=3)
     ch, header = read_exr(path)
     base = {"range", "class", "branch_id", "tree_id"}  # angle and row coordinate: header arrays
-    layers = {f"echo{r}.{c}" for r in (2, 3) for c in ("range", "class", "branch_id", "intensity", "tree_id")}
-    assert set(ch) == base | {"n_returns", "intensity"} | layers
+    layers = {f"echo{r}.{c}" for r in (2, 3)
+              for c in ("range", "class", "class_half", "branch_id", "intensity", "tree_id")}
+    assert set(ch) == base | {"class_half", "n_returns", "intensity"} | layers
+    for c in ("class", "echo2.class", "echo3.class"):  # the half copies image tools read: same codes
+        assert ch[f"{c}_half"].dtype == np.float16 and np.array_equal(ch[f"{c}_half"], ch[c]), c
     beam = np.arange(n * m).reshape(n, m)
     np.testing.assert_array_equal(ch["n_returns"], beam % 4)
     assert ch["n_returns"].dtype == np.uint32
@@ -169,10 +172,11 @@ def test_exr_without_echoes_keeps_main_values(tmp_path, calibration_scan):
     old = _main_write_scan_exr(calibration_scan, tmp_path / "old.exr", seed=1, scene_sha256="x", extra={"a": 1})
     ch_new, h_new = read_scan_exr(new, broadcast=True)
     ch_old, h_old = read_scan_exr(old, broadcast=True)
-    assert set(ch_new) == set(ch_old) == {"range", "class", "branch_id", "theta_deg", "y_m"}
+    assert set(ch_new) - {"class_half"} == set(ch_old) == {"range", "class", "branch_id", "theta_deg", "y_m"}
     for k in ch_old:
         assert ch_new[k].dtype == ch_old[k].dtype and np.array_equal(ch_new[k], ch_old[k]), k
-    assert set(read_exr(new)[0]) == {"range", "class", "branch_id"}
+    assert set(read_exr(new)[0]) == {"range", "class", "class_half", "branch_id"}
+    assert np.array_equal(ch_new["class_half"], ch_old["class"])  # the half copy for image tools
     s = calibration_scan.settings
     assert np.array_equal(h_new["theta_deg"], s.theta_deg) and np.array_equal(h_new["y_m"], s.y_m)
     for k, v in h_old.items():

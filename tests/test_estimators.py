@@ -31,7 +31,7 @@ def _brute(grid, o, d, t_end):
     out = {}
     for a, b in zip(ts[:-1], ts[1:]):
         if b > a:
-            ijk = np.floor((o + 0.5 * (a + b) * d - np.asarray(grid.origin_m)) / grid.voxel_m).astype(int)
+            ijk = np.floor((o + 0.5 * (a + b) * d - np.asarray(grid.corner_m)) / grid.voxel_m).astype(int)
             if np.all((ijk >= 0) & (ijk < grid.shape)):
                 f = int(np.ravel_multi_index(tuple(ijk), grid.shape))
                 out[f] = out.get(f, 0.0) + (b - a)
@@ -301,7 +301,8 @@ def test_evaluate_command_end_to_end(tmp_path):
     assert env["row_spacing_m"] == 4.0 and env["truth"]["TRV_m3_ha"] > 0 and env["points"]["LWA_m2_ha"] > 0
     grid, truth = read_grid(out / "truth.nc", "PAD_m2_m3")
     _, est = read_grid(out / "estimates" / "beer_lambert.nc", "PAD_m2_m3")
-    assert est["PAD_m2_m3"].shape == truth["PAD_m2_m3"].shape == grid.shape
+    assert est["PAD_m2_m3"].dims == truth["PAD_m2_m3"].dims == ("z", "y", "x")  # CF order, as on file
+    assert est["PAD_m2_m3"].shape == truth["PAD_m2_m3"].shape == grid.shape[::-1]
     for name in ("scores.csv", "profiles.csv", "profiles.png", "scatter.png", "grid.nc", "scan/scan.exr",
                  "scan/points.las"):
         assert (out / name).is_file(), name

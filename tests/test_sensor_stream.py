@@ -97,7 +97,7 @@ def test_first_return_sensor_streamed(tmp_path):
     _, _, measures = _same_as_held(runs)
     assert "echoes" not in measures and measures["sub_rays_per_beam"] > 1
     ch, _ = read_exr(list(runs.values())[1][0].files["exr"])
-    assert set(ch) == {"range", "class", "branch_id"}
+    assert set(ch) == {"range", "class", "class_half", "branch_id"}
 
 
 @pytest.mark.parametrize("n", [0, 1, 7, 8, 9, 127, 128, 129, 1000, 4099, 65_537, 300_001])

@@ -35,7 +35,7 @@ def test_chunk_size_does_not_change_exr_png_or_points(tmp_path):
         run, out, _ = _run(tmp_path, chunk)
         assert isinstance(run.result, StreamedScan) and run.result.shape == (n, m)
         ch, h = read_exr(out / "scan.exr")
-        assert set(ch) == set(ch_w) == {"range", "class", "branch_id"}
+        assert set(ch) == set(ch_w) == {"range", "class", "class_half", "branch_id"}
         for k in ch:
             assert np.array_equal(ch[k], ch_w[k]), (chunk, k)
         assert (out / "scan.png").read_bytes() == (out_w / "scan.png").read_bytes()

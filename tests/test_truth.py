@@ -9,7 +9,7 @@ from simlidar_mi.errors import ConfigError
 from simlidar_mi.geometry import Branches, Leaves, Primitive
 from simlidar_mi.lidar.survey import SceneGeometry
 from simlidar_mi.truth.compute import compute_truth, default_grid
-from simlidar_mi.truth.grid import VoxelGrid, read_grid, write_grid
+from simlidar_mi.truth.grid import VoxelGrid, grid_values, read_grid, write_grid
 from simlidar_mi.truth.row_metrics import canopy_profiles, lwa_m2_ha, trv_m3_ha
 from simlidar_mi.truth.voxelize import Accumulator, clip_triangles, voxelize_cylinders, voxelize_discs
 
@@ -38,7 +38,7 @@ def test_square_leaf_across_voxel_boundaries_gives_exact_overlaps():
     ds = compute_truth(_geom(leaves=_leaves(tri)), grid, progress=False)
     ox = np.array([0.05, 0.10, 0.05])
     oy = np.array([0.05, 0.07])
-    np.testing.assert_allclose(ds["leaf_area_m2"].values[:, :, 0], np.outer(ox, oy), rtol=1e-12, atol=1e-16)
+    np.testing.assert_allclose(grid_values(ds, "leaf_area_m2")[:, :, 0], np.outer(ox, oy), rtol=1e-12, atol=1e-16)
     assert ds.attrs["total_leaf_area_m2"] == pytest.approx(0.2 * 0.12, rel=1e-14)
     np.testing.assert_allclose(ds["LAD_m2_m3"].values, ds["leaf_area_m2"].values / 1e-3)
     assert ds.attrs["leaf_area_outside_m2"] == 0.0
@@ -214,7 +214,7 @@ def test_netcdf_round_trip_and_determinism(tmp_path):
     write_grid(d1, tmp_path / "t.nc")
     grid2, back = read_grid(tmp_path / "t.nc", "PAD_m2_m3")
     assert grid2.shape == grid.shape and grid2.voxel_m == grid.voxel_m
-    np.testing.assert_allclose(grid2.origin_m, grid.origin_m, atol=1e-12)
+    np.testing.assert_allclose(grid2.corner_m, grid.corner_m, atol=1e-12)
     np.testing.assert_array_equal(back["leaf_area_m2"].values, d1["leaf_area_m2"].values)
     assert back.attrs["total_leaf_area_m2"] == d1.attrs["total_leaf_area_m2"]
     assert back["leaf_area_m2"].attrs["units"] == "m2"

@@ -4,7 +4,10 @@ Channels (all N × M, row = position y_i, column = angle θ_k):
 ``range`` float32 metres, ``class`` uint32 (0 escape, 1 ground, 2 wood, 3 leaf),
 ``branch_id`` uint32 (element id, 0xFFFFFFFF for none), ``theta_deg`` float32,
 ``y_m`` float32 (y − origin_y, exact in float32 near the origin), and
-``hit_fraction`` float32 when a footprint was simulated.  Header attributes hold
+``hit_fraction`` float32 when a footprint was simulated, and ``class_half``: the class
+again as half floats (0.0 … 3.0).  Image tools (OpenImageIO and so ``oiiotool``, GIMP,
+a TIFF conversion) scale unsigned-integer channels to 0 … 1, so they show ``class`` as
+0 … 7e-10; ``class_half`` is what they display.  Header attributes hold
 every scan setting, the footprint's ``hit_rule``, the seed, the scene file's SHA-256
 and the float64 origin.
 
@@ -13,7 +16,8 @@ adds ``n_returns`` (uint32), ``intensity`` (float32 echo energy E, when the sens
 intensity is on) and, for each return r = 2 … max_returns, the layer ``echo{r}.range``
 (float32, escape distance where the beam has fewer echoes), ``echo{r}.class``,
 ``echo{r}.branch_id`` (uint32, 0 / 0xFFFFFFFF where absent), ``echo{r}.intensity``
-(with intensity on) and ``echo{r}.tree_id`` (scenes of several plants).  The header
+(with intensity on), ``echo{r}.tree_id`` (scenes of several plants) and
+``echo{r}.class_half``.  The header
 attribute ``simlidar_sensor`` holds the resolved sensor as JSON.  Without echoes
 nothing changes, byte for byte.
 """
@@ -54,6 +58,16 @@ def header_value(value):
     return str(value)
 
 
+#: Suffix of the half-float copy of each class channel (module docstring); the writer fills
+#: ``X_half`` from the rows' ``X``.
+HALF = "_half"
+
+
+def with_half_copies(dtypes: dict) -> dict:
+    """``dtypes`` plus a float16 ``X_half`` for each class channel ``X`` (``class``, ``echo{r}.class``)."""
+    return {**dtypes, **{f"{k}{HALF}": np.float16 for k in dtypes if k == "class" or k.endswith(".class")}}
+
+
 #: Header attributes holding the broadcast constants (float64 JSON lists, exact) that
 #: were N × M float32 channels before issue #8: tractor θ per column and y per row (real
 #: y, not y − origin), other platforms' column angle and row coordinate.
@@ -90,7 +104,7 @@ def scan_exr_layout(result, *, seed: int | None = None, scene_sha256: str = "",
         header["seed"] = header_value(seed)
     for key, value in (extra or {}).items():
         header[key] = header_value(value)
-    return header, dtypes
+    return header, with_half_copies(dtypes)
 
 
 def result_rows(result, a: int, b: int) -> dict[str, np.ndarray]:
@@ -113,7 +127,7 @@ def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = N
     if getattr(result, "echoes", None) is not None:
         full: dict = {}
         _echo_channels(result, full, header)
-        dtypes.update({k: v.dtype.type for k, v in full.items()})
+        dtypes = with_half_copies({**dtypes, **{k: v.dtype.type for k, v in full.items()}})
         rows.update(full)
     with atomic_file(path) as tmp, ScanlineExrWriter(tmp, header, dtypes, n, m, threads=threads) as w:
         w.write_rows(rows)
@@ -145,6 +159,9 @@ class ScanlineExrWriter:
     def __init__(self, path, header: dict, dtypes: dict, n_rows: int, n_cols: int, level: int = 4,
                  threads: int = 2):
         self.names = sorted(dtypes, key=lambda k: k.encode())
+        # rows give X for a half copy X_half (with_half_copies); other names are their own
+        self.source = {k: k[:-len(HALF)] if k.endswith(HALF) and k[:-len(HALF)] in dtypes else k
+                       for k in self.names}
         self.dtypes = {k: np.dtype(dtypes[k]).newbyteorder("<") for k in self.names}
         self.n, self.m, self.level = int(n_rows), int(n_cols), level
         # byte columns of each channel within one scanline
@@ -177,16 +194,16 @@ class ScanlineExrWriter:
             self.f.close()
 
     def write_rows(self, rows: dict[str, np.ndarray]) -> None:
-        """Append rows (every channel of the header, each (r, M) any castable dtype).
+        """Append rows (every channel of the header but half copies, each (r, M) any castable dtype).
 
         Whole blocks are written before this returns; the few rows left over are copied,
         so the caller may reuse its arrays."""
-        r = len(rows[self.names[0]])
+        r = len(rows[self.source[self.names[0]]])
         self.buffered += r
         whole = self.buffered // self.LINES * self.LINES
         flush = whole or self.row + self.buffered == self.n
         for k in self.names:  # held until a block fills: copied, fewer than 16 lines
-            x = np.asarray(rows[k]).reshape(r, self.m)
+            x = np.asarray(rows[self.source[k]]).reshape(r, self.m)
             self.pending[k].append(x if flush else np.array(x, self.dtypes[k]))
         if flush:
             self._flush(whole if self.row + self.buffered < self.n else self.buffered)

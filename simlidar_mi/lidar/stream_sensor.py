@@ -139,7 +139,7 @@ def stream_physical_scan(built, patterns: list, stage: Path, *, model, variant: 
     PNGs (``png_titles``) and one points.las (``las``) into ``stage`` (module docstring), as
     :func:`~simlidar_mi.lidar.stream.stream_scan` does for first-return scans.  Returns the
     scans' summaries and the seconds spent tracing and detecting echoes."""
-    from ..io.exr import ScanlineExrWriter, _plain, scan_exr_layout  # noqa: PLC0415
+    from ..io.exr import ScanlineExrWriter, _plain, scan_exr_layout, with_half_copies  # noqa: PLC0415
     from ..io.plots import RangeImageReducer  # noqa: PLC0415
     tracers = [physical_tracer(built, p, model, seed=seed, leg=j, variant=variant, chunk_beams=chunk_beams)
                for j, p in enumerate(patterns)]
@@ -167,7 +167,8 @@ def stream_physical_scan(built, patterns: list, stage: Path, *, model, variant: 
                     summary.tree_id = True if block["tree"] is not None else None
                     hdr, dtypes = scan_exr_layout(summary, **exr_kwargs)
                     if tr.energy:
-                        dtypes.update(_echo_dtypes(max_returns, model.intensity, echoes.tree_id is not None))
+                        dtypes = with_half_copies({**dtypes, **_echo_dtypes(max_returns, model.intensity,
+                                                                            echoes.tree_id is not None)})
                         hdr["simlidar_sensor"] = json.dumps(sensor, sort_keys=True, default=_plain)
                     exr = ScanlineExrWriter(stage / f"{stem}.exr", hdr, dtypes, n, m)
                 exr.write_rows(_exr_rows(block, b - a, m, max_returns, p.escape_m))

@@ -58,7 +58,7 @@ def default_grid(geometry, voxel_m: float = 0.1, margin_m: float = 0.0,
     # exactly on the grid's top plane (a box's face), one more layer keeps it inside.
     top = (hi + margin_m - grid.hi_m) / voxel_m > -1e-9
     if top.any():
-        grid = VoxelGrid(grid.origin_m, grid.voxel_m, tuple(np.asarray(grid.shape) + top))
+        grid = VoxelGrid(grid.corner_m, grid.voxel_m, tuple(np.asarray(grid.shape) + top))
     return grid
 
 
@@ -77,7 +77,7 @@ class Totals:
 
     def vox(self, p):
         g = self.grid
-        return (np.asarray(p, np.float64) - np.asarray(g.origin_m)) / g.voxel_m
+        return (np.asarray(p, np.float64) - np.asarray(g.corner_m)) / g.voxel_m
 
     def triangles(self, tri_m: np.ndarray, acc: Accumulator) -> None:
         if not len(tri_m):
@@ -208,7 +208,8 @@ def _instances(tot: Totals, inst, prog) -> None:
     tot.n["trees_expanded"] = len(inst)
 
 
-def compute_truth(geometry, grid: VoxelGrid, progress=True, ground_area_m2: float | None = None):
+def compute_truth(geometry, grid: VoxelGrid, progress=True, ground_area_m2: float | None = None, *,
+                  crs: str | None = None, ground_z_m: float = 0.0):
     """Exact per-voxel leaf area, wood area, wood volume, plant area, LAD and PAD.
 
     ``geometry`` is a :class:`simlidar_mi.lidar.survey.SceneGeometry`; ``grid`` a
@@ -216,7 +217,9 @@ def compute_truth(geometry, grid: VoxelGrid, progress=True, ground_area_m2: floa
     the voxels and from closed forms), what fell outside the grid, LAI over
     ``ground_area_m2`` (default: the grid's footprint) and the element counts; 1-D
     variables ``LAD_profile_m2_m3`` / ``PAD_profile_m2_m3`` (z) are leaf / plant area
-    per height bin divided by the footprint area and the voxel height."""
+    per height bin divided by the footprint area and the voxel height. ``crs`` (the scene's
+    ``[scene] crs``) and ``ground_z_m`` (its ground plane) describe the frame on file
+    (:func:`simlidar_mi.truth.grid.grid_dataset`)."""
     prog = make_progress(progress)
     tot = Totals(grid)
     if len(geometry.leaves):
@@ -232,10 +235,10 @@ def compute_truth(geometry, grid: VoxelGrid, progress=True, ground_area_m2: floa
         tot.primitive(prim, geometry.source, j)
     if geometry.instances is not None and len(geometry.instances):
         _instances(tot, geometry.instances, prog)
-    return _dataset(tot, grid, ground_area_m2)
+    return _dataset(tot, grid, ground_area_m2, crs, ground_z_m)
 
 
-def _dataset(tot: Totals, grid: VoxelGrid, ground_area_m2):
+def _dataset(tot: Totals, grid: VoxelGrid, ground_area_m2, crs=None, ground_z_m=0.0):
     arr = tot.arrays()
     vol = grid.voxel_volume_m3
     # no full-size temporaries: each derived array is the only allocation of its line
@@ -262,10 +265,10 @@ def _dataset(tot: Totals, grid: VoxelGrid, ground_area_m2):
         "wood_end_discs": "exposed ends only (scene.build.exposed_ends), as the scanned mesh caps them",
         **{f"n_{k}": int(v) for k, v in tot.n.items()},  # no timing: same scene → same bytes
     }
-    ds = grid_dataset(grid, arr, attrs)
+    ds = grid_dataset(grid, arr, attrs, crs=crs, ground_z_m=ground_z_m)
     dz = grid.voxel_m
     ds["LAD_profile_m2_m3"] = ("z", arr["leaf_area_m2"].sum(axis=(0, 1)) / (ground * dz),
-                               {"units": "m2 m-3", "long_name": "leaf area per height bin / (ground area × bin height)"})
+                               {"units": "m2 m-3", "long_name": "leaf area per height bin / (ground area * bin height)"})
     ds["PAD_profile_m2_m3"] = ("z", arr["plant_area_m2"].sum(axis=(0, 1)) / (ground * dz),
-                               {"units": "m2 m-3", "long_name": "plant area per height bin / (ground area × bin height)"})
+                               {"units": "m2 m-3", "long_name": "plant area per height bin / (ground area * bin height)"})
     return ds

@@ -82,6 +82,18 @@ BUILTIN = {
     "contact_mle_multi": "maximum likelihood with every echo (weighted beams)",
 }
 
+#: Units and long names of the arrays an estimate holds besides ``PAD_m2_m3`` (its NetCDF file).
+ESTIMATE_VARIABLES = {
+    "PAD_m2_m3": ("m2 m-3", "estimated plant area density"),
+    "n_in": ("1", "beams entering the voxel (weighted for multi-return beams)"),
+    "hits": ("1", "beams intercepted in the voxel (weighted for multi-return beams)"),
+    "path_m": ("m", "free path travelled in the voxel, summed over the beams"),
+    "mean_chord_m": ("m", "mean chord of the beams entering the voxel"),
+    "point_count": ("1", "vegetation returns in the voxel (weighted for multi-return beams)"),
+    "point_density_m3": ("m-3", "vegetation returns per voxel volume"),
+    "occupied": ("1", "1 where the voxel holds at least min_points returns, else 0"),
+}
+
 
 def _veg(c) -> np.ndarray:
     return (c == 2) | (c == 3)

@@ -31,8 +31,8 @@ import numpy as np
 from .._progress import make_progress
 from ..errors import ConfigError
 from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
-from .estimators import BUILTIN, G_SPHERICAL, MIN_BEAMS, estimate_all
-from .grid import VoxelGrid, grid_dataset, write_grid
+from .estimators import BUILTIN, ESTIMATE_VARIABLES, G_SPHERICAL, MIN_BEAMS, estimate_all
+from .grid import VoxelGrid, grid_dataset, grid_values, write_grid
 from .scoring import call_plugin, check_command, layer_profile, load_plugin, run_command, score
 
 __all__ = ["EvaluateRun", "evaluate", "evaluate_beams", "EVALUATE_OUTPUTS"]
@@ -68,11 +68,12 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
                    min_points: int = 1, saturated: str = "cap", min_beams: float = MIN_BEAMS,
                    row_spacing_m: float | None = None, row_axis: str = "y", canopy_base: str = "ground",
                    ground_z_m: float = 0.0, progress=None, title: str = "",
-                   extra: dict | None = None) -> EvaluateRun:
+                   extra: dict | None = None, crs: str | None = None) -> EvaluateRun:
     """Run the built-in estimators on ``first`` (and ``multi``) beams, the plug-ins
     (``plugins``: "module:function" specs or callables; ``commands``: command templates,
     which need ``scan_dir``), score all against ``truth`` (a Dataset on ``grid``) and,
-    with ``stage`` (a folder), write the files of the module docstring there."""
+    with ``stage`` (a folder), write the files of the module docstring there (``crs``, the
+    scene's, and ``ground_z_m`` describe their frame: :func:`~simlidar_mi.truth.grid.grid_dataset`)."""
     shown = make_progress(progress)
     walked = shown.stage("evaluate: beams through the grid", len(first) + (len(multi) if multi is not None else 0),
                          "beam")
@@ -81,8 +82,8 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
     walked.close()
     observed = estimates["beer_lambert"]["n_in"] > 0  # ≥ 1 first-return beam entered
     if stage is not None:
-        grid_file = write_grid(grid_dataset(grid, {}, attrs={"title": "the evaluation's voxel grid"}),
-                               Path(stage) / "grid.nc")
+        grid_file = write_grid(grid_dataset(grid, {}, attrs={"title": "the evaluation's voxel grid"}, crs=crs,
+                                            ground_z_m=ground_z_m), Path(stage) / "grid.nc")
     for j, spec in enumerate(plugins):
         f = spec if callable(spec) else load_plugin(spec)
         label = spec if isinstance(spec, str) else getattr(f, "__name__", f"plugin{j}")
@@ -110,7 +111,7 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
         var = "PAD_m2_m3" if "PAD_m2_m3" in arrays else "LAD_m2_m3"
         if var not in truth:
             raise ConfigError(f"the truth has no {var}", key=var)
-        s = score(np.asarray(truth[var].values), arrays[var], observed)
+        s = score(grid_values(truth, var), arrays[var], observed)
         for scale in ("voxel", "profile"):
             rows.append({"estimator": name, "variable": var, "scale": scale, **s[scale],
                          "seconds": round(seconds.get(name, float("nan")), 4)})
@@ -126,7 +127,7 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
     summary.update(extra or {})
     run = EvaluateRun(rows, estimates, summary)
     if stage is not None:
-        _write(run, Path(stage), grid, truth, profiles, title)
+        _write(run, Path(stage), grid, truth, profiles, title, {"crs": crs, "ground_z_m": ground_z_m})
     return run
 
 
@@ -143,7 +144,7 @@ def _envelope(grid, truth, occupied_points, row_spacing_m, row_axis, base, groun
     from .row_metrics import canopy_profiles, lwa_m2_ha, trv_m3_ha  # noqa: PLC0415
     var = "plant_area_m2" if "plant_area_m2" in truth else "PAD_m2_m3"
     out = {}
-    for label, occ in (("truth", np.asarray(truth[var].values) > 0), ("points", occupied_points > 0)):
+    for label, occ in (("truth", grid_values(truth, var) > 0), ("points", occupied_points > 0)):
         p = canopy_profiles(occ, grid, row_axis=row_axis, base=base, ground_z_m=ground_z_m)
         e = {"mean_height_m": p["mean_height_m"], "mean_width_m": p["mean_width_m"]}
         if row_spacing_m is not None:
@@ -157,7 +158,7 @@ def _envelope(grid, truth, occupied_points, row_spacing_m, row_axis, base, groun
     return out
 
 
-def _write(run: EvaluateRun, stage: Path, grid, truth, profiles, title) -> None:
+def _write(run: EvaluateRun, stage: Path, grid, truth, profiles, title, frame: dict) -> None:
     write_csv(stage / "scores.csv", SCORE_FIELDS, [{k: r[k] for k in SCORE_FIELDS} for r in run.scores])
     write_csv(stage / "profiles.csv", ("estimator", "variable", "z_m", "truth", "estimate"), profiles)
     with atomic_file(stage / "scores.json") as tmp:
@@ -168,8 +169,11 @@ def _write(run: EvaluateRun, stage: Path, grid, truth, profiles, title) -> None:
     for name, arrays in run.estimates.items():
         arr = {k: np.asarray(v, np.float64 if np.asarray(v).dtype.kind == "f" else np.asarray(v).dtype)
                for k, v in arrays.items() if np.shape(v) == tuple(grid.shape)}
+        known = {k: ESTIMATE_VARIABLES.get(k, ("1", k.replace("_", " "))) for k in arr}
         write_grid(grid_dataset(grid, arr, attrs={"estimator": name,
-                                                  "description": run.summary["estimators"][name]}),
+                                                  "description": run.summary["estimators"][name]},
+                                units={k: u for k, (u, _) in known.items()},
+                                long_names={k: n for k, (_, n) in known.items()}, **frame),
                    stage / "estimates" / f"{name}.nc")
     _plots(run, stage, truth, profiles, title)
 
@@ -191,7 +195,7 @@ def _plots(run: EvaluateRun, stage: Path, truth, profiles, title) -> None:
     observed = run.estimates["beer_lambert"]["n_in"] > 0
     var0 = "PAD_m2_m3"
     z = np.unique([p["z_m"] for p in profiles])
-    ax.plot(layer_profile(np.asarray(truth[var0].values), observed), z, "k-", lw=2.5,
+    ax.plot(layer_profile(grid_values(truth, var0), observed), z, "k-", lw=2.5,
             label="truth (voxels ≥ 1 beam entered)")
     for name in names:
         pr = [p for p in profiles if p["estimator"] == name]
@@ -211,7 +215,7 @@ def _plots(run: EvaluateRun, stage: Path, truth, profiles, title) -> None:
     for ax, name in zip(axes.ravel(), names):
         arrays = run.estimates[name]
         var = "PAD_m2_m3" if "PAD_m2_m3" in arrays else "LAD_m2_m3"
-        t = np.asarray(truth[var].values)
+        t = grid_values(truth, var)
         e = arrays[var]
         m = observed & np.isfinite(e)
         ax.scatter(t[m], e[m], s=3, alpha=0.4)
@@ -266,7 +270,8 @@ def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_
         geometry, ground_area = truth_geometry(cfg)
         grid = default_grid(geometry, voxel_m, tc["margin_m"])
         t = time.perf_counter()
-        truth = compute_truth(geometry, grid, progress=shown, ground_area_m2=tc["ground_area_m2"] or ground_area)
+        truth = compute_truth(geometry, grid, progress=shown, ground_area_m2=tc["ground_area_m2"] or ground_area,
+                              crs=cfg["scene"]["crs"], ground_z_m=cfg["ground"]["z_m"])
         truth_s = time.perf_counter() - t
         results = run.result if isinstance(run.result, list) else [run.result]
         if all(hasattr(r, "range_m") for r in results):
@@ -289,7 +294,7 @@ def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_
                              saturated=saturated, min_beams=min_beams, row_spacing_m=spacing,
                              row_axis=tc["row_axis"], canopy_base=tc["canopy_base"],
                              ground_z_m=cfg["ground"]["z_m"], progress=shown, title=cfg["scene"]["name"],
-                             extra=extra)
+                             extra=extra, crs=cfg["scene"]["crs"])
     out.files = {n: Path(out_dir) / n for n in ("scores.csv", "scores.json", "profiles.csv", "profiles.png",
                                                 "scatter.png", "truth.nc", "grid.nc", "estimates", "scan")}
     return out

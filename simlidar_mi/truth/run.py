@@ -24,7 +24,7 @@ from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..io.atomic import staged_dir, write_csv, writes_output
 from .compute import compute_truth, default_grid
-from .grid import write_grid
+from .grid import grid_values, write_grid
 from .row_metrics import canopy_profiles, lwa_m2_ha, trv_m3_ha
 
 log = logging.getLogger(__name__)
@@ -100,8 +100,8 @@ def _summary(ds, grid, prof: dict, spacing: float | None, t: dict) -> list[dict]
                                                                        prof["mean_width_m"], spacing)), "m3 ha-1"),
             ("LWA_m2_ha", "" if spacing is None else float(lwa_m2_ha(prof["mean_height_m"], spacing)), "m2 ha-1"),
             ("voxel_m", grid.voxel_m, "m"),
-            ("origin_x_m", grid.origin_m[0], "m"), ("origin_y_m", grid.origin_m[1], "m"),
-            ("origin_z_m", grid.origin_m[2], "m"),
+            ("grid_corner_x_m", grid.corner_m[0], "m"), ("grid_corner_y_m", grid.corner_m[1], "m"),
+            ("grid_corner_z_m", grid.corner_m[2], "m"),
             ("nx", grid.shape[0], ""), ("ny", grid.shape[1], ""), ("nz", grid.shape[2], "")]
     return [{"quantity": q, "value": v, "unit": u} for q, v, u in rows]
 
@@ -152,10 +152,12 @@ def run_truth(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     if ground is None and spacing is not None:  # a row's ground: its length × the row spacing
         a = {"x": 0, "y": 1}[t["row_axis"]]
         ground = grid.shape[a] * grid.voxel_m * spacing
-    ds = compute_truth(geometry, grid, progress=prog, ground_area_m2=ground)
+    ground_z = float(cfg["ground"]["z_m"]) if "ground" in cfg.sections else 0.0
+    ds = compute_truth(geometry, grid, progress=prog, ground_area_m2=ground, crs=cfg["scene"]["crs"],
+                       ground_z_m=ground_z)
     key = "leaf_area_m2" if t["occupancy"] == "leaf" else "plant_area_m2"
-    prof = canopy_profiles(ds[key].values > 0, grid, t["row_axis"], base=t["canopy_base"],
-                           ground_z_m=float(cfg["ground"]["z_m"]) if "ground" in cfg.sections else 0.0)
+    prof = canopy_profiles(grid_values(ds, key) > 0, grid, t["row_axis"], base=t["canopy_base"],
+                           ground_z_m=ground_z)
     dim = f"along_{t['row_axis']}"
     ds = ds.assign_coords({dim: (dim, prof["along_m"], {"units": "m", "long_name": "slice centre along the row"})})
     for name, long in (("height_m", "canopy height per slice"), ("width_m", "canopy width across the row")):

@@ -16,12 +16,14 @@ taken as a prediction of the truth, not of a fitted line: it is negative when th
 estimate is worse than the truth's mean), ``rmse`` = √mean (e − t)², ``bias`` =
 mean (e − t).
 
-Plug-ins: a Python callable ``f(scan_dir: Path, grid: VoxelGrid)`` returning an
-xarray Dataset or a dict of arrays on ``grid`` (:func:`call_plugin`), or a shell command
-with ``{las}``, ``{exr}``, ``{grid}``, ``{out}`` placeholders that reads our files and
-writes a grid NetCDF to ``{out}`` (:func:`run_command`). Both are checked the same way
-(:func:`check_estimate`): a ``PAD_m2_m3`` or ``LAD_m2_m3`` variable of ``grid.shape`` on
-the same voxel centres.
+Plug-ins: a Python callable ``f(scan_dir: Path, grid: VoxelGrid)`` returning a dict of
+arrays of ``grid.shape`` (indexed [i, j, k] along x, y, z) or an xarray Dataset whose
+dimensions are named ``x``, ``y``, ``z`` (any order; our files use the CF order
+(z, y, x)) (:func:`call_plugin`), or a shell command with ``{las}``, ``{exr}``,
+``{grid}``, ``{out}`` placeholders that reads our files and writes a grid NetCDF to
+``{out}`` (:func:`run_command`; read by name, so any dimension order). Both are checked
+the same way (:func:`check_estimate`): a ``PAD_m2_m3`` or ``LAD_m2_m3`` variable of
+``grid.shape`` on the same voxel centres.
 """
 from __future__ import annotations
 
@@ -161,7 +163,7 @@ def run_command(template: str, *, las: Path, exr: Path, grid_file: Path, out: Pa
                 grid: VoxelGrid, timeout_s: float | None = None) -> dict[str, np.ndarray]:
     """Run a command plug-in: placeholders filled with quoted paths, run without a shell,
     then its ``{out}`` NetCDF read (:func:`~simlidar_mi.truth.grid.read_grid`) and checked
-    against ``grid`` (origin, voxel size, shape)."""
+    against ``grid`` (corner, voxel size, shape)."""
     argv = check_command(template, las=las, exr=exr, grid=grid_file, out=out)
     try:
         proc = subprocess.run(argv, capture_output=True, text=True, timeout=timeout_s, check=False)
@@ -175,9 +177,9 @@ def run_command(template: str, *, las: Path, exr: Path, grid_file: Path, out: Pa
         raise ConfigError(f"the estimator command wrote no file {out}", key="--estimator-cmd", value=template)
     their_grid, ds = read_grid(out)
     if their_grid.shape != grid.shape or not np.isclose(their_grid.voxel_m, grid.voxel_m, rtol=1e-9) \
-            or not np.allclose(their_grid.origin_m, grid.origin_m, rtol=0, atol=1e-6 * grid.voxel_m):
-        raise ConfigError(f"its grid (origin {their_grid.origin_m}, voxel {their_grid.voxel_m:g} m, shape "
-                          f"{their_grid.shape}) is not the one given in {grid_file} (origin {grid.origin_m}, "
+            or not np.allclose(their_grid.corner_m, grid.corner_m, rtol=0, atol=1e-6 * grid.voxel_m):
+        raise ConfigError(f"its grid (corner {their_grid.corner_m}, voxel {their_grid.voxel_m:g} m, shape "
+                          f"{their_grid.shape}) is not the one given in {grid_file} (corner {grid.corner_m}, "
                           f"voxel {grid.voxel_m:g} m, shape {grid.shape})", file=str(out), key="x, y, z",
                           value=list(their_grid.shape))
     return check_estimate(ds, grid, str(out))

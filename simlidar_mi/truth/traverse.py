@@ -127,7 +127,7 @@ class BeamCounts:
 
 def _slab(grid: VoxelGrid, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Entry and exit distances of rays through the grid's box (t_in > t_out or NaN: a miss)."""
-    lo = np.asarray(grid.origin_m)
+    lo = np.asarray(grid.corner_m)
     hi = grid.hi_m
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = 1.0 / d
@@ -155,7 +155,7 @@ def walk(grid: VoxelGrid, origin_m, dir, t_end_m):
     if not len(live):
         return
     shape = np.asarray(grid.shape)
-    origin = np.asarray(grid.origin_m)
+    origin = np.asarray(grid.corner_m)
     v = grid.voxel_m
     o, d, t = o[live], d[live], t_in[live]
     stop, idx = t_stop[live], live

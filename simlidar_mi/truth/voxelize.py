@@ -110,12 +110,19 @@ class Accumulator:
         self._push(*other._compact())
         self.outside += other.outside
 
+    DENSE_CHUNK = 1 << 20  # voxels re-indexed at a time by dense()
+
     def dense(self) -> np.ndarray:
-        """A new float64 array of ``shape`` (0 where nothing was added)."""
+        """A new float64 array of ``shape`` (0 where nothing was added), laid out in memory
+        with the first index fastest, so its transpose, the (z, y, x) order a grid file stores
+        (:mod:`simlidar_mi.truth.grid`), is contiguous and written without a copy."""
         flat, val = self._compact()
-        out = np.zeros(self.shape, np.float64)
-        out.reshape(-1)[flat] = val  # sums start from +0.0, as a dense accumulation's do
-        return out
+        out = np.zeros(self.shape[::-1], np.float64)  # C order of the reversed shape
+        dst = out.reshape(-1)
+        for a in range(0, len(flat), self.DENSE_CHUNK):  # bounded temporaries on large grids
+            ijk = np.unravel_index(flat[a:a + self.DENSE_CHUNK], self.shape)
+            dst[np.ravel_multi_index(ijk[::-1], self.shape[::-1])] = val[a:a + self.DENSE_CHUNK]
+        return out.T  # sums start from +0.0, as a dense accumulation's do
 
     @property
     def data(self) -> np.ndarray:

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ._validate import parse_toml
+from ._validate import parse_toml, tomllib  # noqa: F401  (tomllib: tomli on Python 3.10, for callers)
 from .config_keys import ARRAY_SECTIONS, FLOAT, PRIMITIVE_NEEDS, SECTIONS, Key
 from .errors import ConfigError, SimlidarWarning
 from .sensor_presets import apply_preset

@@ -3,6 +3,11 @@ from __future__ import annotations
 
 import math
 
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: the same parser as a package
+    import tomli as tomllib
+
 import numpy as np
 
 from .errors import ConfigError
@@ -39,3 +44,37 @@ def seed_sequence(seed, key: str = "seed") -> np.random.SeedSequence:
         raise ConfigError("seed must be a non-negative integer, a SeedSequence or None",
                           key=key, value=seed)
     return np.random.SeedSequence(None if seed is None else int(seed))
+
+
+#: Deepest nesting of arrays and tables a scene, preset or --set value may hold: real files
+#: nest 4 levels (a table of waypoint lists); deeper nesting only exhausts recursion.
+MAX_TOML_DEPTH = 32
+
+
+def parse_toml(text: str, src: str, key: str | None = None, value=None) -> dict:
+    """``tomllib.loads(text)``, every failure one ConfigError naming ``src`` (and ``key``,
+    ``value``): invalid TOML, and arrays or tables nested deeper than :data:`MAX_TOML_DEPTH`
+    (a RecursionError in the parser, or later in code that walks the values)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"not valid TOML: {exc}", file=src, key=key, value=value) from None
+    except RecursionError:
+        data = None
+    if data is None or nesting_depth(data) > MAX_TOML_DEPTH:
+        raise ConfigError(f"arrays or tables nested more than {MAX_TOML_DEPTH} deep", file=src,
+                          key=key, value=value if value is None or len(str(value)) < 80
+                          else str(value)[:60] + "…")
+    return data
+
+
+def nesting_depth(value) -> int:
+    """Levels of lists and dicts in ``value`` (a scalar: 0), walked without recursion."""
+    best, stack = 0, [(value, 0)]
+    while stack:
+        v, d = stack.pop()
+        items = v.values() if isinstance(v, dict) else v if isinstance(v, list) else None
+        if items is not None:
+            best = max(best, d + 1)
+            stack.extend((x, d + 1) for x in items)
+    return best

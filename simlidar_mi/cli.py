@@ -433,9 +433,11 @@ def _truth_args(p: argparse.ArgumentParser) -> None:
 @command("truth", "Exact canopy ground truth of a scene on a voxel grid: leaf/wood area, wood "
          "volume, LAD, PAD, LAI, canopy profiles, TRV, LWA", _truth_args)
 def _truth_run(args: argparse.Namespace) -> int:
+    from .config import Override
     from .truth.run import run_truth
 
-    extra = [f"truth.voxel_m={args.voxel!r}"] if args.voxel is not None else []
+    # errors in it name the option typed, not a --set or the scene's key
+    extra = [Override(f"truth.voxel_m={args.voxel!r}", f"--voxel {args.voxel!r}")] if args.voxel is not None else []
     run = run_truth(args.scene, args.out, _overrides(args) + extra, progress=True)
     for row in run.summary:
         if row["quantity"] in ("total_leaf_area_m2", "total_wood_area_m2", "total_wood_volume_m3",
@@ -521,6 +523,9 @@ def main(argv: list[str] | None = None) -> int:
     except SimlidarError as exc:
         print(f"simlidar-mi {args.command}: error: {exc}", file=sys.stderr)
         rc = 2
+    except BrokenPipeError:  # stdout's reader left (`| head`): the files are written; say no more
+        _silence_stdout()
+        rc = 0
     except KeyboardInterrupt:
         print(f"simlidar-mi {args.command}: interrupted", file=sys.stderr)
         if argv is None:
@@ -531,6 +536,18 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:
         _exit_now(int(rc or 0))
     return int(rc or 0)
+
+
+def _silence_stdout() -> None:
+    """Send whatever else is printed to stdout (and its flush at exit) to /dev/null: the pipe's
+    reader is gone, and a second BrokenPipeError at exit would print a traceback."""
+    import os  # noqa: PLC0415
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):  # stdout has no file descriptor (a caller's StringIO)
+        pass
 
 
 def _exit_now(rc: int) -> None:

@@ -27,15 +27,13 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import json
 import warnings
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10: the same parser as a package
-    import tomli as tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ._validate import parse_toml, tomllib  # noqa: F401  (tomllib: tomli on Python 3.10, for callers)
 from .config_keys import ARRAY_SECTIONS, FLOAT, PRIMITIVE_NEEDS, SECTIONS, Key
 from .errors import ConfigError, SimlidarWarning
 from .sensor_presets import apply_preset
@@ -49,7 +47,7 @@ class SceneConfig:
     sections: dict[str, dict[str, Any]]
     arrays: dict[str, list[dict[str, Any]]]
     present: set[str] = field(default_factory=set)
-    sha256: str = ""
+    sha256: str = ""  # what the scene says, execution knobs left out (_scene_digest)
     overridden: dict[str, str] = field(default_factory=dict)  # dotted key → "--set key=value"
     given: set[str] = field(default_factory=set)  # dotted keys the file or an override set (not defaults)
     from_preset: dict[str, str] = field(default_factory=dict)  # dotted key → the sensor preset that gave it
@@ -60,6 +58,12 @@ class SceneConfig:
 
     def __getitem__(self, section: str) -> dict[str, Any]:
         return self.sections[section]
+
+    @property
+    def declared(self) -> set[str]:
+        """The sections that make the scene what it is: :attr:`present` less the tables that
+        hold execution knobs alone (its identity: ``sha256``, the study's row keys)."""
+        return _declared(self.present, self.given)
 
     def has(self, section: str) -> bool:
         """True when the file itself contains ``section`` (not only its defaults)."""
@@ -126,6 +130,19 @@ def _flatten(data: dict) -> dict[str, Any]:
     return out
 
 
+class Override(str):
+    """A ``section.key=value`` override that stands for a command-line option: its errors name
+    ``label`` (what the user typed, ``--voxel 1e-06``) instead of ``--set section.key=value``."""
+
+    def __new__(cls, item: str, label: str):
+        obj = super().__new__(cls, item)
+        obj.label = label
+        return obj
+
+    def __reduce__(self):
+        return (Override, (str(self), self.label))
+
+
 def parse_override(item: str) -> tuple[str, Any]:
     """'scan.dtheta_deg=0.5' → ('scan.dtheta_deg', 0.5); values are TOML, bare words strings."""
     if "=" not in item:
@@ -133,10 +150,17 @@ def parse_override(item: str) -> tuple[str, Any]:
     key, raw = item.split("=", 1)
     key, raw = key.strip(), raw.strip()
     try:
-        value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
+        value = parse_toml(f"v = {raw}", _label(item), key=key, value=raw)["v"]
+    except ConfigError as exc:
+        if not exc.reason.startswith("not valid TOML"):
+            raise  # nested too deep
         value = raw
     return key, value
+
+
+def _label(item: str) -> str:
+    """How errors name an override: its option, ``--set key=value`` (a long one shortened)."""
+    return getattr(item, "label", None) or f"--set {item if len(item) <= 100 else item[:80] + '…'}"
 
 
 def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = (),
@@ -159,13 +183,7 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
             text = raw_bytes.decode("utf-8")
         except UnicodeDecodeError as exc:
             raise ConfigError("scene file is not UTF-8 text", file=src) from exc
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"not valid TOML: {exc}", file=src) from exc
-    digest = hashlib.sha256(text.encode("utf-8"))
-    for item in overrides:
-        digest.update(b"\0" + item.encode("utf-8"))
+    data = parse_toml(text, src)
 
     arrays_raw = {name: data.pop(name) for name in list(data) if name in ARRAY_SECTIONS}
     flat = _flatten(data)
@@ -173,7 +191,7 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
     for item in overrides:
         key, value = parse_override(item)
         section, _, leaf = key.rpartition(".")
-        label = f"--set {item}"
+        label = _label(item)
         if section not in SECTIONS:
             raise ConfigError(f"unknown section '{section}'; valid: {', '.join(SECTIONS)}",
                               file=label, key=key, value=value)
@@ -188,9 +206,6 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
             f"{src}: [platform] kind {flat['platform']['kind']!r} differs from the kind of sensor preset "
             f"{flat['sensor']['preset']!r}; its {', '.join(skipped)} were not applied"), stacklevel=2)
     origin = {**from_preset, **overridden}  # where each key came from, when not the scene file
-    for label in sorted(set(from_preset.values())):  # a user preset file is part of the scene
-        if Path(label).is_file():
-            digest.update(b"\0preset\0" + Path(label).read_bytes())
 
     sections: dict[str, dict[str, Any]] = {}
     present: set[str] = set()
@@ -222,6 +237,7 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
                           value=sensor["range_max_m"])
 
     arrays: dict[str, list[dict[str, Any]]] = {name: [] for name in ARRAY_SECTIONS}
+    arrays_given: dict[str, list[list[str]]] = {}  # the keys each array table gave, for the digest
     for name, items in arrays_raw.items():
         if not isinstance(items, list):
             raise ConfigError(f"[[{name}]] must be an array of tables", file=src, key=name, value=items)
@@ -233,6 +249,7 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
                 if key not in spec:
                     raise ConfigError(f"unknown key; valid: {', '.join(spec)}", file=src, key=dotted, value=value)
                 values[key] = _check_value(spec[key], value, src, dotted)
+            arrays_given.setdefault(name, []).append(sorted(values))
             for key, ks in spec.items():
                 values.setdefault(key, ks.default)
             arrays[name].append(values)
@@ -244,13 +261,46 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
             if prim[need] is None:
                 raise ConfigError(f"a {prim['type']} primitive needs '{need}'", file=src,
                                   key=f"primitive[{j}].{need}")
+    digest = _scene_digest(sections, given, present, arrays, arrays_given)  # paths as written
+    for j, prim in enumerate(arrays["primitive"]):
         if prim["type"] == "obj" and not prim["path"].lower().endswith(".obj"):
             raise ConfigError("an obj primitive's file name must end in .obj (a Wavefront OBJ mesh)",
                               file=src, key=f"primitive[{j}].path", value=prim["path"])
         if prim["type"] == "obj" and path is not None:
             prim["path"] = str((Path(path).parent / prim["path"]).resolve())
-    return SceneConfig(Path(path) if path else None, sections, arrays, present, digest.hexdigest(),
+    return SceneConfig(Path(path) if path else None, sections, arrays, present, digest,
                        overridden, given, from_preset)
+
+
+def _is_knob(dotted: str) -> bool:
+    section, _, leaf = dotted.rpartition(".")
+    return SECTIONS[section][leaf].knob
+
+
+def _declared(present: set[str], given: set[str]) -> set[str]:
+    """The sections a scene declares, less those that hold execution knobs alone (a [scan]
+    table, or a --set, giving only chunk_beams declares nothing about the scene)."""
+    knobs_only = {d.rpartition(".")[0] for d in given if _is_knob(d)}
+    return present - (knobs_only - {d.rpartition(".")[0] for d in given if not _is_knob(d)})
+
+
+def _scene_digest(sections: dict, given: set[str], present: set[str], arrays: dict,
+                  arrays_given: dict) -> str:
+    """SHA-256 of what a scene says: the sections it declares and the values of the keys its
+    file, ``--set`` overrides and sensor preset give, as validated (``5e-1`` and ``0.5``
+    agree; comments and key order do not count), without the execution knobs
+    (:attr:`Key.knob`: chunk sizes and size limits, on which no result depends)."""
+    said = {}
+    for dotted in given:
+        section, _, leaf = dotted.rpartition(".")
+        if not _is_knob(dotted):
+            said[dotted] = sections[section][leaf]
+    present = _declared(present, given)
+    tables = {name: [{k: item[k] for k in keys} for item, keys in zip(arrays[name], arrays_given[name])]
+              for name in arrays_given}
+    text = json.dumps({"sections": sorted(present), "keys": said, "arrays": tables},
+                      sort_keys=True, default=str, allow_nan=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 def sensor_preset(ref: str | Path, base_dir: str | Path | None = None):

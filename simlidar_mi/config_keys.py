@@ -13,7 +13,15 @@ import math
 # them from there without importing this module); re-exported here for config.py and others.
 from .config_keys_base import (BOOL, FLOAT, INT, LIST, STR, Check, Key, _epsg,  # noqa: F401
                                _finite, _numbers, at_least, azimuth, nonneg, one_of, positive,
-                               range3, unit_interval, vec2, vec3, waypoints)
+                               range3, safe_name, unit_interval, vec2, vec3, waypoints, within)
+
+#: Bounds of the [sensor] keys that size a scan's arrays, checked when the scene is read.
+MAX_BEAM_SAMPLES = 4096  # sub-rays per beam; auto S stops at 256 (lidar/sensor.py)
+MAX_RETURNS = 15  # LAS 1.4 point formats 6-10 hold return numbers 1-15 (4 bits)
+#: Full-angle divergence: survey and automotive scanners lie within 0.1-25 mrad (the presets:
+#: 0.35-15); beyond 0.1 rad the sub-ray layout (tangent offsets about the axis) and one echo
+#: per surface stop describing a laser beam.
+MAX_DIVERGENCE_MRAD = 100.0
 
 SECTIONS: dict[str, dict[str, Key]] = {
     "scene": {
@@ -66,7 +74,7 @@ SECTIONS: dict[str, dict[str, Key]] = {
                           "wood: one scale per prototype, wood only, leaves keep their size; "
                           "whole-tree: one per tree, leaves scaled too (earlier behaviour)"),
         "crown_factor": Key(FLOAT, 0.65, nonneg, "k of the crown rule d_ij ≥ k·(r_i + r_j); 0: none"),
-        "max_trees": Key(INT, 100_000, at_least(1), "refuse forests with more trees"),
+        "max_trees": Key(INT, 100_000, at_least(1), "refuse forests with more trees", knob=True),
         "leaf_table": Key(STR, "auto", one_of("auto", "all", "prototypes", "none"),
                           "auto: 'all' up to leaf_table_max_rows leaves, else 'prototypes' (instancing) or 'all'"),
         "leaf_table_max_rows": Key(INT, 1_000_000, at_least(0), "limit of leaf_table = 'auto'"),
@@ -103,10 +111,13 @@ SECTIONS: dict[str, dict[str, Key]] = {
                         "§3.1; A_IM counts the whole beam), 'fraction' = A_IM weights the beam by "
                         "its share of sub-beams that hit"),
         "escape_m": Key(FLOAT, 1000.0, positive, "range reported for beams that hit nothing"),
-        "max_beams": Key(INT, 200_000_000, at_least(1), "refuse scans larger than this"),
+        "max_beams": Key(INT, 200_000_000, at_least(1), "refuse scans of more beams (dot-matrix "
+                         "sub-beams counted) than this", knob=True),
+        "max_rays": Key(INT, 2_000_000_000, at_least(1), "refuse scans of more rays than this: beams "
+                        "× dot-matrix sub-beams × [sensor] sub-rays per beam", knob=True),
         "chunk_beams": Key(INT, 1 << 22, at_least(1),
                            "beams traced and written per chunk (memory stays flat as scans grow; "
-                           "results do not depend on it)"),
+                           "results do not depend on it)", knob=True),
     },
     # --- gap fraction (simlidar_mi.canopy.gapfraction); generators validate their own laws too
     "platform": {  # where the scanner is; "tractor" uses [scan]'s x0_m/z0_m/dy_m/dtheta_deg
@@ -166,13 +177,17 @@ SECTIONS: dict[str, dict[str, Key]] = {
     "sensor": {
         "preset": Key(STR, None, lambda v: None if v.strip() else "must be a preset name or a path",
                       "a built-in sensor name or a preset .toml; the scene's own keys win"),
-        "divergence_mrad": Key(FLOAT, 0.0, nonneg, "full-angle beam divergence γ (1/e² of a Gaussian "
+        "divergence_mrad": Key(FLOAT, 0.0, within(0, MAX_DIVERGENCE_MRAD, "a laser beam of at most "
+                                                  "0.1 rad; real scanners: 0.1-25 mrad"),
+                               "full-angle beam divergence γ (1/e² of a Gaussian "
                                "beam, edge of a uniform one); 0 = one ray per beam"),
         "beam_profile": Key(STR, "gaussian", one_of("gaussian", "uniform"),
                             "energy profile across the beam's cross-section"),
-        "beam_samples": Key(INT, 0, nonneg, "sub-rays S per beam when divergence > 0 (0 = auto, see "
+        "beam_samples": Key(INT, 0, within(0, MAX_BEAM_SAMPLES, "sub-rays per beam"),
+                            "sub-rays S per beam when divergence > 0 (0 = auto, see "
                             "simlidar_mi.lidar.sensor.auto_beam_samples)"),
-        "max_returns": Key(INT, 1, at_least(1), "1 = first return only; > 1 = echoes from the waveform"),
+        "max_returns": Key(INT, 1, within(1, MAX_RETURNS, "LAS 1.4 holds return numbers 1-15"),
+                           "1 = first return only; > 1 = echoes from the waveform"),
         "detection": Key(STR, "waveform", one_of("waveform", "nearest"),
                          "with divergence > 0: 'waveform' = a beam returns only echoes of its "
                          "waveform above detection_threshold (a real receiver), even with "
@@ -304,7 +319,8 @@ ARRAY_SECTIONS: dict[str, dict[str, Key]] = {
     },
     # [[species]] of a [forest]: a random-tree preset, optional overrides, an intensity
     "species": {
-        "name": Key(STR, None, lambda v: None if v.strip() else "must be a non-empty name"),
+        "name": Key(STR, None, safe_name, "names the species' prototype mesh files "
+                    "(<name>_<k>.ply): letters, digits, '_', '-', '.'"),
         "preset": Key(STR, None, None, "random-tree preset (simlidar_mi.plants.tree_params)"),
         "bumps": Key(LIST, None, lambda v: None if all(isinstance(b, dict) for b in v) else
                      "must be a list of tables {C_per_m2, x0_m, y0_m, h_m2, l_m2}",

@@ -16,12 +16,16 @@ Check = Callable[[Any], str | None]  # returns a complaint, or None when the val
 
 @dataclass(frozen=True)
 class Key:
-    """One scene-file key: accepted Python types, default, and an extra check."""
+    """One scene-file key: accepted Python types, default, and an extra check.
+
+    ``knob``: an execution setting (a chunk size, a size limit) that no result depends on:
+    left out of the scene's ``sha256`` and of the study's row keys."""
 
     types: tuple
     default: Any = None
     check: Check | None = None
     doc: str = ""
+    knob: bool = False
 
 
 def _finite(v):
@@ -42,6 +46,23 @@ def unit_interval(v):
 
 def at_least(n):
     return lambda v: None if v >= n else f"must be ≥ {n}"
+
+
+def within(lo, hi, why: str = ""):
+    """``lo ≤ v ≤ hi`` (finite); ``why`` says where the upper bound comes from."""
+    return lambda v: _finite(v) or (f"must be ≥ {lo:g}" if v < lo else None if v <= hi else
+                                    f"must be ≤ {hi:g}" + (f" ({why})" if why else ""))
+
+
+#: A name that becomes part of a file name: letters, digits, '_', '-', '.', starting with a
+#: letter or digit, at most 64 characters (no '/', no '..' prefix, no absolute path).
+SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+
+
+def safe_name(v):
+    return None if SAFE_NAME.fullmatch(v) else (
+        "becomes part of a file name, so it must be 1-64 letters, digits, '_', '-' or '.', "
+        "starting with a letter or digit")
 
 
 def one_of(*choices):

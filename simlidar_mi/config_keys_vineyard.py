@@ -40,6 +40,8 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "trunk_diameter_m": Key(FLOAT, 0.05, positive),
         "cordon_diameter_m": Key(FLOAT, 0.03, positive, "the two arms along the fruiting wire"),
         "cordon_gap_m": Key(FLOAT, 0.06, nonneg, "gap between the arm tips of neighbouring vines"),
+        "max_elements": Key(INT, 20_000_000, at_least(1), "refuse vineyards of more cylinders and leaf "
+                            "triangles than this (counted from the keys before generating)", knob=True),
     },
     "vineyard.canopy": {
         "canopy_height_m": Key(FLOAT, 1.1, positive, "shoot zone: from the cordon's top to the hedge"),

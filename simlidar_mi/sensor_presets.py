@@ -17,15 +17,12 @@ from __future__ import annotations
 
 import copy
 import math
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib
-
+from ._validate import parse_toml
 from .errors import ConfigError
 
 # [platform] / [scan] keys a sensor implies; the rest (positions, paths, speeds) belong to the scene
@@ -34,6 +31,8 @@ PLATFORM_KEYS = ("kind", "channels_deg", "channel_offsets_us", "block_period_us"
                  "pulse_rate_hz", "pulses_per_line")
 SCAN_KEYS = ("dtheta_deg",)
 LAYERS = ("sensor", "platform", "scan")
+#: A user preset file is a few dozen lines; anything larger is not one (checked before reading).
+MAX_PRESET_BYTES = 1 << 20
 UNCHECKED = "recalled, not checked against the datasheet"
 FWHM_TO_E2 = math.sqrt(2.0 / math.log(2.0))  # Gaussian: 1/e² full width = FWHM × 1.699
 
@@ -310,15 +309,16 @@ def load_preset_file(path: str | Path, *, sections: dict, check: Callable) -> Se
     path = Path(path)
     src = str(path)
     try:
-        text = path.read_bytes().decode("utf-8")
+        with open(path, "rb") as fh:  # at most the limit, however the file grew since its check
+            raw = fh.read(MAX_PRESET_BYTES + 1)
+        if len(raw) > MAX_PRESET_BYTES:
+            raise ConfigError(f"a sensor preset file holds at most {MAX_PRESET_BYTES} bytes", file=src)
+        text = raw.decode("utf-8")
     except OSError as exc:
         raise ConfigError(f"cannot read sensor preset file: {exc.strerror or exc}", file=src) from exc
     except UnicodeDecodeError as exc:
         raise ConfigError("sensor preset file is not UTF-8 text", file=src) from exc
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"not valid TOML: {exc}", file=src) from exc
+    data = parse_toml(text, src)
     allowed = {"sensor": [k for k in sections["sensor"]], "platform": list(PLATFORM_KEYS),
                "scan": list(SCAN_KEYS)}
     for name, table in data.items():
@@ -382,8 +382,17 @@ def resolve(ref: str, *, base_dir: Path, sections: dict, check: Callable, file=N
         return builtin(ref, file=file, key=key)
     path = Path(ref).expanduser()
     path = path if path.is_absolute() else base_dir / path
-    if not path.is_file():
-        raise ConfigError(f"no sensor preset file at {path}", file=file, key=key, value=ref)
+    if path.suffix.lower() != ".toml":
+        raise ConfigError("a sensor preset file must be a .toml file", file=file, key=key, value=ref)
+    try:
+        st = path.stat()
+    except OSError:
+        raise ConfigError(f"no sensor preset file at {path}", file=file, key=key, value=ref) from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ConfigError(f"{path} is not a regular file", file=file, key=key, value=ref)
+    if st.st_size > MAX_PRESET_BYTES:
+        raise ConfigError(f"{path} holds {st.st_size} bytes; a sensor preset file holds at most "
+                          f"{MAX_PRESET_BYTES} ({MAX_PRESET_BYTES >> 20} MiB)", file=file, key=key, value=ref)
     return load_preset_file(path, sections=sections, check=check)
 
 

@@ -263,7 +263,9 @@ def test_bad_plugins_are_refused_naming_what_is_wrong(tmp_path):
     with pytest.raises(ConfigError) as e:
         run_command(cmd, las=tmp_path / "p.las", exr=tmp_path / "s.exr", grid_file=tmp_path / "g.nc",
                     out=out, grid=grid)
-    assert e.value.file == str(out) and e.value.value == [2, 3, 5]
+    # named by the command the user typed: {out} and {grid} are staging files, deleted by then
+    assert e.value.file == f"--estimator-cmd {cmd}" and e.value.value == [2, 3, 5]
+    assert str(out) not in str(e.value) and "g.nc" not in str(e.value) and "grid.nc" in str(e.value)
     with pytest.raises(ConfigError) as e:
         run_command(f"{sys.executable} -c \"raise SystemExit('boom')\" {{out}}", las=out, exr=out,
                     grid_file=out, out=tmp_path / "none.nc", grid=grid)
@@ -317,3 +319,55 @@ def test_evaluate_command_end_to_end(tmp_path):
     strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows  # noqa: E731
                           if r["estimator"] != "contact_frequency"]
     assert strip(d2["scores"]) == strip(d["scores"])
+
+
+def test_plugin_failures_are_one_line_and_odd_estimates_are_refused_or_reported(cylinder_scan, tmp_path):
+    """A plug-in that does not compile or raises, one giving infinities, or one that scores
+    nothing or gives negative PAD: a one-line error or warning, never a traceback or a silent n = 0."""
+    import warnings
+
+    from simlidar_mi.errors import SimlidarWarning
+    from simlidar_mi.truth.evaluate import evaluate_beams
+    from simlidar_mi.truth.scoring import load_plugin
+    (tmp_path / "broken.py").write_text("def f(scan_dir, grid)\n    return {}\n")
+    (tmp_path / "raises_on_import.py").write_text("raise RuntimeError('no licence')\n")
+    for spec, words in ((f"{tmp_path / 'broken.py'}:f", "SyntaxError"),
+                        (f"{tmp_path / 'raises_on_import.py'}:f", "RuntimeError: no licence")):
+        with pytest.raises(ConfigError) as e:
+            load_plugin(spec)
+        assert e.value.key == "--estimator" and e.value.value == spec and words in str(e.value)
+        assert "\n" not in str(e.value)
+    out, result = cylinder_scan
+    grid = VoxelGrid.covering([1.9, -0.1, 0.4], [2.1, 0.1, 1.6], 0.05)
+    truth = grid_dataset(grid, {"PAD_m2_m3": np.ones(grid.shape)})
+    beams = beams_from_scan(result)
+
+    def raises(scan_dir, g):
+        raise ZeroDivisionError("division by zero")
+
+    with pytest.raises(ConfigError) as e:
+        evaluate_beams(grid, truth, beams, scan_dir=out, plugins=[raises])
+    assert e.value.key == "--estimator" and str(e.value).endswith("ZeroDivisionError: division by zero")
+    with pytest.raises(ConfigError) as e:
+        evaluate_beams(grid, truth, beams, scan_dir=out,
+                       plugins=[lambda s, g: {"PAD_m2_m3": np.full(g.shape, np.inf)}])
+    assert e.value.key == "PAD_m2_m3" and f"{np.prod(grid.shape)} of {np.prod(grid.shape)} values are infinite" \
+        in str(e.value)
+
+    def nothing(scan_dir, g):
+        return {"PAD_m2_m3": np.full(g.shape, np.nan)}
+
+    def negative(scan_dir, g):
+        return {"PAD_m2_m3": np.full(g.shape, -2.0)}
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        run = evaluate_beams(grid, truth, beams, scan_dir=out, plugins=[nothing, negative])
+    said = [str(w.message) for w in caught if issubclass(w.category, SimlidarWarning)]
+    n_obs = run.summary["n_observed_voxels"]
+    assert run.get("nothing")["n"] == 0 and n_obs > 0
+    assert f"estimator nothing: no finite PAD_m2_m3 in the {n_obs} voxels beams entered" in said[0]
+    assert said[1] == (f"estimator negative: {n_obs} voxels hold a negative PAD_m2_m3 (down to -2); "
+                       "scored as given")
+    assert run.get("negative")["bias"] == pytest.approx(-3.0)  # scored as given: -2 against 1
+    assert len(said) == 2  # the built-in estimators give neither

@@ -12,6 +12,7 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
+from ..config_keys_base import SAFE_NAME
 from ..errors import ConfigError
 from ..io.mesh_export import (PART_LEAVES, PART_WOOD, prism_tubes, tube_faces, write_obj_stream,
                              write_ply_stream)
@@ -228,9 +229,13 @@ def _write_prototype_meshes(forest: Forest, folder: Path, fmt: str, facets: int)
 
     ``folder`` is inside the run's staged folder, which appears whole or not at all, so
     each PLY is written in place (OBJ keeps its writer's temporary file)."""
+    names = forest.species_names
+    for name in names:  # a name is part of a file name: never a path (the scene check's twin)
+        if not SAFE_NAME.fullmatch(name):
+            raise ConfigError("a species name that names files must be 1-64 letters, digits, '_', "
+                              "'-' or '.', starting with a letter or digit", key="species.name", value=name)
     folder.mkdir(parents=True, exist_ok=True)
     out = []
-    names = forest.species_names
     for p, t in enumerate(forest.prototypes):
         stand = _Stand(1, lambda i, t=t: t, None, lambda i: None)
         species = names[int(forest.prototype_species[p])]

@@ -38,7 +38,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..config_keys import SECTIONS
 from ..errors import ConfigError
+
+#: The beam limit of a pattern made without one (``max_beams=None``): [scan] max_beams's default.
+DEFAULT_MAX_BEAMS = SECTIONS["scan"]["max_beams"].default
 
 
 def sub_offsets(footprint: int) -> np.ndarray:
@@ -192,8 +196,8 @@ class BeamPattern:
                 **({"velocity_m_s": [float(v) for v in self.velocity_m_s]} if self.moving else {})}
 
 
-def _steps(lo: float, hi: float, step: float, key: str, source, inclusive: bool = True) -> np.ndarray:
-    """lo, lo+step, … up to hi (inclusive) or below it (half-open, for full turns of azimuth)."""
+def _n_steps(lo: float, hi: float, step: float, key: str, source, inclusive: bool = True) -> int:
+    """How many values :func:`_steps` gives (counted, nothing allocated)."""
     if not (math.isfinite(step) and step > 0):
         raise ConfigError("the step must be > 0", file=source, key=key, value=step)
     if not hi > lo:
@@ -201,17 +205,47 @@ def _steps(lo: float, hi: float, step: float, key: str, source, inclusive: bool 
     n = int(math.floor((hi - lo) / step + 1e-9)) + (1 if inclusive else 0)
     if not inclusive and lo + n * step < hi - 1e-9 * step:
         n += 1
-    return lo + np.arange(n) * step
+    return n
+
+
+def _steps(lo: float, hi: float, step: float, key: str, source, inclusive: bool = True) -> np.ndarray:
+    """lo, lo+step, … up to hi (inclusive) or below it (half-open, for full turns of azimuth)."""
+    return lo + np.arange(_n_steps(lo, hi, step, key, source, inclusive)) * step
+
+
+def _check_beams(factors: dict[str, tuple[int, str, object]], footprint: int, max_beams: int | None,
+                 source) -> None:
+    """Refuse, before any array is made, a pattern of more beams than ``max_beams`` (default
+    :data:`DEFAULT_MAX_BEAMS`); dot-matrix sub-beams count.  ``factors`` maps what is counted
+    ("sweeps") to (count, the key that sets it, its value): the largest count's key is blamed."""
+    limit = DEFAULT_MAX_BEAMS if max_beams is None else int(max_beams)
+    sub = (int(footprint) + 1) ** 2
+    total = sub
+    for n, _, _ in factors.values():
+        total *= n
+    if total <= limit:
+        return
+    what = " × ".join(f"{n:,} {name}" for name, (n, _, _) in factors.items())
+    what += f" × {sub} sub-beams" if sub > 1 else ""
+    _, key, value = max(factors.values(), key=lambda f: f[0])
+    raise ConfigError(f"{what} = {total:.3g} beams exceed scan.max_beams = {limit}; change this key "
+                      "or raise scan.max_beams", file=source, key=key, value=value)
 
 
 def static_pattern(position_m, elevation_deg: tuple[float, float, float],
                    azimuth_deg: tuple[float, float, float] | float = 0.0, *, footprint: int = 0,
                    escape_m: float = 1000.0, ground: bool = True, ground_z_m: float = 0.0,
-                   source=None) -> BeamPattern:
+                   max_beams: int | None = None, source=None) -> BeamPattern:
     """A tripod scanner: elevations (min, max, step) in degrees, both ends included; azimuth a
     single value (2D profile) or (start, stop, step) with stop excluded (3D, so [0, 360, 1]
     gives 360 rows).  Azimuth 0 looks along +x, 90 along +y."""
     pos = np.asarray(position_m, np.float64)
+    n_az = 1 if np.isscalar(azimuth_deg) else _n_steps(*azimuth_deg, "platform.azimuth_deg", source,
+                                                       inclusive=False)
+    _check_beams({"azimuths": (n_az, "platform.azimuth_deg", azimuth_deg if np.isscalar(azimuth_deg)
+                               else list(azimuth_deg)),
+                  "elevations": (_n_steps(*elevation_deg, "platform.elevation_deg", source),
+                                 "platform.elevation_deg", list(elevation_deg))}, footprint, max_beams, source)
     el = _steps(*elevation_deg, "platform.elevation_deg", source)
     if np.any(np.abs(el) > 90):
         raise ConfigError("elevations must lie in [-90, 90] degrees", file=source,
@@ -230,7 +264,7 @@ def static_pattern(position_m, elevation_deg: tuple[float, float, float],
 def path_patterns(waypoints_m, step_m: float, elevation_deg: tuple[float, float, float], *,
                   side: str = "right", footprint: int = 0, escape_m: float = 1000.0,
                   ground: bool = True, ground_z_m: float = 0.0, scan_legs=None,
-                  source=None) -> list[BeamPattern]:
+                  max_beams: int | None = None, source=None) -> list[BeamPattern]:
     """A ground vehicle along straight legs between waypoints (x, y, z), sweeping elevations in
     the vertical plane perpendicular to its travel, on its ``side`` ('right' or 'left').
 
@@ -255,6 +289,11 @@ def path_patterns(waypoints_m, step_m: float, elevation_deg: tuple[float, float,
             or list(scan_legs) != sorted(set(scan_legs)) or scan_legs[0] < 0 or scan_legs[-1] >= n_legs):
         raise ConfigError(f"must be increasing leg indices in 0 … {n_legs - 1} (leg j runs from "
                           "waypoint j to j + 1)", file=source, key="platform.scan_legs", value=scan_legs)
+    lengths = [float(np.linalg.norm(wp[j + 1] - wp[j])) for j in scan_legs]
+    sweeps = sum(_n_steps(0.0, x, step_m, "platform.step_m", source) for x in lengths if x >= step_m)
+    _check_beams({"sweeps": (sweeps, "platform.step_m", step_m),
+                  "elevations": (len(el), "platform.elevation_deg", list(elevation_deg))},
+                 footprint, max_beams, source)
     legs = []
     for j in range(n_legs):
         a, b = wp[j], wp[j + 1]
@@ -282,7 +321,7 @@ def path_patterns(waypoints_m, step_m: float, elevation_deg: tuple[float, float,
 def airborne_pattern(start_xy_m, end_xy_m, altitude_m: float, swath_deg: float, speed_m_s: float,
                      pulse_rate_hz: float, pulses_per_line: int, *, footprint: int = 0,
                      escape_m: float = 10000.0, ground: bool = True, ground_z_m: float = 0.0,
-                     source=None) -> BeamPattern:
+                     max_beams: int | None = None, source=None) -> BeamPattern:
     """A nadir line scanner flying a straight line at ``altitude_m`` above the ground.
 
     Each line fires ``pulses_per_line`` pulses evenly across ±swath/2 (beam centres at
@@ -308,6 +347,9 @@ def airborne_pattern(start_xy_m, end_xy_m, altitude_m: float, swath_deg: float, 
         raise ConfigError(f"the flight line ({length:.3g} m) is shorter than one line step ({step:.3g} m)",
                           file=source, key="platform.end_xy_m", value=list(end_xy_m))
     unit = (b - a) / length
+    _check_beams({"lines": (_n_steps(0.0, length, step, "platform.speed_m_s", source), "platform.speed_m_s",
+                            speed_m_s),
+                  "pulses": (M, "platform.pulses_per_line", pulses_per_line)}, footprint, max_beams, source)
     s = _steps(0.0, length, step, "platform.speed_m_s", source)
     origins = a[None, :] + s[:, None] * unit[None, :]
     origins[:, 2] = ground_z_m + altitude_m
@@ -360,19 +402,25 @@ def _legs(position_m, waypoints_m, speed_m_s, duration_s, default_duration_s: fl
     return legs
 
 
-def _leg_times(t0: float, t1: float, period: float, last: bool) -> np.ndarray:
-    """Indices n of the events n·period in [t0, t1) ([t0, t1] on the last leg).  Both ends are
-    rounded the same way, so consecutive legs share no event and miss none."""
+def _leg_events(t0: float, t1: float, period: float, last: bool) -> tuple[int, int]:
+    """(first, end) indices n of the events n·period in [t0, t1) ([t0, t1] on the last leg).
+    Both ends are rounded the same way, so consecutive legs share no event and miss none."""
     n0 = int(math.ceil(t0 / period - 1e-9))
     n1 = int(math.floor(t1 / period + 1e-9)) + 1 if last else int(math.ceil(t1 / period - 1e-9))
-    return np.arange(n0, max(n0, n1), dtype=np.int64)
+    return n0, max(n0, n1)
 
 
-def _check_count(n: int, max_beams: int | None, what: str, source) -> None:
-    if max_beams is not None and n > max_beams:
-        raise ConfigError(f"{what} = {n:.3g} beams exceed scan.max_beams = {max_beams}; shorten the path "
-                          "or duration, narrow azimuth_range_deg, or raise max_beams",
-                          file=source, key="scan.max_beams", value=max_beams)
+def _static_events(t1: float, period: float) -> tuple[int, int]:
+    """(0, end): the events n·period in [0, t1) of a static scanner, at least one."""
+    return 0, max(1, int(math.floor(t1 / period + 1e-9)))
+
+
+def _timed_key(static: bool, duration_s, fallback: tuple[str, object], speed_m_s) -> tuple[str, object]:
+    """The key that made a timed scanner fire so often: its duration, else ``fallback``
+    (static), or its speed (moving: the duration is the path over the speed)."""
+    if not static:
+        return "platform.speed_m_s", speed_m_s
+    return ("platform.duration_s", duration_s) if duration_s is not None else fallback
 
 
 #: Velodyne VLP-16 (User Manual 63-9243 Rev. E, "Laser firing sequence" and "Vertical angles"):
@@ -440,15 +488,17 @@ def rotating_patterns(channels_deg=VLP16_CHANNELS_DEG, channel_offsets_us=VLP16_
     col_dir = np.stack([col_dir[:, 0] * np.cos(ph), col_dir[:, 0] * np.sin(ph), col_dir[:, 2]], axis=1)
     uniq = np.unique(el)
     col_span = float(np.median(np.diff(uniq))) if len(uniq) > 1 else 0.0
+    share = 1.0 if azimuth_range_deg is None else (a1 - a0) / 360.0  # blocks the sector keeps
+    spans = [_static_events(t1, T) if unit is None else _leg_events(t0, t1, T, j == len(legs) - 1)
+             for j, (_, unit, _, t0, t1, _) in enumerate(legs)]
+    _check_beams({"blocks": (int(sum(b - a for a, b in spans) * share),
+                             *_timed_key(position_m is not None, duration_s,
+                                         ("platform.block_period_us", block_period_us), speed_m_s)),
+                  "channels": (len(el), "platform.channels_deg", list(channels_deg))},
+                 footprint, max_beams, source)
     patterns = []
     for j, (start, unit, heading, t0, t1, v) in enumerate(legs):
-        if unit is None:  # static: blocks starting in [0, duration)
-            n = np.arange(max(1, int(math.floor(t1 / T + 1e-9))), dtype=np.int64)
-        else:
-            n = _leg_times(t0, t1, T, j == len(legs) - 1)
-        share = 1.0 if azimuth_range_deg is None else (a1 - a0) / 360.0  # blocks the sector keeps
-        _check_count(int(len(n) * share) * len(el), max_beams,
-                     f"{int(len(n) * share)} blocks × {len(el)} channels", source)
+        n = np.arange(*spans[j], dtype=np.int64)
         t = n * T
         phi = deg_per_s * t
         if azimuth_range_deg is not None:
@@ -552,13 +602,17 @@ def rosette_patterns(rosette_hz=MID70_ROSETTE_HZ, fov_deg: float = MID70_FOV_DEG
     legs = _legs(position_m, waypoints_m, speed_m_s, duration_s, ROSETTE_FRAME_S, source)
     dt = 1.0 / float(pulse_rate_hz)
     per_frame = max(1, int(round(ROSETTE_FRAME_S * pulse_rate_hz)))
+    spans = [_static_events(t1, dt) if unit is None else _leg_events(t0, t1, dt, j == len(legs) - 1)
+             for j, (_, unit, _, t0, t1, _) in enumerate(legs)]
+    _check_beams({"pulses": (sum(b - a for a, b in spans),
+                             *_timed_key(position_m is not None, duration_s,
+                                         ("platform.pulse_rate_hz", pulse_rate_hz), speed_m_s))},
+                 0, max_beams, source)
     patterns = []
     for j, (start, unit, heading, t0, t1, v) in enumerate(legs):
-        n = (np.arange(max(1, int(math.floor(t1 / dt + 1e-9))), dtype=np.int64) if unit is None
-             else _leg_times(t0, t1, dt, j == len(legs) - 1))
+        n = np.arange(*spans[j], dtype=np.int64)
         m = min(per_frame, len(n))
         rows = len(n) // m
-        _check_count(rows * m, max_beams, f"{rows} frames × {m} pulses", source)
         t = (n[:rows * m] * dt).reshape(rows, m)
         d = rosette_directions(t.ravel(), f, fov_deg, look_deg)
         h = np.deg2rad(heading)  # the look direction turns with the vehicle

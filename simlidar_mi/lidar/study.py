@@ -66,7 +66,8 @@ PAPER_N_ORCHARDS = 42  # the paper's study size (§5)
 # Bump when a row's contents change, so that rows of an older study are never reused.
 # 3: keys hash the resolved scene and the code version; rows record both.
 ROW_SCHEMA = 3
-# Scene keys that cannot change a row (left out of its key).
+# Scene keys that cannot change a row (left out of its key); execution knobs (Key.knob:
+# chunk sizes, size limits) are left out too.
 NOT_IN_KEY = {"scene.name"}
 # Other readings of the paper, each a re-scan of the same built orchard: (scan-setting
 # changes, what it is).  The primary scan is the study's own (by default P = 2, "any",
@@ -112,10 +113,11 @@ def scene_table(cfg: SceneConfig) -> dict[str, Any]:
     after defaults and overrides (so the same effective scene gives the same table however
     it was written), OBJ primitives by the SHA-256 of their file, and the sections the file
     declares (they choose what is generated)."""
-    table: dict[str, Any] = {"sections": sorted(cfg.present)}
+    from ..config_keys import SECTIONS  # noqa: PLC0415
+    table: dict[str, Any] = {"sections": sorted(cfg.declared)}
     for section, values in cfg.sections.items():
         for key, value in values.items():
-            if f"{section}.{key}" not in NOT_IN_KEY:
+            if f"{section}.{key}" not in NOT_IN_KEY and not SECTIONS[section][key].knob:
                 table[f"{section}.{key}"] = value
     for name, items in cfg.arrays.items():
         for j, item in enumerate(items):
@@ -215,6 +217,25 @@ def run_one(scene: str, overrides: list[str], rows_dir: str | None, readings: bo
     if rows_dir is not None:
         _save_row(Path(rows_dir), row)
     return row
+
+
+def _read_row(path: Path, quiet: bool = False) -> dict | None:
+    """The row saved at ``path``; None when there is none, or when it cannot be read (a file cut
+    short by a crash or a full disk, another program's): then it counts as missing, is scanned
+    again and overwritten, and a warning says so."""
+    try:
+        row = json.loads(path.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        row, why = None, f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+    else:
+        why = None if isinstance(row, dict) and row.get("key") == path.stem else "not a row of this key"
+    if why is None:
+        return row
+    if not quiet:
+        log.warning("study: %s cannot be read (%s); its orchard is scanned again", path, why)
+    return None
 
 
 def _save_row(rows_dir: Path, row: dict) -> None:
@@ -469,7 +490,7 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
         if n_other:
             log.warning("study: %s also holds %d rows of other grids or options, unused", rows_dir, n_other)
     rows_dir.mkdir(parents=True, exist_ok=True)
-    todo = [(o, k) for o, k in zip(grid, keys) if not (rows_dir / f"{k}.json").exists()]
+    todo = [(o, k) for o, k in zip(grid, keys) if _read_row(rows_dir / f"{k}.json") is None]
     if todo:
         from .._dask import cluster_client, run_on_client  # noqa: PLC0415
         with cluster_client(scheduler) as client:
@@ -483,12 +504,12 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
                     # each row is saved here the moment it arrives: an interrupted study resumes
                     run_on_client(client, _cluster_task, calls, shared=_scene_bundle(scene, cfgs),
                                   on_result=lambda row: (_save_row(rows_dir, row), st.update()))
-        missing = [k for _, k in todo if not (rows_dir / f"{k}.json").exists()]
+        missing = [k for _, k in todo if _read_row(rows_dir / f"{k}.json", quiet=True) is None]
         if missing:  # a task keys its row by what it scanned: the inputs moved under us
             raise ConfigError(f"{len(missing)} rows were written under other keys than planned: the "
                               "scene or one of its OBJ files changed while the study ran; run it again",
                               file=scene)
-    rows = [json.loads((rows_dir / f"{k}.json").read_text()) for k in keys]
+    rows = [_read_row(rows_dir / f"{k}.json", quiet=True) for k in keys]
     regression = regression_report(rows)
     regression["code_version"] = version
     files = {"csv": out / "study.csv", "regression": out / "regression.json", "png": out / "correlations.png"}

@@ -290,7 +290,7 @@ def _patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m) -> list:
     from .scan import resolve_settings  # noqa: PLC0415
     pf, sc, gr = cfg["platform"], cfg["scan"], cfg["ground"]
     common = {"footprint": sc["footprint"], "ground": gr["enabled"], "ground_z_m": gr["z_m"],
-              "source": cfg.source}
+              "source": cfg.source, "max_beams": sc["max_beams"]}
     kind = pf["kind"]
     sensor_rate = cfg["sensor"]["pulse_rate_hz"]
 
@@ -321,14 +321,13 @@ def _patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m) -> list:
         return rotating_patterns(pf["channels_deg"], pf["channel_offsets_us"], pf["block_period_us"],
                                  pf["rotation_hz"], position_m=pf["position_m"], waypoints_m=pf["waypoints_m"],
                                  speed_m_s=pf["speed_m_s"], azimuth_range_deg=pf["azimuth_range_deg"],
-                                 duration_s=pf["duration_s"], escape_m=sc["escape_m"],
-                                 max_beams=sc["max_beams"], **common)
+                                 duration_s=pf["duration_s"], escape_m=sc["escape_m"], **common)
     if kind == "rosette":
         from .platforms import MID70_PULSE_RATE_HZ  # noqa: PLC0415
         return rosette_patterns(pf["rosette_hz"], pf["fov_deg"], pulse_rate(MID70_PULSE_RATE_HZ), pf["look_deg"],
                                 position_m=pf["position_m"], waypoints_m=pf["waypoints_m"],
                                 speed_m_s=pf["speed_m_s"], duration_s=pf["duration_s"],
-                                escape_m=sc["escape_m"], max_beams=sc["max_beams"], **common)
+                                escape_m=sc["escape_m"], **common)
     escape = max(sc["escape_m"], 10 * pf["altitude_m"])
     speed = pf["speed_m_s"] if pf["speed_m_s"] is not None else AIRBORNE_SPEED_M_S
     return [airborne_pattern(need("start_xy_m"), need("end_xy_m"), pf["altitude_m"], pf["swath_deg"],
@@ -377,12 +376,13 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     seconds: dict[str, float] = {}
 
     t = time.perf_counter()
+    early = plan_from_keys(cfg)  # a scan too large is refused here, at once
     if _overlap_generation(cfg, scheduler):  # Mitsuba imported here while a forked child generates
-        with contextlib.closing(Forked("generating the scene", _plan, cfg)) as job:
+        with contextlib.closing(Forked("generating the scene", _plan, cfg, early)) as job:
             mitsuba(cfg["scene"]["variant"])
             geometry, patterns = job.wait()
     else:
-        geometry, patterns = _plan(cfg)
+        geometry, patterns = _plan(cfg, early)
     n_beams = sum(p.n_beams for p in patterns)
     if n_beams * (cfg["scan"]["footprint"] + 1) ** 2 > cfg["scan"]["max_beams"]:
         raise ConfigError(f"{n_beams} beams exceed scan.max_beams = {cfg['scan']['max_beams']}",
@@ -504,11 +504,58 @@ def prepare_scan(cfg: SceneConfig) -> tuple[list, object, object]:
     return patterns, build(cfg, geometry, patterns), scene_sensor(cfg, geometry, patterns)
 
 
-def _plan(cfg: SceneConfig) -> tuple[SceneGeometry, list]:
-    """The geometry and the scan patterns of ``cfg`` (no Mitsuba: a forked child may run it)."""
+def plan_from_keys(cfg: SceneConfig) -> list | None:
+    """What the keys alone decide, checked before anything is generated (or Mitsuba imported):
+    a vineyard's size, and the beam patterns of every platform but the tractor (whose sweep
+    follows the geometry) within ``max_beams`` and ``max_rays``; returns those patterns
+    (None for the tractor)."""
+    if cfg.has("vineyard") or cfg.has("vineyard.canopy"):
+        from ..plants.vineyard import vineyard_params  # noqa: PLC0415
+        vineyard_params(cfg)
+    if cfg["platform"]["kind"] == "tractor":
+        return None
+    patterns = scan_patterns(cfg, None, None)
+    check_rays(cfg, patterns, None)
+    return patterns
+
+
+def _plan(cfg: SceneConfig, early: list | None = None) -> tuple[SceneGeometry, list]:
+    """The geometry and the scan patterns of ``cfg`` (no Mitsuba: a forked child may run it);
+    ``early``: :func:`plan_from_keys`'s patterns, when already made."""
+    if early is None:
+        early = plan_from_keys(cfg)
     geometry = generate(cfg)
-    lo, hi = geometry.bounds_m()
-    return geometry, scan_patterns(cfg, lo, hi, geometry.near_x_m)
+    if early is not None:
+        patterns = early
+    else:
+        lo, hi = geometry.bounds_m()
+        patterns = scan_patterns(cfg, lo, hi, geometry.near_x_m)
+    if cfg.has("sensor"):
+        check_rays(cfg, patterns, scene_sensor(cfg, geometry, patterns))
+    return geometry, patterns
+
+
+def check_rays(cfg: SceneConfig, patterns: list, sensor) -> None:
+    """Refuse a scan of more rays than ``[scan] max_rays``: beams × dot-matrix sub-beams ×
+    the [sensor]'s sub-rays per beam, before any is traced.  ``sensor`` None: the sub-rays
+    the keys alone imply (a given ``beam_samples``, else auto's smallest, 7)."""
+    from .sensor import AUTO_S_MIN  # noqa: PLC0415
+    s = cfg["sensor"]
+    div = cfg.has("sensor") and s["divergence_mrad"] > 0
+    if sensor is not None:
+        per_beam = sensor.beam_samples if sensor.divergence_mrad > 0 else 1
+    else:
+        per_beam = (s["beam_samples"] or AUTO_S_MIN) if div else 1
+    beams = sum(p.n_beams for p in patterns)
+    sub = (cfg["scan"]["footprint"] + 1) ** 2
+    limit = cfg["scan"]["max_rays"]
+    if beams * sub * per_beam <= limit:
+        return
+    key = ("sensor.beam_samples" if s["beam_samples"] else "sensor.divergence_mrad") if per_beam > 1 \
+        else "scan.max_rays"
+    raise ConfigError(f"{beams:,} beams × {sub} sub-beams × {per_beam} sub-rays = {beams * sub * per_beam:.3g} "
+                      f"rays exceed scan.max_rays = {limit}; lower beam_samples, coarsen the scan or raise "
+                      "scan.max_rays", file=cfg.source_of(key), key=key, value=cfg[key.split(".")[0]][key.split(".")[1]])
 
 
 #: Geometry elements (branches + leaf triangles) from which a scan with files measures the wood

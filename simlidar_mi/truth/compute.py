@@ -53,7 +53,17 @@ def default_grid(geometry, voxel_m: float = 0.1, margin_m: float = 0.0,
     if not (np.isfinite(margin_m) and margin_m >= 0):
         raise ConfigError("margin must be a finite number ≥ 0 metres", key="margin_m", value=margin_m)
     lo, hi = geometry.bounds_m()
-    grid = VoxelGrid.covering(lo - margin_m, hi + margin_m, voxel_m, max_voxels=max_voxels)
+    try:
+        grid = VoxelGrid.covering(lo - margin_m, hi + margin_m, voxel_m, max_voxels=max_voxels)
+    except ConfigError as exc:
+        if exc.key != "voxel_m" or margin_m == 0:
+            raise
+        try:  # the same voxels without the margin fit: the margin is to blame
+            VoxelGrid.covering(lo, hi, voxel_m, max_voxels=max_voxels)
+        except ConfigError:
+            raise exc from None
+        raise ConfigError(f"{exc.reason.split(';')[0]} with this margin on every side; use a smaller margin",
+                          key="margin_m", value=margin_m) from None
     # A facet lying in a voxel plane belongs to the voxel above it: when the geometry ends
     # exactly on the grid's top plane (a box's face), one more layer keeps it inside.
     top = (hi + margin_m - grid.hi_m) / voxel_m > -1e-9

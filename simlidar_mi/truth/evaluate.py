@@ -23,13 +23,14 @@ from __future__ import annotations
 import json
 import re
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .._progress import make_progress
-from ..errors import ConfigError
+from ..errors import ConfigError, SimlidarWarning
 from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
 from .estimators import BUILTIN, ESTIMATE_VARIABLES, G_SPHERICAL, MIN_BEAMS, estimate_all
 from .grid import VoxelGrid, grid_dataset, grid_values, write_grid
@@ -112,6 +113,7 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
         if var not in truth:
             raise ConfigError(f"the truth has no {var}", key=var)
         s = score(grid_values(truth, var), arrays[var], observed)
+        _say_what_is_odd(name, var, np.asarray(arrays[var], np.float64), observed, s["voxel"]["n"])
         for scale in ("voxel", "profile"):
             rows.append({"estimator": name, "variable": var, "scale": scale, **s[scale],
                          "seconds": round(seconds.get(name, float("nan")), 4)})
@@ -129,6 +131,18 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
     if stage is not None:
         _write(run, Path(stage), grid, truth, profiles, title, {"crs": crs, "ground_z_m": ground_z_m})
     return run
+
+
+def _say_what_is_odd(name: str, var: str, estimate: np.ndarray, observed: np.ndarray, n: int) -> None:
+    """One warning line for an estimate that scores nothing or holds negative densities."""
+    seen = estimate[observed]
+    if n == 0 and observed.any():
+        warnings.warn(SimlidarWarning(f"estimator {name}: no finite {var} in the {int(observed.sum())} voxels "
+                                      "beams entered, so it is scored on none (n = 0)"), stacklevel=3)
+    neg = seen[np.isfinite(seen) & (seen < 0)]
+    if len(neg):
+        warnings.warn(SimlidarWarning(f"estimator {name}: {len(neg)} voxels hold a negative {var} (down to "
+                                      f"{neg.min():.4g}); scored as given"), stacklevel=3)
 
 
 def _unique(name: str, taken) -> str:
@@ -245,14 +259,16 @@ def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_
     scene's (:func:`simlidar_mi.truth.run.row_spacing_of`)."""
     from ..config import SceneConfig, load_scene  # noqa: PLC0415
     from ..lidar.survey import run_scan, scan_patterns  # noqa: PLC0415
-    from .compute import compute_truth, default_grid  # noqa: PLC0415
+    from .compute import compute_truth  # noqa: PLC0415
     from .estimators import beams_from_exr, beams_from_scan  # noqa: PLC0415
-    from .run import row_spacing_of, truth_geometry  # noqa: PLC0415
-    cfg = scene if isinstance(scene, SceneConfig) else load_scene(scene, overrides)
-    tc = cfg["truth"]
-    voxel_m = float(voxel_m if voxel_m is not None else tc["voxel_m"])
-    if not (np.isfinite(voxel_m) and voxel_m > 0):
+    from .run import row_spacing_of, truth_geometry, truth_grid  # noqa: PLC0415
+    # The options first (each named as typed), then the scene and its grid: all before the scan.
+    if voxel_m is not None and not (_real(voxel_m) and voxel_m > 0):
         raise ConfigError("the voxel size must be a number > 0 metres", key="--voxel", value=voxel_m)
+    if not (_real(min_beams) and min_beams > 0):
+        raise ConfigError("must be a number of beams > 0", key="--min-beams", value=min_beams)
+    if row_spacing_m is not None and not (_real(row_spacing_m) and row_spacing_m > 0):
+        raise ConfigError("the row spacing must be a number > 0 metres", key="--row-spacing", value=row_spacing_m)
     if weights not in ("equal", "energy"):
         raise ConfigError("echo weights must be 'equal' or 'energy'", key="--weights", value=weights)
     if not (np.isfinite(G) and 0 < G <= 1):
@@ -262,13 +278,15 @@ def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_
             load_plugin(spec)
     for cmd in commands:
         check_command(cmd)
+    cfg = scene if isinstance(scene, SceneConfig) else load_scene(scene, overrides)
+    tc = cfg["truth"]
+    geometry, ground_area = truth_geometry(cfg)
+    grid = truth_grid(cfg, geometry, voxel_m)  # a voxel too fine for the scene: refused before the scan
     shown = make_progress(progress)
     with staged_dir(out_dir, EVALUATE_OUTPUTS) as stage:
         t = time.perf_counter()
         run = run_scan(cfg, stage / "scan", write_png=False, progress=shown)
         scan_s = time.perf_counter() - t
-        geometry, ground_area = truth_geometry(cfg)
-        grid = default_grid(geometry, voxel_m, tc["margin_m"])
         t = time.perf_counter()
         truth = compute_truth(geometry, grid, progress=shown, ground_area_m2=tc["ground_area_m2"] or ground_area,
                               crs=cfg["scene"]["crs"], ground_z_m=cfg["ground"]["z_m"])
@@ -298,6 +316,11 @@ def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_
     out.files = {n: Path(out_dir) / n for n in ("scores.csv", "scores.json", "profiles.csv", "profiles.png",
                                                 "scatter.png", "truth.nc", "grid.nc", "estimates", "scan")}
     return out
+
+
+def _real(v) -> bool:
+    """A finite real number (not a boolean)."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and bool(np.isfinite(v))
 
 
 def _concat(parts):

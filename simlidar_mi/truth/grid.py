@@ -92,11 +92,16 @@ class VoxelGrid:
         if not (np.isfinite(voxel_m) and voxel_m > 0):
             raise ConfigError("voxel size must be a finite number > 0", key="voxel_m", value=voxel_m)
         lo, hi = np.asarray(lo_m, np.float64), np.asarray(hi_m, np.float64)
-        corner = np.floor(lo / voxel_m) * voxel_m
-        shape = np.maximum(1, np.ceil((hi - corner) / voxel_m - 1e-9))
-        count = int(shape[0]) * int(shape[1]) * int(shape[2])  # Python ints: np.prod wraps at 2⁶³
+        with np.errstate(over="ignore", invalid="ignore"):  # a huge box: an infinite count, refused
+            corner = np.floor(lo / voxel_m) * voxel_m
+            shape = np.maximum(1, np.ceil((hi - corner) / voxel_m - 1e-9))
+        if not np.all(np.isfinite(shape)) or float(np.prod(shape)) > 2.0 * max_voxels:
+            count = float(np.prod(shape))  # too many to count exactly (or to hold in an int)
+        else:
+            count = int(shape[0]) * int(shape[1]) * int(shape[2])  # Python ints: np.prod wraps at 2⁶³
         if count > max_voxels:
-            raise ConfigError(f"a {voxel_m} m grid over this scene has {count:,} voxels "
+            shown = f"{count:,}" if isinstance(count, int) else f"{count:.3g}"
+            raise ConfigError(f"a {voxel_m} m grid over this scene has {shown} voxels "
                               f"(> {max_voxels:,}); use larger voxels", key="voxel_m", value=voxel_m)
         return cls(tuple(corner), voxel_m, tuple(int(n) for n in shape))
 

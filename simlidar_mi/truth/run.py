@@ -29,7 +29,7 @@ from .row_metrics import canopy_profiles, lwa_m2_ha, trv_m3_ha
 
 log = logging.getLogger(__name__)
 
-__all__ = ["TruthRun", "run_truth", "truth_geometry", "row_spacing_of", "TRUTH_OUTPUTS"]
+__all__ = ["TruthRun", "run_truth", "truth_geometry", "truth_grid", "row_spacing_of", "TRUTH_OUTPUTS"]
 
 TRUTH_OUTPUTS = (r"truth\.nc", r"truth_summary\.csv", r"truth_profiles\.png")
 
@@ -54,6 +54,21 @@ def truth_geometry(cfg: SceneConfig):
         b = can.branches if can.branches is not None else Branches.empty()
         return SceneGeometry(b, can.leaves, [], source=cfg.source), can.plot_area_m2
     return generate(cfg), None
+
+
+def truth_grid(cfg: SceneConfig, geometry, voxel_m: float | None = None):
+    """The ``[truth]`` grid over ``geometry`` (:func:`~simlidar_mi.truth.compute.default_grid`),
+    ``voxel_m`` (evaluate's ``--voxel``) instead of ``[truth] voxel_m`` when given; an error
+    names what the user gave: ``--voxel``, the ``--set`` argument or the scene's key, and the
+    margin when the margin made the grid too large."""
+    t = cfg["truth"]
+    try:
+        return default_grid(geometry, t["voxel_m"] if voxel_m is None else voxel_m, t["margin_m"])
+    except ConfigError as exc:
+        if exc.key != "margin_m" and voxel_m is not None:
+            raise ConfigError(exc.reason, key="--voxel", value=voxel_m) from None
+        key = "truth.margin_m" if exc.key == "margin_m" else "truth.voxel_m"
+        raise cfg.relabel(ConfigError(exc.reason, file=cfg.source, key=key, value=t[key[6:]])) from None
 
 
 def row_spacing_of(cfg: SceneConfig) -> float | None:
@@ -140,11 +155,7 @@ def run_truth(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     t = cfg["truth"]
     prog = make_progress(progress)
     geometry, plot_area = truth_geometry(cfg)
-    try:
-        grid = default_grid(geometry, t["voxel_m"], t["margin_m"])
-    except ConfigError as exc:  # name the scene key, not the function argument
-        key = "truth.margin_m" if exc.key == "margin_m" else "truth.voxel_m"
-        raise ConfigError(exc.reason, file=cfg.source, key=key, value=t[key[6:]]) from None
+    grid = truth_grid(cfg, geometry)
     spacing = row_spacing_of(cfg)
     ground = t["ground_area_m2"] if t["ground_area_m2"] is not None else plot_area
     if ground is None:  # a row scene: the ground its plants own, as `measure` counts it

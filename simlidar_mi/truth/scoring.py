@@ -92,6 +92,9 @@ def load_plugin(spec: str):
             module = importlib.import_module(mod_name)
     except ImportError as exc:
         raise ConfigError(f"cannot import the estimator's module: {exc}", key="--estimator", value=spec) from None
+    except Exception as exc:  # noqa: BLE001  (a SyntaxError, or the module's own code failing: one line)
+        raise ConfigError(f"importing the estimator's module failed: {_one_line(exc)}", key="--estimator",
+                          value=spec) from None
     f = getattr(module, func, None)
     if not callable(f):
         raise ConfigError(f"module {mod_name!r} has no function {func!r}", key="--estimator", value=spec)
@@ -129,7 +132,12 @@ def check_estimate(out, grid: VoxelGrid, source: str) -> dict[str, np.ndarray]:
                               file=source, key=k, value=list(a.shape))
         if not np.issubdtype(a.dtype, np.number):
             raise ConfigError(f"values must be numbers, not {a.dtype}", file=source, key=k, value=str(a.dtype))
-        got[k] = a.astype(np.float64)
+        a = a.astype(np.float64)
+        n_inf = int(np.isinf(a).sum())
+        if n_inf:  # an area density is finite; NaN marks a voxel the estimator leaves out
+            raise ConfigError(f"{n_inf} of {a.size} values are infinite; an estimate is a finite density "
+                              "(NaN where the estimator gives none)", file=source, key=k, value="inf")
+        got[k] = a
     return got
 
 
@@ -139,8 +147,21 @@ def _short(c) -> str:
 
 
 def call_plugin(f, spec: str, scan_dir: Path, grid: VoxelGrid) -> dict[str, np.ndarray]:
-    """Run a callable plug-in and check its result (:func:`check_estimate`)."""
-    return check_estimate(f(Path(scan_dir), grid), grid, spec)
+    """Run a callable plug-in and check its result (:func:`check_estimate`); an exception it
+    raises is one error line naming it."""
+    try:
+        out = f(Path(scan_dir), grid)
+    except Exception as exc:  # noqa: BLE001  (the plug-in's own failure, whatever it is)
+        raise ConfigError(f"the estimator failed: {_one_line(exc)}", key="--estimator", value=spec) from None
+    return check_estimate(out, grid, spec)
+
+
+def _one_line(exc: BaseException) -> str:
+    """``Type: message`` on one line, with the file and line a SyntaxError points at."""
+    text = " ".join(str(exc).split())
+    if isinstance(exc, SyntaxError) and exc.filename:
+        text = f"{exc.msg} ({exc.filename}, line {exc.lineno})"
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 def check_command(template: str, **paths) -> list[str]:
@@ -175,11 +196,18 @@ def run_command(template: str, *, las: Path, exr: Path, grid_file: Path, out: Pa
                           key="--estimator-cmd", value=template)
     if not Path(out).is_file():
         raise ConfigError(f"the estimator command wrote no file {out}", key="--estimator-cmd", value=template)
-    their_grid, ds = read_grid(out)
+    # {out} and {grid} are staging files, gone when the error is read: name the command instead
+    label = f"--estimator-cmd {template}"
+    try:
+        their_grid, ds = read_grid(out)
+    except ConfigError as exc:
+        raise ConfigError(f"its output grid: {exc.reason.replace(str(out), '{out}')}", file=label, key=exc.key, value=exc.value) from None
+    except Exception as exc:  # noqa: BLE001  (not a NetCDF file xarray can read)
+        raise ConfigError(f"its output is not a readable grid NetCDF: {_one_line(exc)}", file=label) from None
     if their_grid.shape != grid.shape or not np.isclose(their_grid.voxel_m, grid.voxel_m, rtol=1e-9) \
             or not np.allclose(their_grid.corner_m, grid.corner_m, rtol=0, atol=1e-6 * grid.voxel_m):
-        raise ConfigError(f"its grid (corner {their_grid.corner_m}, voxel {their_grid.voxel_m:g} m, shape "
-                          f"{their_grid.shape}) is not the one given in {grid_file} (corner {grid.corner_m}, "
-                          f"voxel {grid.voxel_m:g} m, shape {grid.shape})", file=str(out), key="x, y, z",
-                          value=list(their_grid.shape))
-    return check_estimate(ds, grid, str(out))
+        raise ConfigError(f"its output grid (corner {their_grid.corner_m}, voxel {their_grid.voxel_m:g} m, "
+                          f"shape {their_grid.shape}) is not the grid it was given, grid.nc (corner "
+                          f"{grid.corner_m}, voxel {grid.voxel_m:g} m, shape {grid.shape})", file=label,
+                          key="x, y, z", value=list(their_grid.shape))
+    return check_estimate(ds, grid, label)

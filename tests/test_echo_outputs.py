@@ -22,6 +22,7 @@ from simlidar_mi.lidar.scan import ScanResult
 from simlidar_mi.lidar.survey import run_scan
 from simlidar_mi.lidar.waveform import detect_echoes, first_return_arrays, range_fwhm_m
 from tests.conftest import SCENES
+from tests.las_conformance import check_las
 
 WOOD, LEAF, GROUND = CLASS_CODES["wood"], CLASS_CODES["leaf"], CLASS_CODES["ground"]
 SENSOR = {"preset": None, "divergence_mrad": 2.0, "max_returns": 3, "pulse_length_ns": 3.0,
@@ -168,6 +169,12 @@ def test_las_without_echoes_keeps_main_values_in_standard_fields(tmp_path, calib
         theta = np.asarray(b.scan_angle) * 0.006  # main wrote the elevation θ
         np.testing.assert_array_equal(np.asarray(a.scan_angle), np.round((90.0 + theta) / 0.006))
         np.testing.assert_allclose(np.asarray(a.elevation_deg), theta, atol=0.003)
+        # the LAS 1.4 check written from the specification passes the new file, not main's
+        assert check_las(new) == []
+        problems = check_las(old)
+        assert any("1 <= return number" in p for p in problems)
+        assert any("min not zero while its option bit is clear" in p for p in problems)
+        assert any("resolution fluff" in p for p in problems) == (name == "calib")  # y on a 2 mm grid
 
 
 def test_exr_without_echoes_keeps_main_values(tmp_path, calibration_scan):

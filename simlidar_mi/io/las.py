@@ -30,11 +30,11 @@ horizon and its azimuth counter-clockwise from +x, in [-180, 180)), ``branch_id`
 ``tree_id`` (uint32) for scenes of several plants and, with echoes, ``echo_width_ns`` (float32)
 and, with intensity, ``echo_energy`` (float32, E unclipped).
 
-Coordinates: offsets floor(min) per axis; the scale per axis is the coarsest of 1 m, 0.1 m,
-1 cm, 1 mm and 0.1 mm on whose grid every point lies (within 0.1 µm): 0.1 mm for measured
-coordinates, coarser for an axis the pattern fixes on a grid (a tractor's rows), so that no axis
-carries "resolution fluff" (every stored integer a multiple of 10, which lasinfo reports) and
-no point moves (:class:`~simlidar_mi.io.las_fields.ScaleChooser`).
+Coordinates: offsets floor(min) per axis; the scale per axis is 0.1 mm, or the coarsest of
+1 mm, 1 cm, 0.1 m and 1 m that every point's 0.1 mm coordinate is a whole multiple of (an axis
+the pattern fixes on a grid, as a tractor's rows): the same coordinates as at 0.1 mm, and no
+axis carries "resolution fluff" (every stored integer a multiple of 10, which lasinfo reports)
+(:class:`~simlidar_mi.io.las_fields.ScaleChooser`).
 
 Header: the global-encoding WKT bit is always set (LAS 1.4 requires it for point
 formats 6–10); its GPS-time-type bit stays 0, since ``gps_time`` is a time from the

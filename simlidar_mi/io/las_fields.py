@@ -10,8 +10,6 @@ import numpy as np
 SCAN_ANGLE_UNIT_DEG = 0.006
 #: Candidate per-axis scales, coarsest first (module docstring; :class:`ScaleChooser`).
 SCALES_M = (1.0, 0.1, 0.01, 0.001, 0.0001)
-#: A coordinate within this of a grid node lies on the grid (far below the finest scale's half step).
-GRID_TOL_M = 1e-7
 
 
 def intensity_text(sensor: dict) -> str:
@@ -106,13 +104,14 @@ class BeamAngles:
 
 
 class ScaleChooser:
-    """Per-axis LAS scale: the coarsest of :data:`SCALES_M` on whose grid every point fed
-    lies (within :data:`GRID_TOL_M`), checked piece by piece, so the same for any pieces.
+    """Per-axis LAS scale: 0.1 mm, or the coarsest of :data:`SCALES_M` that every point's
+    0.1 mm coordinate is a whole multiple of, checked piece by piece (the same for any pieces).
 
-    With offsets floor(min), an axis at scale g ≤ 0.1 m has all its integers divisible by 10
-    only if every point lay on the 10·g grid, which the choice excludes: no lasinfo
-    "resolution fluff".  At 1 m the integers are x − floor(min): if all points agree modulo
-    10 m (a constant axis, say), :meth:`offsets` moves that offset 1 m down."""
+    The file then stores exactly the coordinates a 0.1 mm file would, and no axis has all its
+    stored integers divisible by 10 (lasinfo's "resolution fluff"), since that would have chosen
+    the next coarser scale.  Offsets are whole metres, so divisibility does not depend on them;
+    at 1 m the integers are x − floor(min): if all points agree modulo 10 m (a constant axis, say),
+    :meth:`offsets` moves that offset 1 m down."""
 
     def __init__(self):
         self.level = np.zeros(3, np.int64)  # index into SCALES_M
@@ -123,14 +122,14 @@ class ScaleChooser:
         if not xyz.shape[1]:
             return
         for c in range(3):
-            x = xyz[c]
+            fine = np.round(xyz[c] / SCALES_M[-1])  # the 0.1 mm integers (exact in float64)
             while self.level[c] < len(SCALES_M) - 1:
-                g = SCALES_M[self.level[c]]
-                if np.all(np.abs(x - g * np.round(x / g)) <= GRID_TOL_M):
+                step = round(SCALES_M[self.level[c]] / SCALES_M[-1])
+                if not np.any(np.fmod(fine, step)):
                     break
                 self.level[c] += 1
             if self.level[c] == 0 and self.mod10[c] is not False:
-                r = np.unique(np.mod(np.round(x), 10.0))
+                r = np.unique(np.mod(fine / 10_000, 10.0))
                 same = len(r) == 1 and self.mod10[c] in (None, float(r[0]))
                 self.mod10[c] = float(r[0]) if same else False
 

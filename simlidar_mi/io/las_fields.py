@@ -122,6 +122,8 @@ class ScaleChooser:
         if not xyz.shape[1]:
             return
         for c in range(3):
+            if self.level[c] == len(SCALES_M) - 1:  # already the finest: nothing to check
+                continue
             fine = np.round(xyz[c] / SCALES_M[-1])  # the 0.1 mm integers (exact in float64)
             while self.level[c] < len(SCALES_M) - 1:
                 step = round(SCALES_M[self.level[c]] / SCALES_M[-1])

@@ -211,8 +211,9 @@ def check_las(path: str | Path, *, today: datetime.date | None = None) -> list[s
         at = PDRF6_SIZE
         for e in ebs:
             if e["data_type"]:
-                v = np.frombuffer(data, _record_dtype(np.dtype([("v", EB_NUMPY[e["data_type"]])]), h["record_length"], at),
-                                  count=n, offset=h["offset_to_point_data"])["v"]
+                field = np.dtype([("v", EB_NUMPY[e["data_type"]])])
+                v = np.frombuffer(data, _record_dtype(field, h["record_length"], at), count=n,
+                                  offset=h["offset_to_point_data"])["v"]
                 if e["data_type"] in (9, 10) and not np.all(np.isfinite(v)):
                     problems.append(f"extra bytes {e['name']!r}: non-finite values")
             at += e["size"]

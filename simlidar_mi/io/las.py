@@ -8,17 +8,17 @@ Point format 6, every field as LAS 1.4 R15 defines it (§2.6, "Point Data Record
   its legacy counts stay 0, as §2.4 requires for point formats 6–10.
 * ``scan_angle`` (0.006° units): the beam's angle from nadir, 0 straight down, ±180° straight
   up, positive when the beam points to the right of the platform's forward direction
-  (:func:`~simlidar_mi.io.las_fields.forward_heading_deg`), negative to its left (counter-clockwise seen from behind, §2.6
-  "Scan Angle").  For beams in the plane across the track (tractor, path, airborne) this is the
-  standard's rotation about the track; for beams out of that plane (spinning heads, rosettes,
-  tripods) it is the full angle from nadir with the side's sign, so |scan_angle| is always the
-  off-nadir angle and a near-nadir filter keeps near-vertical beams only.  Beams in the vertical
-  plane through the track count as right (positive).
+  (:func:`~simlidar_mi.io.las_fields.forward_heading_deg`), negative to its left
+  (counter-clockwise seen from behind, §2.6 "Scan Angle").  For beams in the plane across the
+  track (tractor, path, airborne) this is the standard's rotation about the track; for beams out
+  of that plane (spinning heads, rosettes, tripods) it is the full angle from nadir with the
+  side's sign, so |scan_angle| is always the off-nadir angle and a near-nadir filter keeps
+  near-vertical beams only.  Beams in the vertical plane through the track count as right.
 * ``intensity``: ``min(65535, round(s·E))``, E the echo energy (lidar/sensor.py), s the sensor's
   ``intensity_scale`` = 65535·r_I²/R_ref²: a 100 % Lambertian target at normal incidence filling
-  the beam at r_I = ``range_min_m`` (0.5 m when the sensor gives none) reads 65535, so nothing
-  inside the sensor's range limits clips (§2.6 "Intensity": normalised to the sensor's dynamic
-  range).  0 without a ``[sensor]`` with intensity on.  VLR record 2 states the rule and s.
+  the beam at r_I = ``range_min_m`` reads 65535, so nothing inside the sensor's range limits
+  clips (§2.6 "Intensity": normalised to the sensor's dynamic range); r_I = 0.5 m when the sensor
+  gives no ``range_min_m`` (nearer echoes may then clip).  0 without a ``[sensor]`` with intensity on.  VLR record 2 states the rule and s.
 * classification: ground 2, leaves 5 (high vegetation); wood has no ASPRS class and uses 64
   (user-definable range).  Escapes are not written.
 
@@ -52,7 +52,8 @@ coordinates are the scene's own, so the CRS only says what they mean.
   It orders the points as they were scanned; it is not a measured time.
 
 Points are written row by row in firing order: a spinning head's channels (columns, sorted by
-elevation) in the order they fire (:func:`~simlidar_mi.io.las_fields.firing_order`), so ``gps_time`` never steps back.
+elevation) in the order they fire (:func:`~simlidar_mi.io.las_fields.firing_order`), so
+``gps_time`` never steps back.
 ``point_source_id`` is the leg index j of a multi-leg path (0, 1, …; with ``[platform]
 scan_legs``, the position in that list: legs driven without scanning get none); a one-leg scan
 (every other platform) has a single source, so it is 0 for every point, and

@@ -25,7 +25,6 @@ measures.json but for its seconds, are those of the held scan.
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 

@@ -22,15 +22,17 @@ from simlidar_mi.lidar.scan import ScanResult
 from simlidar_mi.lidar.survey import run_scan
 from simlidar_mi.lidar.waveform import detect_echoes, first_return_arrays, range_fwhm_m
 from tests.conftest import SCENES
+from tests.las_conformance import check_las
 
 WOOD, LEAF, GROUND = CLASS_CODES["wood"], CLASS_CODES["leaf"], CLASS_CODES["ground"]
 SENSOR = {"preset": None, "divergence_mrad": 2.0, "max_returns": 3, "pulse_length_ns": 3.0,
-          "detection_threshold": 0.02, "intensity": True, "wavelength_nm": 905.0}
+          "detection_threshold": 0.02, "intensity": True, "wavelength_nm": 905.0,
+          "intensity_scale": 300.0, "intensity_range_m": 0.5}
 
 
 def _echo_result(*, intensity=True, max_returns=3, tree=True) -> ScanResult:
     """A 4 × 5 static pattern; beam b has b % 4 targets 4·FWHM apart (beam 0 escapes), with
-    classes wood, leaf, ground and one echo strong enough to clip the LAS intensity."""
+    classes wood, leaf, ground and one strong echo (E = 80: 24 000 counts at the scale 300)."""
     pattern = static_pattern([10.0, -3.0, 1.5], (-20.0, 20.0, 10.0), (0.0, 40.0, 10.0))
     n, m = pattern.n_rows, pattern.n_cols
     b, s, fwhm = n * m, 2, range_fwhm_m(3.0)
@@ -42,7 +44,7 @@ def _echo_result(*, intensity=True, max_returns=3, tree=True) -> ScanResult:
             r[beam, j * s:(j + 1) * s] = 3.0 + 0.1 * beam + 4 * fwhm * j
             e[beam, j * s:(j + 1) * s] = [0.05 * (j + 1), 0.01 * beam]
             cls[beam, j * s:(j + 1) * s] = (WOOD, LEAF, GROUND)[j]
-    e[7, 0] = 80.0  # E > 65.535: LAS intensity clips at 65535
+    e[7, 0] = 80.0  # clipped at 65535 by the old fixed scale (1000 counts per E)
     elem = np.arange(r.size, dtype=np.uint32).reshape(r.shape)
     trees = (elem // 5).astype(np.uint32) if tree else None
     echoes = detect_echoes(r, e, cls, elem, trees, np.full(r.shape, 0.9), np.arange(b),
@@ -104,9 +106,10 @@ def test_las_has_one_point_per_echo(tmp_path):
     np.testing.assert_array_equal(p("scan_position") * m + p("scan_angle_index"), ech.beam)
     np.testing.assert_array_equal(p("return_number"), ech.return_number)
     np.testing.assert_array_equal(p("number_of_returns"), ech.number_of_returns)
-    expected_i = np.minimum(65535, np.rint(1000 * ech.energy.astype(float)))
+    expected_i = np.rint(300.0 * ech.energy.astype(float))  # the sensor's intensity_scale
     np.testing.assert_array_equal(p("intensity"), expected_i)
-    assert p("intensity").max() == 65535 and 0 < p("intensity").min() < 65535
+    assert 20000 < p("intensity").max() < 65535 and 0 < p("intensity").min()
+    np.testing.assert_array_equal(p("echo_energy"), ech.energy)  # E unclipped, float32
     np.testing.assert_array_equal(p("classification"), [LAS_CLASS[c] for c in ech.cls])
     np.testing.assert_allclose(p("echo_width_ns"), ech.width_ns)
     np.testing.assert_allclose(p("range_m"), ech.range_m, rtol=1e-7)
@@ -118,7 +121,7 @@ def test_las_has_one_point_per_echo(tmp_path):
     want = res.pattern.row_origin_m[i] + ech.range_m[:, None] * res.pattern.world_dirs()[i, k]
     np.testing.assert_allclose(xyz, want, rtol=0, atol=1e-4)  # 0.1 mm coordinate scale
     text = las.header.vlrs.get_by_id("simlidar-mi", [2])[0].record_data
-    assert b"min(65535, round(1000 * E))" in text
+    assert b"s = 65535 * r_I^2 / R_ref^2 = 300 counts per unit E, r_I = 0.5 m" in text
     assert json.loads(las.header.vlrs.get_by_id("simlidar-mi", [3])[0].record_data) == res.sensor
 
 
@@ -150,17 +153,31 @@ def _fake_legs():
     return out
 
 
-def test_las_without_echoes_is_main_bytes(tmp_path, calibration_scan):
+def test_las_without_echoes_keeps_main_values_in_standard_fields(tmp_path, calibration_scan):
+    """A first-return file holds main's points and columns; only the fields main wrote against
+    LAS 1.4 changed: return numbers 1 of 1 (counted in the header) and scan_angle the angle from
+    nadir (both scans look right of their track: 90° + θ, θ the beam's elevation)."""
     for name, res, crs in (("calib", calibration_scan, "EPSG:25832"), ("legs", _fake_legs(), None)):
         new = write_scan_las(res, tmp_path / f"{name}_new.las", crs=crs)
         old = _main_write_scan_las(res, tmp_path / f"{name}_old.las", crs=crs)
-        assert new.read_bytes() == old.read_bytes(), name
         a, b = laspy.read(new), laspy.read(old)
-        assert len(a) > 100 and list(a.point_format.dimension_names) == list(b.point_format.dimension_names)
-        assert np.all(np.asarray(a.return_number) == 0)  # first-return files state no return numbers
-        eb = a.header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs
-        assert [(s.name.rstrip(b"\0"), s.options) for s in eb][:4] == [
-            (b"range_m", 0), (b"scan_position", 0), (b"scan_angle_index", 0), (b"branch_id", 0)]
+        assert len(a) == len(b) > 100
+        np.testing.assert_allclose(a.xyz, b.xyz, rtol=0, atol=1e-9)  # same points (scales may be coarser)
+        for dim in ("classification", "gps_time", "point_source_id", "range_m", "scan_position",
+                    "scan_angle_index", "branch_id", *(("tree_id",) if name == "legs" else ())):
+            assert np.array_equal(np.asarray(a[dim]), np.asarray(b[dim])), (name, dim)
+        assert np.all(np.asarray(b.return_number) == 0)  # main: no return numbers
+        assert np.all(np.asarray(a.return_number) == 1) and np.all(np.asarray(a.number_of_returns) == 1)
+        assert list(a.header.number_of_points_by_return) == [len(a)] + [0] * 14
+        theta = np.asarray(b.scan_angle) * 0.006  # main wrote the elevation θ
+        np.testing.assert_array_equal(np.asarray(a.scan_angle), np.round((90.0 + theta) / 0.006))
+        np.testing.assert_allclose(np.asarray(a.elevation_deg), theta, atol=0.003)
+        # the LAS 1.4 check written from the specification passes the new file, not main's
+        assert check_las(new) == []
+        problems = check_las(old)
+        assert any("1 <= return number" in p for p in problems)
+        assert any("min not zero while its option bit is clear" in p for p in problems)
+        assert any("resolution fluff" in p for p in problems) == (name == "calib")  # y on a 2 mm grid
 
 
 def test_exr_without_echoes_keeps_main_values(tmp_path, calibration_scan):

@@ -47,7 +47,8 @@ def _result(pattern, seed: int, escape_share: float = 0.5, tree: bool = True) ->
 
 
 def _reference(results, path, crs=None):
-    """The straightforward writer: full (N, M, 3) points picked, one ``las_record``, laspy's writer."""
+    """The straightforward writer: full (N, M, 3) points picked (in firing order), one
+    ``las_record``, laspy's writer."""
     with_echoes = any(r.echoes is not None for r in results)
     parts, first_row = [], 0
     for leg, res in enumerate(results):
@@ -58,22 +59,30 @@ def _reference(results, path, crs=None):
             continue
         keep = res.cls != ESCAPE  # every beam's point, gps time and angle, then picked
         i, k = np.nonzero(keep)
+        fire = las.firing_order(res.pattern)
+        if fire is not None:
+            order = las.firing_sort(i * res.shape[1] + k, res.shape[1], fire)
+            i, k = i[order], k[order]
         n = len(i)
-        cols = {"xyz": res.points_m()[keep], "cls": res.cls[keep], "range": res.range_m[keep],
-                "elem": res.element_id[keep],
-                "tree": res.tree_id[keep] if res.tree_id is not None else np.full(n, 0xFFFFFFFF, np.uint32),
-                "gps": t[keep], "theta": res.pattern.col_angle_deg[k], "i": i, "k": k, "source": np.full(n, leg)}
+        cols = {"xyz": res.points_m()[i, k], "cls": res.cls[i, k], "range": res.range_m[i, k],
+                "elem": res.element_id[i, k],
+                "tree": res.tree_id[i, k] if res.tree_id is not None else np.full(n, 0xFFFFFFFF, np.uint32),
+                "gps": t[i, k], "i": i, "k": k, "source": np.full(n, leg)}
+        cols["angle"], cols["elev"], cols["azim"] = las.BeamAngles(res.pattern)(i, k)
         if with_echoes:  # a first-return leg among echo legs: one return per pulse
             cols.update(ret=np.ones(n, np.uint8), nret=np.ones(n, np.uint8), intensity=np.zeros(n, np.uint16),
-                        width=np.zeros(n, np.float32))
+                        width=np.zeros(n, np.float32), energy=np.zeros(n, np.float32))
         parts.append(cols)
     cols = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
     with_tree = any(r.tree_id is not None for r in results)
-    offsets = np.floor(cols["xyz"].min(axis=0)) if len(cols["xyz"]) else np.zeros(3)
+    chooser = las.ScaleChooser()
+    chooser.add(cols["xyz"].T)
+    offsets = chooser.offsets(cols["xyz"].min(axis=0)) if len(cols["xyz"]) else np.zeros(3)
     sensor = next((r.sensor for r in results if r.sensor is not None), None)
     header = las.las_header(offsets, time_kind, with_tree=with_tree, with_echoes=with_echoes, crs=crs,
-                            sensor=sensor)
+                            sensor=sensor, scales=chooser.scales())
     with laspy.open(str(path), mode="w", header=header) as w:
+        las.zero_extra_bytes_stats(w.header)
         w.write_points(las.las_record(header, cols, with_tree=with_tree, with_echoes=with_echoes))
     return path.read_bytes()
 
@@ -84,10 +93,12 @@ def test_fast_writer_equals_the_straightforward_one(tmp_path, name):
     fast = las.write_scan_las(res, tmp_path / "fast.las").read_bytes()
     assert fast == _reference([res], tmp_path / "ref.las")
     back = laspy.read(tmp_path / "fast.las")
-    keep = res.cls != ESCAPE
-    assert back.header.point_count == np.count_nonzero(keep) > 0
-    assert np.allclose(back.xyz, res.points_m()[keep], atol=0.5e-4)  # 0.1 mm grid
-    assert np.array_equal(back.tree_id, res.tree_id[keep])
+    i, k = np.asarray(back.scan_position), np.asarray(back.scan_angle_index)
+    assert back.header.point_count == np.count_nonzero(res.cls != ESCAPE) == len(set(zip(i, k))) > 0
+    assert np.allclose(back.xyz, res.points_m()[i, k], atol=0.5e-4)  # 0.1 mm grid at most
+    assert np.array_equal(back.tree_id, res.tree_id[i, k])
+    assert np.all(np.diff(back.gps_time) >= 0)  # firing order: time never steps back
+    assert np.all(back.return_number == 1) and np.all(back.number_of_returns == 1)
 
 
 def test_fast_writer_legs_blocks_and_edge_cases(tmp_path, monkeypatch):

@@ -64,19 +64,25 @@ def test_packed_record_equals_laspy_setters(with_tree, with_echoes):
     rng = np.random.default_rng(3)
     n = 5000
     cols = {"xyz": rng.uniform(-20.0, 40.0, (n, 3)), "cls": rng.choice([1, 2, 3], n).astype(np.uint8),
-            "theta": rng.uniform(-90.0, 90.0, n), "source": rng.integers(0, 3, n),
+            "angle": rng.integers(-30000, 30001, n).astype(np.int16), "source": rng.integers(0, 3, n),
+            "elev": rng.uniform(-90.0, 90.0, n).astype(np.float32),
+            "azim": rng.uniform(-180.0, 180.0, n).astype(np.float32),
             "gps": rng.uniform(0.0, 1e4, n), "range": rng.uniform(0.0, 60.0, n).astype(np.float32),
             "i": rng.integers(0, 10**6, n), "k": rng.integers(0, 4000, n),
             "elem": rng.integers(0, 2**32, n, dtype=np.uint32), "tree": rng.integers(0, 2**32, n, dtype=np.uint32),
             "ret": rng.integers(1, 16, n).astype(np.uint8), "nret": rng.integers(1, 16, n).astype(np.uint8),
             "intensity": rng.integers(0, 65536, n).astype(np.uint16),
-            "width": rng.uniform(0.0, 9.0, n).astype(np.float32)}
+            "width": rng.uniform(0.0, 9.0, n).astype(np.float32),
+            "energy": rng.uniform(0.0, 500.0, n).astype(np.float32)}
+    sensor = {"intensity": True, "intensity_scale": 12.5, "intensity_range_m": 0.5} if with_echoes else None
     header = las_header(np.floor(cols["xyz"].min(axis=0)), "t", with_tree=with_tree, with_echoes=with_echoes,
-                        sensor={"a": 1} if with_echoes else None)
+                        sensor=sensor)
     las = laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(n, header=header))
     las.x, las.y, las.z = cols["xyz"][:, 0], cols["xyz"][:, 1], cols["xyz"][:, 2]
     las.classification = LAS_CLASS_LUT[cols["cls"]]
-    las.scan_angle = np.round(cols["theta"] / 0.006).astype(np.int16)
+    las.scan_angle = cols["angle"]
+    las.elevation_deg = cols["elev"]
+    las.azimuth_deg = cols["azim"]
     las.point_source_id = cols["source"].astype(np.uint16)
     las.gps_time = cols["gps"]
     las.range_m = cols["range"]
@@ -90,6 +96,10 @@ def test_packed_record_equals_laspy_setters(with_tree, with_echoes):
         las.number_of_returns = cols["nret"]
         las.intensity = cols["intensity"]
         las.echo_width_ns = cols["width"]
+        las.echo_energy = cols["energy"]
+    else:  # first returns: 1 of 1
+        las.return_number = np.ones(n, np.uint8)
+        las.number_of_returns = np.ones(n, np.uint8)
     packed = las_record(header, cols, with_tree=with_tree, with_echoes=with_echoes)
     assert packed.array.tobytes() == las.points.array.tobytes()
     assert np.any(packed.array["X"] != 0) and np.all(packed.array["X"] >= 0)  # offsets are floor(min)
@@ -97,8 +107,28 @@ def test_packed_record_equals_laspy_setters(with_tree, with_echoes):
 
 def test_packed_record_refuses_coordinates_beyond_int32():
     header = las_header(np.zeros(3), "t", with_tree=False)
-    cols = {"xyz": np.array([[1e6, 0.0, 0.0]]), "cls": np.array([2], np.uint8), "theta": np.zeros(1),
+    cols = {"xyz": np.array([[1e6, 0.0, 0.0]]), "cls": np.array([2], np.uint8), "angle": np.zeros(1, np.int16),
+            "elev": np.zeros(1, np.float32), "azim": np.zeros(1, np.float32),
             "source": np.zeros(1, np.int64), "gps": np.zeros(1), "range": np.zeros(1, np.float32),
             "i": np.zeros(1, np.int64), "k": np.zeros(1, np.int64), "elem": np.zeros(1, np.uint32)}
     with pytest.raises(OverflowError, match="x does not fit"):
         las_record(header, cols, with_tree=False)
+
+
+def test_streamed_spinning_head_is_the_held_file_in_firing_order(tmp_path):
+    """A first-return VLP-16 turn (columns sorted by elevation, fired interleaved): the spill
+    keeps each block's points in firing order, as the held writer does, so the files are the
+    same bytes and gps_time never steps back."""
+    over = ['platform.kind="rotating"', "platform.position_m=[1.0, 0.0, 1.0]"]
+    files = []
+    for chunk in (10**9, 500, 16 * 7 + 3):  # held; blocks of rows; rows and a piece
+        cfg = load_scene(CALIB, over)
+        cfg["scan"]["chunk_beams"] = chunk
+        run = run_scan(cfg, tmp_path / f"c{chunk}", write_png=False)
+        assert isinstance(run.result, StreamedScan) == (chunk < 10**9)
+        files.append(run.files["las"].read_bytes())
+    assert files[1] == files[0] and files[2] == files[0]
+    las = laspy.read(tmp_path / f"c{10**9}" / "points.las")
+    assert np.all(np.diff(las.gps_time) >= 0) and len(las.points) > 100
+    ring = np.asarray(las.scan_angle_index, np.int64)
+    assert np.any(np.diff(ring[np.asarray(las.scan_position) == las.scan_position[0]]) < 0)  # not ring order

@@ -60,7 +60,7 @@ def test_exr_and_las_bytes_equal_across_chunk_sizes(tmp_path):
     for f in files[1:]:
         assert f == files[0]  # every byte, the LAS header and its VLRs included
     eb = laspy.read(tmp_path / "o7" / "points.las").header.vlrs.get("ExtraBytesVlr")[0]
-    assert [s.options & 6 for s in eb.extra_bytes_structs] == [0] * 4  # no min/max statistics
+    assert [s.options & 6 for s in eb.extra_bytes_structs] == [0] * 6  # no min/max statistics
 
 
 def test_footprint_and_any_rule_stream_identically(tmp_path):

@@ -17,8 +17,9 @@ intensity is on) and, for each return r = 2 … max_returns, the layer ``echo{r}
 (float32, escape distance where the beam has fewer echoes), ``echo{r}.class``,
 ``echo{r}.branch_id`` (uint32, 0 / 0xFFFFFFFF where absent), ``echo{r}.intensity``
 (with intensity on), ``echo{r}.tree_id`` (scenes of several plants) and
-``echo{r}.class_half``.  The header
-attribute ``simlidar_sensor`` holds the resolved sensor as JSON.  Without echoes
+``echo{r}.class_half``.  The header attribute ``simlidar_sensor`` holds the resolved sensor as
+JSON and, with intensity on, ``las_intensity_scale`` the LAS intensity counts per unit E
+(points.las).  Without echoes
 nothing changes, byte for byte.
 """
 from __future__ import annotations
@@ -318,7 +319,17 @@ def _echo_channels(result: ScanResult, channels: dict, header: dict) -> None:
         if layer["tree_id"] is not None:
             channels[f"echo{r}.tree_id"] = np.ascontiguousarray(layer["tree_id"], np.uint32)
     if sensor is not None:
-        header["simlidar_sensor"] = json.dumps(sensor, sort_keys=True, default=_plain)
+        header.update(sensor_header(sensor))
+
+
+def sensor_header(sensor: dict) -> dict:
+    """Header attributes of a ``[sensor]`` scan: ``simlidar_sensor`` (the resolved sensor as
+    JSON) and, with intensity on, ``las_intensity_scale`` (double: the LAS intensity counts per
+    unit of the ``intensity`` channel's energy E, io/las.py)."""
+    out = {"simlidar_sensor": json.dumps(sensor, sort_keys=True, default=_plain)}
+    if sensor.get("intensity") and sensor.get("intensity_scale") is not None:
+        out["las_intensity_scale"] = header_value(float(sensor["intensity_scale"]))
+    return out
 
 
 def _plain(value):

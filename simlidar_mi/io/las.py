@@ -1,12 +1,40 @@
 """Scan hits → LAS 1.4 point clouds (laspy), in real coordinates.
 
-Point format 6.  Classification follows ASPRS where it can: ground 2, leaves 5
-(high vegetation); wood has no ASPRS class and uses 64 (user-definable range).
-Extra dimensions: ``range_m`` (float32), ``scan_position`` (uint32, index i of the
-sweep), ``scan_angle_index`` (uint32, k), ``branch_id`` (uint32), and ``tree_id``
-(uint32) for scenes of several plants.  ``scan_angle``
-holds the column angle (θ for the tractor) in the format's 0.006° units.
-Escapes are not written.
+Point format 6, every field as LAS 1.4 R15 defines it (§2.6, "Point Data Record Format 6"):
+
+* ``return_number`` / ``number_of_returns``: 1 / 1 for every point of a first-return scan
+  (a system that records one return, §2.6 "Return Number"); a ``[sensor]`` scan numbers its
+  echoes 1 … n ≤ 15 per pulse.  The header's Number of Points by Return (§2.4) counts them;
+  its legacy counts stay 0, as §2.4 requires for point formats 6–10.
+* ``scan_angle`` (0.006° units): the beam's angle from nadir, 0 straight down, ±180° straight
+  up, positive when the beam points to the right of the platform's forward direction
+  (:func:`~simlidar_mi.io.las_fields.forward_heading_deg`), negative to its left
+  (counter-clockwise seen from behind, §2.6 "Scan Angle").  For beams in the plane across the
+  track (tractor, path, airborne) this is the standard's rotation about the track; for beams out
+  of that plane (spinning heads, rosettes, tripods) it is the full angle from nadir with the
+  side's sign, so |scan_angle| is always the off-nadir angle and a near-nadir filter keeps
+  near-vertical beams only.  Beams in the vertical plane through the track count as right.
+* ``intensity``: ``min(65535, round(s·E))``, E the echo energy (lidar/sensor.py), s the sensor's
+  ``intensity_scale`` = 65535·r_I²/R_ref²: a 100 % Lambertian target at normal incidence filling
+  the beam at r_I = ``range_min_m`` reads 65535, so nothing inside the sensor's range limits
+  clips (§2.6 "Intensity": normalised to the sensor's dynamic range); r_I = 0.5 m when the sensor
+  gives no ``range_min_m`` (nearer echoes may then clip).  0 without a ``[sensor]`` with intensity on.  VLR record 2 states the rule and s.
+* classification: ground 2, leaves 5 (high vegetation); wood has no ASPRS class and uses 64
+  (user-definable range).  Escapes are not written.
+
+Extra bytes (§4 "Extra Bytes", no min/max statistics: options bits 1 and 2 are 0 and the fields
+zero, so a file's bytes do not depend on how many chunks wrote it): ``range_m`` (float32),
+``scan_position`` (uint32, row i of the pattern), ``scan_angle_index`` (uint32, column k),
+``elevation_deg`` and ``azimuth_deg`` (float32: the beam direction's elevation above the
+horizon and its azimuth counter-clockwise from +x, in [-180, 180)), ``branch_id`` (uint32),
+``tree_id`` (uint32) for scenes of several plants and, with echoes, ``echo_width_ns`` (float32)
+and, with intensity, ``echo_energy`` (float32, E unclipped).
+
+Coordinates: offsets floor(min) per axis; the scale per axis is 0.1 mm, or the coarsest of
+1 mm, 1 cm, 0.1 m and 1 m that every point's 0.1 mm coordinate is a whole multiple of (an axis
+the pattern fixes on a grid, as a tractor's rows): the same coordinates as at 0.1 mm, and no
+axis carries "resolution fluff" (every stored integer a multiple of 10, which lasinfo reports)
+(:class:`~simlidar_mi.io.las_fields.ScaleChooser`).
 
 Header: the global-encoding WKT bit is always set (LAS 1.4 requires it for point
 formats 6–10); its GPS-time-type bit stays 0, since ``gps_time`` is a time from the
@@ -23,6 +51,9 @@ coordinates are the scene's own, so the CRS only says what they mean.
   row i and column k, each leg of a path following the rows of the legs before it.
   It orders the points as they were scanned; it is not a measured time.
 
+Points are written row by row in firing order: a spinning head's channels (columns, sorted by
+elevation) in the order they fire (:func:`~simlidar_mi.io.las_fields.firing_order`), so
+``gps_time`` never steps back.
 ``point_source_id`` is the leg index j of a multi-leg path (0, 1, …; with ``[platform]
 scan_legs``, the position in that list: legs driven without scanning get none); a one-leg scan
 (every other platform) has a single source, so it is 0 for every point, and
@@ -31,14 +62,9 @@ scan_legs``, the position in that list: legs driven without scanning get none); 
 (``beam_times_s()`` not None: a moving platform with a pulse rate) gives that time.
 
 A scan with a ``[sensor]`` (``result.echoes`` set) writes one point per echo, at the
-echo's range along the beam centre: ``return_number`` and ``number_of_returns`` (1 … 15),
-``intensity`` = min(65535, round(1000·E)) with E the echo energy (0 when the sensor's
-intensity is off), the beam's ``gps_time``, and an extra dimension ``echo_width_ns``
-(float32); ``range_m`` is then the echo's range.  VLR record 2 states the intensity
-scale, record 3 holds the resolved sensor as JSON.  The Extra Bytes record carries no
-min/max statistics (its option bits 1 and 2 are 0), so a file's bytes do not depend on
-how many chunks wrote it.  Without echoes the file is the
-first-return cloud above (return numbers 0, intensity 0), byte for byte as before.
+echo's range along the beam centre, with the beam's ``gps_time``; ``range_m`` is then the
+echo's range.  VLR record 2 states the intensity scale, record 3 holds the resolved sensor as
+JSON.
 
 laspy is imported on first use, not with this module: with pyproj, which laspy imports, it takes
 0.1 s, and ``run_scan`` writes the LAS in a forked child (simlidar_mi._fork), so the child pays
@@ -54,6 +80,8 @@ import numpy as np
 
 from ..geometry import CLASS_CODES
 from .atomic import atomic_file
+from .las_fields import (SCALES_M, BeamAngles, ScaleChooser, echo_intensity, firing_order, firing_sort,
+                         intensity_text)
 
 if TYPE_CHECKING:  # annotations only: io sits below the workflows
     import laspy
@@ -74,13 +102,6 @@ CHUNK_POINTS = 1 << 16
 LAS_CLASS_LUT = np.zeros(256, np.uint8)
 LAS_CLASS_LUT[list(LAS_CLASS)] = list(LAS_CLASS.values())
 _INT32 = np.iinfo(np.int32)
-#: LAS intensity per unit of echo energy E (the radiometric law of lidar/sensor.py).
-INTENSITY_SCALE = 1000.0
-INTENSITY_TEXT = ("intensity = min(65535, round(1000 * E)), E = echo energy: sum over the echo's "
-                  "sub-rays of w * rho * |cos i| * (R_ref / r)^2, R_ref = range_at_10pct_m * "
-                  "sqrt(detection_threshold / 0.1); 0 when [sensor] intensity is off")
-
-
 def scan_times_s(result: ScanResult, first_row: int = 0) -> tuple[np.ndarray, str]:
     """(N, M) float64 ``gps_time`` of every beam of ``result`` and the definition used.
 
@@ -199,10 +220,13 @@ def write_scan_las(result: ScanResult | list[ScanResult], path: str | Path,
     for lp in legs:
         leg_lo, leg_hi = lp.points(xyz[:, at:at + lp.n])
         lo, hi, at = np.minimum(lo, leg_lo), np.maximum(hi, leg_hi), at + lp.n
-    offsets = np.floor(lo) if at else np.zeros(3)
+    chooser = ScaleChooser()
+    for a in range(0, at, CHUNK_POINTS):
+        chooser.add(xyz[:, a:a + CHUNK_POINTS])
+    offsets = chooser.offsets(lo) if at else np.zeros(3)
     sensor = next((r.sensor for r in results if getattr(r, "sensor", None) is not None), None)
     header = las_header(offsets, time_kind, with_tree=with_tree, with_echoes=with_echoes, crs=crs,
-                        sensor=sensor)
+                        sensor=sensor, scales=chooser.scales())
     with atomic_file(path) as tmp, RecordWriter(tmp, header, *((lo, hi) if at else (None, None))) as w:
         at = 0
         for lp in legs:
@@ -222,22 +246,29 @@ class _LegPoints:
         self.res, self.leg, self.first_row, self.with_echoes = res, leg, first_row, with_echoes
         self.m = res.shape[1]
         self.echo_cols = None
+        self.fire = firing_order(res.pattern)
+        self.angles = BeamAngles(res.pattern)
         if getattr(res, "echoes", None) is not None:
             self.echo_cols = _echo_points(res, leg, scan_times_s(res, first_row)[0])
             self.n = len(self.echo_cols["cls"])
         else:
             self.geometry = BeamGeometry(res.pattern)
             self.n = int(np.count_nonzero(res.cls != CLASS_CODES["escape"]))
-        self.angle = np.round(res.pattern.col_angle_deg / 0.006).astype(np.int16)  # per column
 
     def _blocks(self):
-        """(a, b, kept beams of rows [a, b) as flat indices from row a, their rows, columns)."""
+        """(a, b, kept beams of rows [a, b) as flat indices from row a, their rows, columns),
+        in firing order."""
         rows = max(1, CHUNK_POINTS // self.m)
         for a in range(0, self.res.shape[0], rows):
             b = min(a + rows, self.res.shape[0])
-            flat = np.flatnonzero(self.res.cls[a:b] != CLASS_CODES["escape"])
+            cls = self.res.cls[a:b] if self.fire is None else self.res.cls[a:b][:, self.fire]
+            flat = np.flatnonzero(cls != CLASS_CODES["escape"])
             i = flat // self.m  # not np.divmod: a third slower
-            yield a, b, flat, i + a, flat - i * self.m
+            k = flat - i * self.m
+            if self.fire is not None:  # position in firing order → column
+                k = self.fire.take(k)
+                flat = i * self.m + k
+            yield a, b, flat, i + a, k
 
     def points(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Fill ``xyz`` (3, n) with the points; their per-axis minimum and maximum."""
@@ -259,7 +290,7 @@ class _LegPoints:
             cols = self.echo_cols
             for a in range(0, self.n, CHUNK_POINTS):
                 part = {key: v[a:a + CHUNK_POINTS] for key, v in cols.items() if key != "xyz"}
-                yield {**part, "angle": self.angle.take(part["k"])}
+                yield part
             return
         res = self.res
         for a, b, flat, i, k in self._blocks():
@@ -269,10 +300,11 @@ class _LegPoints:
                     "tree": (res.tree_id[a:b].reshape(-1).take(flat) if res.tree_id is not None
                              else np.full(n, 0xFFFFFFFF, np.uint32)),
                     "gps": row_times_s(res.pattern, self.first_row, a, b)[0].reshape(-1).take(flat),
-                    "angle": self.angle.take(k), "i": i, "k": k}
+                    "i": i, "k": k}
+            cols["angle"], cols["elev"], cols["azim"] = self.angles(i, k)
             if self.with_echoes:  # a first-return leg among echo legs: one return per pulse
-                ones = np.ones(n, np.uint8)
-                cols.update(ret=ones, nret=ones, intensity=np.zeros(n, np.uint16), width=np.zeros(n, np.float32))
+                cols.update(ret=np.ones(n, np.uint8), nret=np.ones(n, np.uint8), intensity=np.zeros(n, np.uint16),
+                            width=np.zeros(n, np.float32), energy=np.zeros(n, np.float32))
             yield cols
 
 
@@ -302,13 +334,14 @@ class RecordWriter:
         empty = Path(path).is_file() and Path(path).stat().st_size == 0
         import laspy  # noqa: PLC0415 - on first use (module docstring)
         self.writer = laspy.open(open(path, "r+b" if empty else "wb"), mode="w", header=header)
+        zero_extra_bytes_stats(self.writer.header)
         self.packed = laspy.PackedPointRecord
         self.record = np.zeros(0, header.point_format.dtype())
         self.gps = [np.inf, -np.inf]
         self.returns = np.zeros(16, np.uint64)
 
     def write(self, xyz: np.ndarray, cols: dict, *, leg: int, with_tree: bool, with_echoes: bool) -> None:
-        """Points ``xyz`` (3, n) and their ``cols`` (``las_record``'s, ``angle`` the packed scan angle)."""
+        """Points ``xyz`` (3, n) and their ``cols`` (``las_record``'s but ``xyz`` and ``source``)."""
         n = xyz.shape[1]
         if not n:
             return
@@ -321,12 +354,13 @@ class RecordWriter:
             np.divide(t, h.scales[c], out=t)
             np.round(t, out=t)
             arr[name] = t
-        arr["scan_angle"] = cols["angle"]
         arr["point_source_id"] = leg
         rec = self.packed(arr, h.point_format)
         _fill_fields(arr, rec, cols, with_tree=with_tree, with_echoes=with_echoes)
         if with_echoes:
             self.returns += np.bincount(cols["ret"], minlength=16).astype(np.uint64)
+        else:  # first returns: return 1 of 1
+            self.returns[1] += n
         self.gps = [min(self.gps[0], cols["gps"].min()), max(self.gps[1], cols["gps"].max())]
         self.writer.point_writer.write_points(rec)  # laspy 2.x: what write_points does after grow
         h.point_count += n
@@ -345,29 +379,36 @@ class RecordWriter:
 
 
 def las_header(offsets_m, time_kind: str, *, with_tree: bool, with_echoes: bool = False,
-               crs: str | None = None, sensor: dict | None = None) -> laspy.LasHeader:
-    """The LAS header of a scan (module docstring) with the given offsets."""
+               crs: str | None = None, sensor: dict | None = None, scales=None) -> laspy.LasHeader:
+    """The LAS header of a scan (module docstring) with the given offsets and scales (default
+    0.1 mm; :class:`~simlidar_mi.io.las_fields.ScaleChooser`)."""
     import laspy  # noqa: PLC0415 - on first use (module docstring)
     from laspy.vlrs.known import WktCoordinateSystemVlr  # noqa: PLC0415
     header = laspy.LasHeader(point_format=6, version="1.4")
     range_text = "echo range (m)" if with_echoes else "first-return range (m)"
+    with_energy = with_echoes and bool((sensor or {}).get("intensity"))
     header.add_extra_dims([
         laspy.ExtraBytesParams("range_m", np.float32, description=range_text),
         laspy.ExtraBytesParams("scan_position", np.uint32, description="sweep index i"),
         laspy.ExtraBytesParams("scan_angle_index", np.uint32, description="angle index k"),
+        laspy.ExtraBytesParams("elevation_deg", np.float32, description="beam elevation above horizon"),
+        laspy.ExtraBytesParams("azimuth_deg", np.float32, description="beam azimuth, ccw from +x"),
         laspy.ExtraBytesParams("branch_id", np.uint32, description="element id"),
         *([laspy.ExtraBytesParams("tree_id", np.uint32, description="tree or plant id")] if with_tree else []),
         *([laspy.ExtraBytesParams("echo_width_ns", np.float32, description="echo FWHM width (ns)")]
           if with_echoes else []),
+        *([laspy.ExtraBytesParams("echo_energy", np.float32, description="echo energy E, unclipped")]
+          if with_energy else []),
     ])
     # No min/max statistics in the Extra Bytes record: laspy 2.7 fills them from one
     # point per write_points call, so they were wrong and changed with the chunk size
     # (issue #8). With the option bits clear, readers ignore those fields.
     for eb in header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs:
         eb.options &= ~(eb.MIN_BIT_MASK | eb.MAX_BIT_MASK)
-    header.scales = np.array([0.0001, 0.0001, 0.0001])  # 0.1 mm
+    header.scales = np.full(3, SCALES_M[-1]) if scales is None else np.asarray(scales, np.float64)
     header.offsets = np.asarray(offsets_m, np.float64)
     header.generating_software = "simlidar-mi"
+    header.system_identifier = "SIMULATION"  # §2.4: "a string identifying the operation"
     # LAS 1.4 R15: the WKT bit must be set for point formats 6-10, CRS or not
     header.global_encoding.wkt = True
     if crs is not None:
@@ -375,11 +416,19 @@ def las_header(offsets_m, time_kind: str, *, with_tree: bool, with_echoes: bool 
     header.vlrs.append(laspy.VLR("simlidar-mi", 1, "gps_time definition",
                                  (f"gps_time: {time_kind}\0").encode("ascii")))
     if with_echoes:
-        header.vlrs.append(laspy.VLR("simlidar-mi", 2, "intensity scale",
-                                     (INTENSITY_TEXT + "\0").encode("ascii")))
+        text = intensity_text(sensor) if with_energy else "intensity = 0: [sensor] intensity is off"
+        header.vlrs.append(laspy.VLR("simlidar-mi", 2, "intensity scale", (text + "\0").encode("ascii")))
         header.vlrs.append(laspy.VLR("simlidar-mi", 3, "sensor (JSON)",
                                      json.dumps(sensor, sort_keys=True, default=_plain).encode("utf-8")))
     return header
+
+
+def zero_extra_bytes_stats(header: laspy.LasHeader) -> None:
+    """Zero the min and max fields of every Extra Bytes descriptor, which laspy's writer sets
+    to ±float max: LAS 1.4 §4 ("Extra Bytes") requires unused fields to be zero."""
+    for eb in header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs:
+        np.frombuffer(eb._min, np.uint8)[:] = 0  # laspy's ctypes fields, 24 bytes each
+        np.frombuffer(eb._max, np.uint8)[:] = 0
 
 
 def las_record(header: laspy.LasHeader, cols: dict, *, with_tree: bool, with_echoes: bool = False):
@@ -396,7 +445,6 @@ def las_record(header: laspy.LasHeader, cols: dict, *, with_tree: bool, with_ech
         if len(v) and (v.max() > _INT32.max or v.min() < _INT32.min):
             raise OverflowError(f"{name.lower()} does not fit LAS int32 after offset and scale")
         arr[name] = v
-    arr["scan_angle"] = np.round(cols["theta"] / 0.006).astype(np.int16)
     arr["point_source_id"] = cols["source"]
     _fill_fields(arr, rec, cols, with_tree=with_tree, with_echoes=with_echoes)
     return rec
@@ -405,6 +453,9 @@ def las_record(header: laspy.LasHeader, cols: dict, *, with_tree: bool, with_ech
 def _fill_fields(arr: np.ndarray, rec, cols: dict, *, with_tree: bool, with_echoes: bool) -> None:
     """The fields both writers fill alike from ``cols`` (all but X/Y/Z, scan angle and source):
     into the record's array ``arr``, the return bit fields through ``rec`` (laspy's setter)."""
+    arr["scan_angle"] = cols["angle"]
+    arr["elevation_deg"] = cols["elev"]
+    arr["azimuth_deg"] = cols["azim"]
     arr["classification"] = LAS_CLASS_LUT[cols["cls"]]
     arr["gps_time"] = cols["gps"]
     arr["range_m"] = cols["range"]
@@ -421,29 +472,37 @@ def _fill_fields(arr: np.ndarray, rec, cols: dict, *, with_tree: bool, with_echo
         rec["number_of_returns"] = cols["nret"]
         arr["intensity"] = cols["intensity"]
         arr["echo_width_ns"] = cols["width"]
+        if "echo_energy" in arr.dtype.names:
+            arr["echo_energy"] = cols["energy"]
+    else:  # a first-return scan: return 1 of 1 (LAS 1.4 §2.6 "Return Number")
+        arr["bit_fields"] = 0x11  # return number (bits 0-3) 1, number of returns (bits 4-7) 1
 
 
 def _echo_points(res: ScanResult, leg: int, times_s: np.ndarray) -> dict:
-    """Per-point columns of a ``[sensor]`` leg: its echoes (module docstring)."""
+    """Per-point columns of a ``[sensor]`` leg: its echoes (module docstring), in firing order."""
     m = res.shape[1]
     echoes = res.echoes
-    i_idx, k_idx = np.divmod(np.asarray(echoes.beam, np.int64), m)
     p = res.pattern
+    fire = firing_order(p)
+    order = firing_sort(echoes.beam, m, fire) if fire is not None else None
+    pick = (lambda v: v) if order is None else (lambda v: np.asarray(v)[order])  # noqa: E731
+    i_idx, k_idx = np.divmod(pick(np.asarray(echoes.beam, np.int64)), m)
     origin = p.row_origin_m[i_idx]
     velocity, col_time = getattr(p, "velocity_m_s", None), getattr(p, "col_time_s", None)
     if velocity is not None and col_time is not None:  # fired from where the platform was
         origin = origin + np.asarray(col_time, np.float64)[k_idx, None] * np.asarray(velocity, np.float64)
-    rng = np.asarray(echoes.range_m, np.float64)
-    intensity_on = getattr(res, "intensity", None) is not None
-    energy = np.asarray(echoes.energy, np.float64)
+    rng = pick(np.asarray(echoes.range_m, np.float64))
+    sensor = getattr(res, "sensor", None) or {}
+    scale = sensor.get("intensity_scale") if getattr(res, "intensity", None) is not None else None
+    energy = pick(echoes.energy)
     cols = {"xyz": origin + rng[:, None] * p.world_dirs()[i_idx, k_idx],
-            "cls": echoes.cls, "range": rng.astype(np.float32), "elem": echoes.element_id,
-            "tree": echoes.tree_id if echoes.tree_id is not None else np.full(len(i_idx), 0xFFFFFFFF, np.uint32),
-            "gps": times_s[i_idx, k_idx], "ret": echoes.return_number, "nret": echoes.number_of_returns,
-            "intensity": (np.minimum(65535.0, np.rint(INTENSITY_SCALE * energy)).astype(np.uint16)
-                          if intensity_on else np.zeros(len(i_idx), np.uint16)),
-            "width": np.asarray(echoes.width_ns, np.float32)}
-    cols["theta"] = res.pattern.col_angle_deg[k_idx]
+            "cls": pick(echoes.cls), "range": rng.astype(np.float32), "elem": pick(echoes.element_id),
+            "tree": (pick(echoes.tree_id) if echoes.tree_id is not None
+                     else np.full(len(i_idx), 0xFFFFFFFF, np.uint32)),
+            "gps": times_s[i_idx, k_idx], "ret": pick(echoes.return_number), "nret": pick(echoes.number_of_returns),
+            "intensity": echo_intensity(energy, scale), "energy": np.asarray(energy, np.float32),
+            "width": pick(np.asarray(echoes.width_ns, np.float32))}
+    cols["angle"], cols["elev"], cols["azim"] = BeamAngles(p)(i_idx, k_idx)
     cols["i"], cols["k"] = i_idx, k_idx
     cols["source"] = np.full(len(i_idx), leg)
     return cols

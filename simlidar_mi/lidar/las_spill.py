@@ -27,41 +27,50 @@ from .waveform import NO_ID
 class PointSpill:
     """The LAS points of a streamed scan, kept on disk until the offsets are known (module docstring).
 
-    ``intensity``: whether echo energies become LAS intensities (a ``[sensor]`` with intensity)."""
+    ``intensity_scale``: LAS intensity counts per unit of echo energy (a ``[sensor]`` with
+    intensity; None: intensities 0)."""
 
-    def __init__(self, stage: Path, intensity: bool = False):
+    def __init__(self, stage: Path, intensity_scale: float | None = None):
+        from ..io.las_fields import ScaleChooser  # noqa: PLC0415
         self.f = tempfile.TemporaryFile(dir=stage)
-        self.intensity = intensity
+        self.intensity_scale = intensity_scale
         self.index: list[tuple] = []  # (leg, first_row, a, b, columns' dtypes, count)
         self.lo, self.hi = np.full(3, np.inf), np.full(3, -np.inf)
+        self.scales = ScaleChooser()
         self._geometry: dict[int, object] = {}  # leg → io.las.BeamGeometry
 
     def add(self, pattern, leg: int, first_row: int, a: int, b: int, block: dict) -> None:
         """Rows [a, b) of leg ``leg`` (flat ``range``, ``cls``, ``elem``, ``tree`` and, for a
-        ``[sensor]`` scan, ``echoes`` with beams relative to the block's first)."""
+        ``[sensor]`` scan, ``echoes`` with beams relative to the block's first), kept in firing
+        order (:func:`~simlidar_mi.io.las_fields.firing_order`, as ``write_scan_las`` writes them)."""
         from ..io.las import CHUNK_POINTS  # noqa: PLC0415
+        from ..io.las_fields import echo_intensity, firing_order, firing_sort  # noqa: PLC0415
         m = pattern.n_cols
+        fire = firing_order(pattern)
         echoes = block.get("echoes")
         if echoes is None:  # first returns: the beams that did not escape
-            keep = block["cls"] != CLASS_CODES["escape"]
-            beam = np.flatnonzero(keep)
-            cols = {"beam": beam, "range": block["range"][keep], "cls": block["cls"][keep],
-                    "elem": block["elem"][keep],
-                    "tree": block["tree"][keep] if block["tree"] is not None else None}
+            beam = np.flatnonzero(block["cls"] != CLASS_CODES["escape"])
+            if fire is not None:
+                beam = beam[firing_sort(beam, m, fire)]
+            cols = {"beam": beam, "range": block["range"][beam], "cls": block["cls"][beam],
+                    "elem": block["elem"][beam],
+                    "tree": block["tree"][beam] if block["tree"] is not None else None}
         else:
-            from ..io.las import INTENSITY_SCALE  # noqa: PLC0415
-            energy = np.asarray(echoes.energy, np.float64)
             cols = {"beam": echoes.beam, "range": np.asarray(echoes.range_m, np.float64), "cls": echoes.cls,
                     "elem": echoes.element_id, "tree": echoes.tree_id, "ret": echoes.return_number,
                     "nret": echoes.number_of_returns,
-                    "intensity": (np.minimum(65535.0, np.rint(INTENSITY_SCALE * energy)).astype(np.uint16)
-                                  if self.intensity else np.zeros(len(energy), np.uint16)),
+                    "intensity": echo_intensity(echoes.energy, self.intensity_scale),
+                    "energy": np.asarray(echoes.energy, np.float32),
                     "width": np.asarray(echoes.width_ns, np.float32)}
+            if fire is not None:
+                order = firing_sort(echoes.beam, m, fire)
+                cols = {k: (np.asarray(v)[order] if v is not None else None) for k, v in cols.items()}
         cols = {k: v for k, v in cols.items() if v is not None}
         for c0 in range(0, len(cols["beam"]), CHUNK_POINTS):  # min and max of the points, exact in any pieces
             part = slice(c0, c0 + CHUNK_POINTS)
             xyz = self._xyz(pattern, leg, a, m, cols["beam"][part], cols["range"][part])
             self.lo, self.hi = np.minimum(self.lo, xyz.min(axis=1)), np.maximum(self.hi, xyz.max(axis=1))
+            self.scales.add(xyz)
         for v in cols.values():
             self.f.write(np.ascontiguousarray(v).data)
         self.index.append((leg, first_row, a, b, {k: v.dtype for k, v in cols.items()}, len(cols["beam"])))
@@ -81,13 +90,14 @@ class PointSpill:
         """``points.las`` of every point added, with the held scan's header and bytes
         (:class:`~simlidar_mi.io.las.RecordWriter`, as ``write_scan_las`` writes them)."""
         from ..io.las import CHUNK_POINTS, RecordWriter, las_header, row_times_s  # noqa: PLC0415
+        from ..io.las_fields import BeamAngles  # noqa: PLC0415
         any_point = any(entry[-1] for entry in self.index)
-        offsets = np.floor(self.lo) if any_point else np.zeros(3)
+        offsets = self.scales.offsets(self.lo) if any_point else np.zeros(3)
         time_kind = row_times_s(patterns[-1], 0, 0, 0)[1]
         header = las_header(offsets, time_kind, with_tree=with_tree, with_echoes=with_echoes, crs=crs,
-                            sensor=sensor)
+                            sensor=sensor, scales=self.scales.scales())
         self.f.seek(0)
-        angles = [np.round(p.col_angle_deg / 0.006).astype(np.int16) for p in patterns]  # per column
+        angles = [BeamAngles(p) for p in patterns]
         with RecordWriter(path, header, *((self.lo, self.hi) if any_point else (None, None))) as writer:
             for leg, first_row, a, b, dtypes, count in self.index:
                 cols = {k: np.frombuffer(self.f.read(count * dt.itemsize), dt) for k, dt in dtypes.items()}
@@ -103,10 +113,11 @@ class PointSpill:
                     xyz = self._xyz(p, leg, a, m, part["beam"], part["range"])
                     rec = {"cls": part["cls"], "range": part["range"].astype(np.float32), "elem": part["elem"],
                            "tree": part["tree"] if "tree" in part else np.full(n, NO_ID, np.uint32),
-                           "gps": times[i, k], "angle": angles[leg][k], "i": i + a, "k": k}
+                           "gps": times[i, k], "i": i + a, "k": k}
+                    rec["angle"], rec["elev"], rec["azim"] = angles[leg](i + a, k)
                     if with_echoes:
                         rec.update(ret=part["ret"], nret=part["nret"], intensity=part["intensity"],
-                                   width=part["width"])
+                                   width=part["width"], energy=part["energy"])
                     writer.write(xyz, rec, leg=leg, with_tree=with_tree, with_echoes=with_echoes)
 
     def close(self) -> None:

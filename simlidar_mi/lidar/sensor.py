@@ -41,6 +41,9 @@ GOLDEN_ANGLE_RAD = math.pi * (3.0 - math.sqrt(5.0))
 AUTO_S_MIN, AUTO_S_MAX = 7, 256
 AUTO_FEATURE_M = 0.01      # auto S without branches: a 1 cm feature
 AUTO_FAR_RANGE_M = 30.0    # auto S without a scene to measure
+#: Range whose full-beam 100 % normal-incidence echo reads LAS intensity 65535 when the sensor
+#: gives no ``range_min_m`` (a typical scanner's blind zone); nearer echoes may then clip.
+INTENSITY_RANGE_DEFAULT_M = 0.5
 
 
 @dataclass(frozen=True)
@@ -75,6 +78,18 @@ class SensorModel:
         return self.range_at_10pct_m * math.sqrt(self.detection_threshold / 0.1)
 
     @property
+    def intensity_range_m(self) -> float:
+        """r_I of the LAS intensity scale: ``range_min_m``, or :data:`INTENSITY_RANGE_DEFAULT_M`."""
+        return self.range_min_m if self.range_min_m > 0 else INTENSITY_RANGE_DEFAULT_M
+
+    @property
+    def intensity_scale(self) -> float:
+        """LAS intensity counts per unit of echo energy E: 65535·r_I²/R_ref², so the largest E
+        inside the range limits, a 100 % Lambertian target at normal incidence filling the beam
+        at r_I (E = (R_ref/r_I)²), reads 65535 and none clips (io/las.py)."""
+        return 65535.0 * (self.intensity_range_m / self.r_ref_m) ** 2
+
+    @property
     def noise(self) -> bool:
         return self.range_noise_m > 0 or self.range_noise_per_m > 0
 
@@ -107,6 +122,8 @@ class SensorModel:
         d = asdict(self)
         d["range_max_m"] = None if not math.isfinite(self.range_max_m) else self.range_max_m
         d["r_ref_m"] = self.r_ref_m
+        d["intensity_range_m"] = self.intensity_range_m
+        d["intensity_scale"] = self.intensity_scale
         d["effects"] = [k for k, v in self.effects_on().items() if v]
         return d
 

@@ -25,7 +25,6 @@ measures.json but for its seconds, are those of the held scan.
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -139,13 +138,13 @@ def stream_physical_scan(built, patterns: list, stage: Path, *, model, variant: 
     PNGs (``png_titles``) and one points.las (``las``) into ``stage`` (module docstring), as
     :func:`~simlidar_mi.lidar.stream.stream_scan` does for first-return scans.  Returns the
     scans' summaries and the seconds spent tracing and detecting echoes."""
-    from ..io.exr import ScanlineExrWriter, _plain, scan_exr_layout, with_half_copies  # noqa: PLC0415
+    from ..io.exr import ScanlineExrWriter, scan_exr_layout, sensor_header, with_half_copies  # noqa: PLC0415
     from ..io.plots import RangeImageReducer  # noqa: PLC0415
     tracers = [physical_tracer(built, p, model, seed=seed, leg=j, variant=variant, chunk_beams=chunk_beams)
                for j, p in enumerate(patterns)]
     sensor = model.to_dict()
     max_returns = int(sensor.get("max_returns") or 1)
-    spill = PointSpill(stage, model.intensity) if las else None
+    spill = PointSpill(stage, model.intensity_scale if model.intensity else None) if las else None
     bar = progress.stage("trace + write", sum(t.n_chunks for t in tracers), "chunk") if progress is not None else None
     out, trace_s, first_row = [], 0.0, 0
     with closed_after(spill, bar):
@@ -169,7 +168,7 @@ def stream_physical_scan(built, patterns: list, stage: Path, *, model, variant: 
                     if tr.energy:
                         dtypes = with_half_copies({**dtypes, **_echo_dtypes(max_returns, model.intensity,
                                                                             echoes.tree_id is not None)})
-                        hdr["simlidar_sensor"] = json.dumps(sensor, sort_keys=True, default=_plain)
+                        hdr.update(sensor_header(sensor))
                     exr = ScanlineExrWriter(stage / f"{stem}.exr", hdr, dtypes, n, m)
                 exr.write_rows(_exr_rows(block, b - a, m, max_returns, p.escape_m))
                 feed_block(block, a, b, reducer, spill, summary, p, j, first_row)

@@ -39,8 +39,6 @@ import itertools
 import json
 import logging
 import os
-import sys
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -136,26 +134,9 @@ def _key(table: dict[str, Any], readings: bool = True, version: str | None = Non
 
 def _die_with_parent(parent_pid: int) -> None:
     """Dask worker initializer: end this worker as soon as the study process dies, even by
-    SIGKILL, so that no orphan keeps scanning and writing rows.  Linux: the kernel sends
-    SIGKILL at the parent's death (``PR_SET_PDEATHSIG``); elsewhere a thread watches the
-    parent pid."""
-    if sys.platform.startswith("linux"):
-        import ctypes  # noqa: PLC0415
-        import signal  # noqa: PLC0415
-        try:
-            armed = ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0) == 0
-        except (OSError, AttributeError):
-            armed = False
-    else:
-        armed = False
-    if os.getppid() != parent_pid:  # the parent died before we armed
-        os._exit(1)
-    if not armed:
-        def watch() -> None:
-            while os.getppid() == parent_pid:
-                time.sleep(0.5)
-            os._exit(1)
-        threading.Thread(target=watch, name="simlidar-parent-watch", daemon=True).start()
+    SIGKILL, so that no orphan keeps scanning and writing rows."""
+    from .._fork import die_with_parent  # noqa: PLC0415
+    die_with_parent(parent_pid)
 
 
 def run_one(scene: str, overrides: list[str], rows_dir: str | None, readings: bool = True,

@@ -133,16 +133,24 @@ def grid_dataset(grid: VoxelGrid, variables: dict[str, np.ndarray], attrs: dict 
 
 def write_grid(ds, path: str | Path) -> Path:
     """Write a grid Dataset to NetCDF-4 atomically (a temporary file, then a rename), with
-    zlib compression; nothing half-written is left at ``path``."""
+    zlib compression; nothing half-written is left at ``path``.
+
+    Ctrl-C and SIGTERM wait for the end of the write: raised inside ``to_netcdf`` they
+    deadlocked it (its clean-up waits on a lock the interrupted write holds)."""
+    import errno  # noqa: PLC0415
+
+    from .._signals import interrupts_deferred  # noqa: PLC0415
     from ..io.atomic import atomic_file  # noqa: PLC0415
 
     path = Path(path)
     enc = {name: {"zlib": True, "complevel": 4} for name in ds.data_vars}
     attrs = {k: (str(v) if isinstance(v, bool) or v is None else v) for k, v in ds.attrs.items()}
     try:
-        with atomic_file(path) as tmp:
+        with atomic_file(path) as tmp, interrupts_deferred():
             ds.assign_attrs(attrs).to_netcdf(tmp, engine="netcdf4", format="NETCDF4", encoding=enc)
     except OSError as exc:
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):  # said once, for the folder (io.atomic)
+            raise
         raise OutputError(f"{path}: cannot write the voxel grid: {exc}") from exc
     return path
 

@@ -245,3 +245,28 @@ def test_ctrl_c_to_the_process_group_in_the_fork_window_is_one_line(tmp_path):
     done = subprocess.CompletedProcess(proc.args, proc.wait(timeout=120), *proc.communicate(timeout=60))
     _one_line_end(done, "scan", 130, "interrupted")
     assert "Traceback" not in done.stderr and _gone_within(child, 60) and not out.exists()
+
+
+# --- a study's final files: replaced as one set ---------------------------------------------
+
+STUDY_GRID = [["orchard.tree.iterations=4", "orchard.n_trees=1", "scan.dtheta_deg=2.0", "scan.dy_m=0.05"]]
+
+
+def test_a_study_interrupted_in_its_final_writes_keeps_the_earlier_set(tmp_path, monkeypatch):
+    from simlidar_mi.lidar import study
+    out = tmp_path / "study"
+    first = study.run_study(SCENES / "apple_orchard.toml", out, STUDY_GRID, readings=False)
+    final = {p.name: (p.stat().st_ino, p.read_bytes()) for p in first.files.values()}
+    assert sorted(final) == ["correlations.png", "regression.json", "study.csv"]
+
+    def interrupted(rows, regression, path):  # Ctrl-C while the picture, the last file, is drawn
+        Path(path).write_bytes(b"half a picture")
+        raise KeyboardInterrupt
+    monkeypatch.setattr(study, "_plot", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        study.run_study(SCENES / "apple_orchard.toml", out, STUDY_GRID, readings=False)
+    # the same files, not rewritten (inode and bytes): study.csv and regression.json of the new
+    # run never sit beside the old picture
+    assert {n: (p.stat().st_ino, p.read_bytes()) for n in final if (p := out / n)} == final
+    assert sorted(p.name for p in out.iterdir()) == ["correlations.png", "regression.json", "rows",
+                                                     "study.csv"]

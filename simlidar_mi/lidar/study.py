@@ -39,6 +39,7 @@ import itertools
 import json
 import logging
 import os
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,7 +52,7 @@ from .._version import __version__  # noqa: F401
 from .._progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
-from ..io.atomic import atomic_file, write_csv, writes_output
+from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
 
 log = logging.getLogger(__name__)
 
@@ -472,12 +473,17 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
     rows = [json.loads((rows_dir / f"{k}.json").read_text()) for k in keys]
     regression = regression_report(rows)
     regression["code_version"] = version
-    files = {"csv": out / "study.csv", "regression": out / "regression.json", "png": out / "correlations.png"}
-    write_csv(files["csv"], COLUMNS, rows, extrasaction="ignore")
-    with atomic_file(files["regression"]) as tmp:
-        tmp.write_text(json.dumps(regression, indent=2) + "\n")
-    _plot(rows, regression, files["png"])
-    return StudyResult(rows, regression, files)
+    # The final set is replaced as one: an interrupt or a failure while it is written leaves
+    # the earlier study.csv, regression.json and correlations.png together (rows/ is not in it).
+    with staged_dir(out, [re.escape(name) for name in FINAL_FILES.values()]) as stage:
+        write_csv(stage / FINAL_FILES["csv"], COLUMNS, rows, extrasaction="ignore")
+        (stage / FINAL_FILES["regression"]).write_text(json.dumps(regression, indent=2) + "\n")
+        _plot(rows, regression, stage / FINAL_FILES["png"])
+    return StudyResult(rows, regression, {k: out / name for k, name in FINAL_FILES.items()})
+
+
+#: The files a study writes at its end, from its rows.
+FINAL_FILES = {"csv": "study.csv", "regression": "regression.json", "png": "correlations.png"}
 
 
 def _run_local(scene: str, todo: list[tuple[list[str], str]], rows_dir: Path, readings: bool,

@@ -422,6 +422,8 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
     each row comes back to be written here as soon as its orchard is done."""
     if on_mismatch not in ("recompute", "refuse"):
         raise ConfigError("must be 'recompute' or 'refuse'", key="on_mismatch", value=on_mismatch)
+    from .._dask import check_scheduler  # noqa: PLC0415
+    check_scheduler(scheduler)  # an empty address is refused before any work
     scene = str(Path(scene).resolve())
     load_scene(scene)  # fail early, before any task, on a bad base scene
     grid = paper_grid() if grid is None else grid

@@ -38,7 +38,11 @@ def exit_status(exc: BaseException) -> tuple[str, int]:
 def _exit_at_start(signum, frame) -> None:  # noqa: ARG001
     word, rc = exit_status(Terminated() if signum == signal.SIGTERM else KeyboardInterrupt())
     mp = sys.modules.get("multiprocessing")
-    if mp is None or mp.parent_process() is None:  # a worker (study) leaves the line to its parent
+    # A worker (the study's) leaves the line to its parent, also while it starts (spawned, its
+    # parent_process() is set only after the imports, where Ctrl-C to the group may land).
+    worker = "--multiprocessing-fork" in getattr(sys, "orig_argv", ()) \
+        or (mp is not None and mp.parent_process() is not None)
+    if not worker:
         os.write(2, f"simlidar-mi: {word}\n".encode())
     os._exit(rc)
 

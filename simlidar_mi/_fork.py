@@ -160,10 +160,13 @@ class Forked:
                     warnings.filterwarnings("ignore", r".*multi-threaded, use of fork\(\) may lead to deadlocks",
                                             DeprecationWarning)
                     self.child.start()
-            except BaseException:
-                self.child = None
-                _parent_ends.discard(self.recv)
-                self.recv.close()
+            except BaseException:  # the fork failed, or an interrupt that another thread took
+                if getattr(self.child, "_popen", None) is not None:  # forked all the same: end it
+                    self.close()
+                else:
+                    self.child = None
+                    _parent_ends.discard(self.recv)
+                    self.recv.close()
                 raise
             finally:
                 send.close()

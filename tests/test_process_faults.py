@@ -11,6 +11,7 @@ import socket
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import pytest
@@ -270,3 +271,52 @@ def test_a_study_interrupted_in_its_final_writes_keeps_the_earlier_set(tmp_path,
     assert {n: (p.stat().st_ino, p.read_bytes()) for n in final if (p := out / n)} == final
     assert sorted(p.name for p in out.iterdir()) == ["correlations.png", "regression.json", "rows",
                                                      "study.csv"]
+
+
+def _group(pgid: int) -> list[int]:
+    """Live (not zombie) processes of process group ``pgid``."""
+    found = []
+    for d in Path("/proc").iterdir():
+        try:
+            fields = (d / "stat").read_text().rsplit(")", 1)[1].split() if d.name.isdigit() else None
+        except OSError:
+            continue
+        if fields and fields[0] != "Z" and int(fields[2]) == pgid:
+            found.append(int(d.name))
+    return found
+
+
+def _until(condition, timeout_s: float) -> bool:
+    """Whether ``condition()`` holds within ``timeout_s`` (checked every 20 ms)."""
+    end = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.02)
+    return True
+
+
+@linux
+def test_sigterm_to_a_study_with_workers_is_one_line_and_leaks_nothing(tmp_path):
+    """SIGTERM once the first row is written (the two workers are scanning): exit 143, one
+    line, no "leaked semaphore" warning from multiprocessing, no worker left."""
+    out = tmp_path / "study"
+    proc = subprocess.Popen([str(CLI), "study", str(SCENES / "apple_orchard.toml"), "--out", str(out),
+                             "--workers", "2", "--no-readings", "--set", "scan.dtheta_deg=2.0",
+                             "--set", "scan.dy_m=0.05"], cwd=REPO, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        assert _until(lambda: proc.poll() is not None or any((out / "rows").glob("*.json")), 240)
+        assert proc.poll() is None, "the study ended before its first row"
+        proc.send_signal(signal.SIGTERM)
+        stderr = proc.communicate(timeout=120)[1]
+        # its workers and multiprocessing's resource tracker end with it
+        assert _until(lambda: not _group(proc.pid), 30), f"left running: {_group(proc.pid)}"
+    finally:
+        for pid in _group(proc.pid):
+            os.kill(pid, signal.SIGKILL)
+    lines = stderr.splitlines()
+    assert (proc.returncode, lines[-1]) == (143, "simlidar-mi study: terminated"), stderr
+    assert "leaked" not in stderr and "Traceback" not in stderr
+    assert not any(ln.startswith("simlidar-mi") for ln in lines[:-1]), stderr
+    assert not (out / LOCK_NAME).exists() and not list(out.glob(".partial*"))

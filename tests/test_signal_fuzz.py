@@ -20,6 +20,7 @@ import pytest
 
 from simlidar_mi.io.atomic import LOCK_NAME
 from tests.conftest import REPO, SCENES
+from tests.test_process_faults import _group, _until
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")]
@@ -53,31 +54,6 @@ SYNC_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 def _handles_both(pid: int) -> bool:
     caught = int(_status(pid).get("SigCgt", "0"), 16)
     return all(caught >> (s - 1) & 1 for s in SYNC_SIGNALS)
-
-
-def _group(pgid: int) -> list[int]:
-    """Live (not zombie) processes of process group ``pgid``."""
-    found = []
-    for d in Path("/proc").iterdir():
-        if not d.name.isdigit():
-            continue
-        try:
-            stat = (d / "stat").read_text()
-        except OSError:
-            continue
-        fields = stat.rsplit(")", 1)[1].split()
-        if int(fields[2]) == pgid and fields[0] != "Z":
-            found.append(int(d.name))
-    return found
-
-
-def _until(condition, timeout_s: float) -> bool:
-    end = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > end:
-            return False
-        time.sleep(0.01)
-    return True
 
 
 def _plan() -> list[tuple[str, int, float]]:

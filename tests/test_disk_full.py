@@ -55,7 +55,7 @@ def _says_no_space(err: str, out: Path) -> None:
     ("scan", [CYLINDER], ["--set", "scan.dtheta_deg=0.4"]),
     ("scan", [CYLINDER, "--set", "scan.chunk_beams=20000"],            # streamed, chunk by chunk
      ["--set", "scan.chunk_beams=20000", "--set", "scan.dtheta_deg=0.4"]),
-    ("truth", [CYLINDER, "--voxel", "0.1"], ["--voxel", "0.01"]),     # "NetCDF: HDF error" from HDF5
+    ("truth", [CYLINDER, "--voxel", "0.1"], ["--voxel", "0.01"]),     # the NetCDF write fails
 ])
 def test_a_full_disk_is_one_line_and_keeps_the_earlier_outputs(small_disk, capsys, command, argv, changed):
     out = small_disk / "out"
@@ -101,3 +101,30 @@ def test_enospc_from_a_writer_is_one_line(tmp_path, capsys, monkeypatch):
     _says_no_space(err, out)
     assert "No space left on device" in err
     assert _contents(out) == before and sorted(p.name for p in out.iterdir()) == sorted(before)
+
+
+def test_a_library_error_on_a_full_disk_says_no_space(small_disk, capsys, monkeypatch):
+    """HDF5 reports a full disk as "NetCDF: HDF error" (a RuntimeError, no errno): on a disk
+    that is full it is still the no-space line."""
+    from simlidar_mi.truth import run
+
+    out = small_disk / "out"
+    assert main(["truth", CYLINDER, "--out", str(out), "--voxel", "0.1"]) == 0
+    before = _contents(out)
+
+    def hdf_error(ds, path):
+        with open(path, "wb") as fh:  # fills the disk, as the real write did
+            try:
+                while True:
+                    fh.write(b"\0" * 65536)
+                    fh.flush()
+            except OSError:
+                pass
+        raise RuntimeError("NetCDF: HDF error")
+    monkeypatch.setattr(run, "write_grid", hdf_error)
+    capsys.readouterr()
+    assert main(["truth", CYLINDER, "--out", str(out), "--voxel", "0.05"]) == 2
+    err = capsys.readouterr().err
+    _says_no_space(err, out)
+    assert "(NetCDF: HDF error)" in err
+    assert _contents(out) == before

@@ -196,9 +196,11 @@ def _no_space(exc: BaseException, out: Path) -> OutputError | None:
         chain.append(cause)
         cause = cause.__cause__ or cause.__context__
     full = any(isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EDQUOT) for e in chain)
-    free = _free_bytes(out)
-    if not full and (isinstance(exc, SimlidarError) or free is None or free >= NEARLY_FULL_BYTES):
-        return None
+    if not full:  # an I/O failure in a library's words (RuntimeError for HDF5) on a nearly full disk
+        io = not isinstance(exc, SimlidarError) and any(isinstance(e, (OSError, RuntimeError)) for e in chain)
+        free = _free_bytes(out) if io else None
+        if free is None or free >= NEARLY_FULL_BYTES:
+            return None
     words = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
     return OutputError(f"no space left on the device of output folder {out} ({words}); the earlier "
                        "outputs there are unchanged: free some space or choose another folder")

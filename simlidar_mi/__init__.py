@@ -42,10 +42,10 @@ import sys as _sys
 _orig = getattr(_sys, "orig_argv", [])
 if _sys.argv and _os.path.basename(_sys.argv[0]) == "simlidar-mi" \
         or any(_orig[i:i + 2] == ["-m", "simlidar_mi.cli"] for i in range(len(_orig))):
-    # The console script: Ctrl-C during the imports below (before cli.main) exits 130
-    # with one line instead of a traceback.
-    from ._signals import exit_on_sigint as _exit_on_sigint
-    _exit_on_sigint()
+    # The console script: Ctrl-C or SIGTERM during the imports below (before cli.main)
+    # exits 130 or 143 with one line instead of a traceback.
+    from ._signals import exit_on_interrupt as _exit_on_interrupt
+    _exit_on_interrupt()
     # One OpenBLAS thread, set before numpy loads it (unless the user chose): our products are
     # small (3x3 rotations, point batches), and each idle OpenBLAS worker spins ~0.1 s of CPU
     # after start-up, taken from Mitsuba's import and Embree's build (BENCHMARKS §8a).

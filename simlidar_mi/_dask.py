@@ -12,6 +12,12 @@ into row tiles (:mod:`simlidar_mi.lidar.tiles`, from ``run_scan``).  A sweep ask
 4. none: the sweep runs on the local process pool as it always did.
 
 ``distributed`` is imported only when one of 1–3 applies, so local runs pay nothing.
+
+Connecting takes at most ``CONNECT_TIMEOUT_S`` (30 s; ``SIMLIDAR_MI_DASK_TIMEOUT_S`` in the
+environment sets another) plus a few seconds' grace: a server on that port that never answers
+as a scheduler would (an HTTP server), an address nothing listens on, or a ``tls://`` address
+without Dask's TLS settings each end in one :class:`ConfigError` line; so does an empty
+address (``--scheduler ""``), which never means "local".
 """
 from __future__ import annotations
 
@@ -20,8 +26,10 @@ import functools
 import hashlib
 import logging
 import os
+import math
 import socket
 import sys
+import threading
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -33,6 +41,9 @@ log = logging.getLogger(__name__)
 LOCAL = "local"
 ENV = "DASK_SCHEDULER_ADDRESS"
 CONNECT_TIMEOUT_S = 30  # a cluster's scheduler may be slow to answer, but not forever
+TIMEOUT_ENV = "SIMLIDAR_MI_DASK_TIMEOUT_S"
+GRACE_S = 5.0  # beyond the timeout, for distributed to give up on its own and say why
+_failed: list = []  # errors of failed connections, kept: freeing a half-made Client prints a traceback
 
 
 def _active_client():
@@ -48,10 +59,38 @@ def _active_client():
     return client if client.status == "running" else None
 
 
+def check_scheduler(scheduler: Any) -> str | None:
+    """``scheduler`` stripped (None: not given); a :class:`ConfigError` unless it is None or a
+    non-empty string (an empty one is a mistake, not "local")."""
+    if scheduler is None:
+        return None
+    if not isinstance(scheduler, str):
+        raise ConfigError("must be a scheduler address such as 'tcp://host:8786', or 'local'",
+                          key="scheduler", value=scheduler)
+    if not scheduler.strip():
+        raise ConfigError("is empty: give a scheduler address such as 'tcp://host:8786', or 'local' "
+                          "for this machine's processes", key="scheduler", value=scheduler)
+    return scheduler.strip()
+
+
+def connect_timeout_s() -> float:
+    """Seconds to wait for a scheduler: ``SIMLIDAR_MI_DASK_TIMEOUT_S``, else CONNECT_TIMEOUT_S."""
+    text = os.environ.get(TIMEOUT_ENV, "").strip()
+    if not text:
+        return float(CONNECT_TIMEOUT_S)
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise ConfigError("must be a number of seconds > 0", key=TIMEOUT_ENV, value=text)
+    return value
+
+
 def may_use_cluster(scheduler: str | None = None) -> bool:
     """Whether :func:`cluster_client` would hand out a Client for ``scheduler`` (without
     connecting): an address, else an active Client or a configured address."""
-    scheduler = scheduler.strip() if isinstance(scheduler, str) else scheduler
+    scheduler = check_scheduler(scheduler)
     if scheduler:
         return scheduler != LOCAL
     return _active_client() is not None or configured_address() is not None
@@ -91,10 +130,7 @@ def cluster_client(scheduler: str | None = None) -> Iterator[Any]:
     """The ``distributed.Client`` a sweep should submit to, or None for the local pool.
 
     A Client this function connects is closed on exit; an active one is left open."""
-    if scheduler is not None and not isinstance(scheduler, str):
-        raise ConfigError("must be a scheduler address such as 'tcp://host:8786', or 'local'",
-                          key="scheduler", value=scheduler)
-    scheduler = scheduler.strip() if scheduler else None
+    scheduler = check_scheduler(scheduler)
     if scheduler == LOCAL:
         yield None
         return
@@ -107,18 +143,55 @@ def cluster_client(scheduler: str | None = None) -> Iterator[Any]:
         if scheduler is None:
             yield None
             return
-    from distributed import Client  # noqa: PLC0415
-    try:
-        client = Client(scheduler, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
-    except (OSError, TimeoutError, ValueError) as exc:
-        raise ConfigError(f"cannot reach the Dask scheduler ({type(exc).__name__}: {exc}); start "
-                          "one with 'dask scheduler', or leave --scheduler and "
-                          f"{ENV} unset for the local process pool",
-                          key="scheduler", value=scheduler) from exc
+    client = _connect(scheduler, connect_timeout_s())
     try:
         yield client
     finally:
         client.close()
+
+
+def _connect(address: str, timeout_s: float) -> Any:
+    """A Client of the scheduler at ``address``, or a one-line :class:`ConfigError` within
+    ``timeout_s`` + GRACE_S, whatever answers there (distributed's own timeout does not cover
+    a server that accepts the connection and never answers)."""
+    from distributed import Client, Security  # noqa: PLC0415
+    from distributed.comm.addressing import parse_address  # noqa: PLC0415
+
+    def error(why: str) -> ConfigError:
+        return ConfigError(f"cannot reach the Dask scheduler ({why}); start one with 'dask scheduler', "
+                           f"or leave --scheduler and {ENV} unset for the local process pool",
+                           key="scheduler", value=address)
+    try:
+        scheme, _ = parse_address(address)
+    except ValueError as exc:
+        raise error(f"not an address: {exc}") from None
+    if scheme == "tls" and Security().get_connection_args("client").get("ssl_context") is None:
+        raise error("a tls:// address needs Dask's TLS settings: distributed.comm.tls.ca-file, "
+                    ".client.cert and .client.key")
+    outcome: dict[str, Any] = {}
+
+    def connect() -> None:
+        try:
+            outcome["client"] = Client(address, timeout=timeout_s, set_as_default=False)
+        except BaseException as exc:  # noqa: BLE001  (any failure is this one line's)
+            _failed.append(exc)
+            outcome["error"] = exc
+    chatty = logging.getLogger("distributed")
+    level = chatty.level
+    chatty.setLevel(logging.CRITICAL)  # its retries and garbage frames ("Unable to allocate 3 EiB")
+    try:
+        thread = threading.Thread(target=connect, name="simlidar-dask-connect", daemon=True)
+        thread.start()
+        thread.join(timeout_s + GRACE_S)
+    finally:
+        chatty.setLevel(level)
+    if "client" in outcome:
+        return outcome["client"]
+    if "error" in outcome:
+        exc = outcome["error"]
+        words = (str(exc).strip().splitlines() or [""])[0]
+        raise error(f"{type(exc).__name__}: {words}" if words else type(exc).__name__)
+    raise error(f"no answer as a Dask scheduler within {timeout_s:g} s; {TIMEOUT_ENV} sets the wait")
 
 
 def worker_name() -> str:

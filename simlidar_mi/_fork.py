@@ -7,12 +7,20 @@ Used where a command's outputs are independent once its data exist and one of th
 frameworks are not fork-safe); elsewhere, or with ``parallel=False``, the call runs here, in
 turn, when its result is asked for. The child only runs numpy-level Python (no Mitsuba or
 Dr.Jit calls), so the threads those libraries left idle in the parent are not needed there.
+
+A child dies with its parent (:func:`die_with_parent`: the kernel's parent-death signal on
+Linux, even when the parent is SIGKILLed), keeps neither the parent's output-folder locks nor
+the read ends of its pipes (a write to a parent that is gone fails instead of blocking), and
+ends quietly on SIGINT and SIGTERM: the parent, interrupted too, ends it and says so.
 """
 from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 import sys
+import threading
+import time
 import traceback
 import warnings
 from contextlib import nullcontext
@@ -33,27 +41,91 @@ def use_fork(parallel: bool | None) -> bool:
     return cores >= 2
 
 
-def _child(conn, fn: Callable, args: tuple, setup: Callable | None) -> None:
-    """The forked process: run, then send ("ok", value), ("error", (exception, text)) or
-    ("interrupted", None)."""
-    try:
+#: Test hook: an inherited file descriptor; a forked child writes its pid there, then waits to
+#: be killed (a test kills the parent at that moment, without guessing times).
+HOLD_ENV = "SIMLIDAR_MI_TEST_FORK_HOLD_FD"
+_INTERRUPTS = (signal.SIGINT, signal.SIGTERM)
+CLOSE_WAIT_S = 5.0  # for a terminated child to end before it is killed
+_parent_ends: set = set()  # this process's read ends of its children's pipes
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """End this (forked or spawned) process as soon as ``parent_pid``, its parent, dies, even
+    by SIGKILL, so that no orphan keeps working, writing or holding files.  Linux: the kernel
+    sends SIGKILL at the parent's death (``PR_SET_PDEATHSIG``); elsewhere a thread watches the
+    parent pid."""
+    armed = False
+    if sys.platform.startswith("linux"):
+        import ctypes  # noqa: PLC0415
         try:
+            armed = ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0) == 0
+        except (OSError, AttributeError):
+            armed = False
+    if os.getppid() != parent_pid:  # the parent died before we armed
+        os._exit(1)
+    if not armed:
+        def watch() -> None:
+            while os.getppid() == parent_pid:
+                time.sleep(0.5)
+            os._exit(1)
+        threading.Thread(target=watch, name="simlidar-parent-watch", daemon=True).start()
+
+
+def _drop_inherited() -> None:
+    """In a forked child: close what belongs to the parent alone, its output-folder locks
+    (simlidar_mi.io.atomic) and its pipes' read ends (its other children's included)."""
+    atomic = sys.modules.get("simlidar_mi.io.atomic")
+    if atomic is not None:
+        atomic.forget_claims_after_fork()
+    for end in list(_parent_ends):
+        end.close()
+    _parent_ends.clear()
+
+
+def _hold_for_test() -> None:
+    fd = int(os.environ[HOLD_ENV])
+    os.write(fd, f"{os.getpid()}\n".encode())
+    os.close(fd)
+    while True:
+        signal.pause()
+
+
+def _child(conn, parent_pid: int, fn: Callable, args: tuple, setup: Callable | None) -> None:
+    """The forked process: run, then send ("ok", value), ("error", (exception, text)) or
+    ("interrupted", None).  Starts with SIGINT and SIGTERM blocked (see :class:`Forked`)."""
+    try:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)  # Forked.close's terminate() ends it at once
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        die_with_parent(parent_pid)
+        _drop_inherited()
+        try:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, _INTERRUPTS)
+            if os.environ.get(HOLD_ENV):
+                _hold_for_test()
             with setup() if setup is not None else nullcontext():
                 msg = ("ok", fn(*args))
         except KeyboardInterrupt:  # Ctrl-C: the parent got it too (then nobody listens), or
             msg = ("interrupted", None)  # a SIGINT sent to this child alone: the parent's to raise
         except BaseException as exc:  # noqa: BLE001  (everything else goes back to the parent)
             text = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
-            try:  # the exception itself, so the parent raises what an in-turn call raises
-                conn.send(("error", (exc, text)))
-                return
+            msg = ("error", (exc, text))
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # the answer goes out whole, or not at all
+        try:
+            try:  # an exception itself, so the parent raises what an in-turn call raises
+                conn.send(msg)
+            except OSError:
+                raise
             except Exception:  # noqa: BLE001  (not picklable: its text only)
-                msg = ("error", (None, text))
-        conn.send(msg)
-    except OSError:  # the parent stopped listening (it failed or was interrupted first)
+                conn.send(("error", (None, msg[1][1])))
+        except OSError:  # the parent stopped listening (it failed or was interrupted first)
+            pass
+        conn.close()
+    except BaseException:  # noqa: BLE001  (a second Ctrl-C: the parent reports, not this child)
         pass
     finally:
-        conn.close()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)  # no exit handlers: they are the parent's (its atexit, Dask, temp folders)
 
 
 class Forked:
@@ -76,14 +148,33 @@ class Forked:
                 stream.flush()
             ctx = multiprocessing.get_context("fork")
             self.recv, send = ctx.Pipe(duplex=False)
-            self.child = ctx.Process(target=_child, args=(send, fn, args, setup), daemon=True)
-            with warnings.catch_warnings():
-                # Python ≥ 3.12 warns on every fork of a process with threads; ours are Dr.Jit's
-                # and OpenBLAS's idle workers, and the child calls neither Dr.Jit nor Mitsuba.
-                warnings.filterwarnings("ignore", r".*multi-threaded, use of fork\(\) may lead to deadlocks",
-                                        DeprecationWarning)
-                self.child.start()
-            send.close()
+            self.child = ctx.Process(target=_child, args=(send, os.getpid(), fn, args, setup), daemon=True)
+            # Interrupts wait until the child has set its own handlers (and here until it is
+            # known, so that close() can end it): one between fork and then printed a traceback.
+            blocked = signal.pthread_sigmask(signal.SIG_BLOCK, _INTERRUPTS)
+            _parent_ends.add(self.recv)  # the child closes its copy of this end too
+            try:
+                with warnings.catch_warnings():
+                    # Python ≥ 3.12 warns on every fork of a process with threads; ours are Dr.Jit's
+                    # and OpenBLAS's idle workers, and the child calls neither Dr.Jit nor Mitsuba.
+                    warnings.filterwarnings("ignore", r".*multi-threaded, use of fork\(\) may lead to deadlocks",
+                                            DeprecationWarning)
+                    self.child.start()
+            except BaseException:  # the fork failed, or an interrupt that another thread took
+                if getattr(self.child, "_popen", None) is not None:  # forked all the same: end it
+                    self.close()
+                else:
+                    self.child = None
+                    _parent_ends.discard(self.recv)
+                    self.recv.close()
+                raise
+            finally:
+                send.close()
+                try:
+                    signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+                except BaseException:  # the interrupt that waited: end the child, then raise
+                    self.close()
+                    raise
 
     def wait(self) -> Any:
         if self.child is None:
@@ -112,7 +203,11 @@ class Forked:
     def close(self) -> None:
         if self.child is None:
             return
+        _parent_ends.discard(self.recv)
         self.recv.close()
         if self.child.is_alive():
             self.child.terminate()
-        self.child.join()
+        self.child.join(CLOSE_WAIT_S)
+        if self.child.exitcode is None:  # SIGTERM blocked or ignored by what the call runs
+            self.child.kill()
+            self.child.join()

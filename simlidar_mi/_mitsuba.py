@@ -5,7 +5,7 @@ import importlib
 from types import ModuleType
 
 from ._llvm import ensure_libllvm
-from ._signals import sigint_deferred
+from ._signals import interrupts_deferred
 from .errors import ConfigError
 
 DEFAULT_VARIANT = "llvm_ad_mono"
@@ -21,7 +21,7 @@ def mitsuba(variant: str | None = None) -> ModuleType:
     Ctrl-C is held back until this is done: an interrupt inside the extension modules'
     initialisation leaves them broken (ImportError, SystemError, or an abort at exit).
     """
-    with sigint_deferred():
+    with interrupts_deferred():
         return _mitsuba(variant)
 
 

@@ -502,37 +502,36 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one command; its exit status: 0, 2 on an error (one line), 130 on Ctrl-C.
+    """Run one command; its exit status: 0, 2 on an error (one line), 130 on Ctrl-C, 143
+    on SIGTERM (one line each).
 
     With ``argv`` None (the program's own command line) an interrupted run ends the
     process at once, after cleaning up: interpreter shutdown with Mitsuba's threads
     stopped mid-work can abort (rc 134) instead of exiting 130.  A finished run ends the
     same way (:func:`_exit_now`): its files are closed and in place by then, and the
     interpreter's teardown of Mitsuba, Dr.Jit and the arrays took 0.1 s after a scan."""
-    import os
-
-    from ._signals import INTERRUPTED_RC, raise_on_sigint
+    from ._signals import raise_on_interrupt, received
 
     args = build_parser().parse_args(argv)
-    raise_on_sigint()  # from here Ctrl-C unwinds, so staging folders and locks are removed
+    raise_on_interrupt()  # from here Ctrl-C and SIGTERM unwind, so staging folders and locks go
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", SimlidarWarning)
             warnings.showwarning = _one_line_warning(args.command)
             rc = args._run(args)
-    except SimlidarError as exc:
-        print(f"simlidar-mi {args.command}: error: {exc}", file=sys.stderr)
-        rc = 2
+    except KeyboardInterrupt as exc:
+        return _interrupted(args.command, exc, argv)
     except BrokenPipeError:  # stdout's reader left (`| head`): the files are written; say no more
+        # (before `except Exception`, which it is)
         _silence_stdout()
         rc = 0
-    except KeyboardInterrupt:
-        print(f"simlidar-mi {args.command}: interrupted", file=sys.stderr)
-        if argv is None:
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(INTERRUPTED_RC)
-        return INTERRUPTED_RC
+    except Exception as exc:
+        if received() is not None:  # a library turned our KeyboardInterrupt into its own error
+            return _interrupted(args.command, None, argv)
+        if not isinstance(exc, SimlidarError):
+            raise
+        print(f"simlidar-mi {args.command}: error: {exc}", file=sys.stderr)
+        rc = 2
     if argv is None:
         _exit_now(int(rc or 0))
     return int(rc or 0)
@@ -550,18 +549,39 @@ def _silence_stdout() -> None:
         pass
 
 
+def _interrupted(command: str, exc: BaseException | None, argv: list[str] | None) -> int:
+    """One line, then 130 (Ctrl-C) or 143 (SIGTERM); the program itself ends at once."""
+    import signal  # noqa: PLC0415
+
+    from ._signals import Terminated, exit_status, received  # noqa: PLC0415
+    if exc is None:
+        exc = Terminated() if received() == signal.SIGTERM else KeyboardInterrupt()
+    word, rc = exit_status(exc)
+    if argv is None:  # a second Ctrl-C now would print a traceback over the one line
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, signal.SIG_IGN)
+    print(f"simlidar-mi {command}: {word}", file=sys.stderr)
+    if argv is None:
+        _flush_and_exit(rc)
+    return rc
+
+
 def _exit_now(rc: int) -> None:
     """End the process with ``rc`` after the exit handlers (``atexit``: logging, Dask,
     temporary folders) but without the interpreter's teardown of every module and object
     (BENCHMARKS.md §8e).  Only for the program's own command line: a caller of
     :func:`main` gets its return value."""
     import atexit  # noqa: PLC0415
-    import os  # noqa: PLC0415
     import threading  # noqa: PLC0415
     for thread in threading.enumerate():  # as a normal exit does first: wait for the others
         if thread is not threading.current_thread() and not thread.daemon:
             thread.join()
     atexit._run_exitfuncs()  # then the exit handlers
+    _flush_and_exit(rc)
+
+
+def _flush_and_exit(rc: int) -> None:
+    import os  # noqa: PLC0415
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()

@@ -298,11 +298,11 @@ def test_ctrl_c_exits_130_with_one_line(tmp_path, module, prefix):
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # no lock, no partial
 
 
-def test_sigint_deferred_delivers_after_the_block():
-    from simlidar_mi._signals import sigint_deferred
+def test_interrupts_deferred_delivers_after_the_block():
+    from simlidar_mi._signals import interrupts_deferred
     seen = []
     with pytest.raises(KeyboardInterrupt):
-        with sigint_deferred():
+        with interrupts_deferred():
             os.kill(os.getpid(), signal.SIGINT)
             seen.append("block finished")  # not interrupted inside
     assert seen == ["block finished"]

@@ -13,7 +13,14 @@ and writable: :class:`~simlidar_mi.errors.OutputError` otherwise), a lock file
 ``.simlidar-mi.lock`` naming the process is taken (``flock``: released by the kernel
 when the process dies, even by SIGKILL), so a second run into the same folder is
 refused rather than interleaved, and staging folders and temporary files left by a
-killed run (their pid is in the name, and dead) are removed.
+killed run (their pid is in the name, and dead) are removed.  Forked children close
+their copy of the lock (:func:`forget_claims_after_fork`); a lock still held although
+the process it names on this host is gone (an orphan that inherited it) is taken over,
+with a warning.
+
+A write that fails for want of space (``ENOSPC``, a quota, or a library's own words for
+it, such as HDF5's "NetCDF: HDF error" on a full disk) raises :class:`OutputError`
+saying "no space left" and naming the folder; the earlier outputs stay as they were.
 """
 from __future__ import annotations
 
@@ -32,11 +39,12 @@ import sys
 import tempfile
 import threading
 import time
+import warnings
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
-from .._signals import sigint_deferred
-from ..errors import OutputError
+from .._signals import interrupts_deferred
+from ..errors import OutputError, SimlidarError, SimlidarWarning
 
 log = logging.getLogger(__name__)
 
@@ -94,8 +102,45 @@ def _owner_text(lock_path: Path) -> str:
         return "another process"
 
 
+def _stale_owner(fd: int) -> int | None:
+    """The pid a held lock file names when that process is gone from this host, else None."""
+    try:
+        info = json.loads(os.pread(fd, 4096, 0).decode("utf-8"))
+        pid, host = int(info["pid"]), info["host"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None  # being written, or not ours: in use
+    return pid if host == socket.gethostname() and pid > 0 and not _alive(pid) else None
+
+
+def _take_over(out: Path, path: Path, fd: int) -> bool:
+    """Remove the lock file ``fd`` opened when the process it names is gone (its lock is kept
+    by a process that inherited it), so that the next open makes a new one; whether it did.
+    Under an flock of the folder itself, so two runs cannot both take over (the second would
+    remove the first's new file)."""
+    try:
+        dir_fd = os.open(out, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(dir_fd, fcntl.LOCK_EX)
+        pid = _stale_owner(fd)
+        try:
+            same = pid is not None and os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            return True  # its holder removed it meanwhile: try again
+        if not same:
+            return False
+        path.unlink()
+    finally:
+        os.close(dir_fd)  # releases the folder's flock
+    warnings.warn(SimlidarWarning(f"took over the lock of output folder {out}: the process it "
+                                  f"names, {pid}, is gone (another that inherited the lock held it)"))
+    return True
+
+
 def _take_lock(out: Path) -> int:
-    """flock ``out/LOCK_NAME`` for this process; its fd.  Refuses when another holds it."""
+    """flock ``out/LOCK_NAME`` for this process; its fd.  Refuses when another holds it,
+    unless the process the lock names is gone (:func:`_take_over`)."""
     path = out / LOCK_NAME
     while True:
         try:
@@ -105,9 +150,13 @@ def _take_lock(out: Path) -> int:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
-            os.close(fd)
             if exc.errno not in (errno.EAGAIN, errno.EACCES):
+                os.close(fd)
                 raise OutputError(f"cannot lock output folder {out} ({exc.strerror})") from exc
+            taken = _take_over(out, path, fd)
+            os.close(fd)
+            if taken:
+                continue
             raise OutputError(f"output folder {out} is in use by {_owner_text(path)}; wait for "
                               f"it to finish or use another folder (lock file {path})") from None
         try:  # the holder before us may have removed the file as we opened it: retry
@@ -123,6 +172,58 @@ def _take_lock(out: Path) -> int:
     os.ftruncate(fd, 0)
     os.write(fd, (json.dumps(info) + "\n").encode())
     return fd
+
+
+#: Below this many bytes free, a failed write is taken for a full disk whatever its words
+#: (HDF5's "NetCDF: HDF error"); the failed run's own staged files are still there to count.
+NEARLY_FULL_BYTES = 1 << 20
+
+
+def _free_bytes(folder: Path) -> int | None:
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return None
+    return st.f_bavail * st.f_frsize
+
+
+def _no_space(exc: BaseException, out: Path) -> OutputError | None:
+    """The one-line error for ``exc`` when it comes of a full disk or quota, else None."""
+    if not isinstance(exc, Exception) or isinstance(exc, OutputError):
+        return None
+    chain, cause = [], exc
+    while cause is not None and len(chain) < 20:
+        chain.append(cause)
+        cause = cause.__cause__ or cause.__context__
+    full = any(isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EDQUOT) for e in chain)
+    if not full:  # an I/O failure in a library's words (RuntimeError for HDF5) on a nearly full disk
+        io = not isinstance(exc, SimlidarError) and any(isinstance(e, (OSError, RuntimeError)) for e in chain)
+        free = _free_bytes(out) if io else None
+        if free is None or free >= NEARLY_FULL_BYTES:
+            return None
+    words = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    return OutputError(f"no space left on the device of output folder {out} ({words}); the earlier "
+                       "outputs there are unchanged: free some space or choose another folder")
+
+
+@contextlib.contextmanager
+def _space_errors(out: Path) -> Iterator[None]:
+    try:
+        yield
+    except Exception as exc:
+        err = _no_space(exc, out)
+        if err is None:
+            raise
+        raise err from exc
+
+
+def forget_claims_after_fork() -> None:
+    """In a forked child: close the inherited lock files without unlocking them (the
+    parent's own descriptors keep its locks), so the locks end with the parent."""
+    for held in _claims.values():  # not under _claims_lock: another thread may have held it at fork
+        with contextlib.suppress(OSError):
+            os.close(held[0])
+    _claims.clear()
 
 
 def clean_stale_partials(out_dir: str | Path) -> list[Path]:
@@ -181,9 +282,10 @@ def claim_output(out_dir: str | Path) -> Iterator[Path]:
                 raise
             _claims[key] = held = [fd, 1, created]
     try:
-        if held[1] == 1:
-            clean_stale_partials(out)
-        yield out
+        with _space_errors(out):
+            if held[1] == 1:
+                clean_stale_partials(out)
+            yield out
     finally:
         with _claims_lock:
             held[1] -= 1
@@ -236,10 +338,14 @@ def staged_dir(out_dir: str | Path, owns: Iterable[str] = ()) -> Iterator[Path]:
     A sub-folder replaces the earlier one of its name as a whole."""
     owns = tuple(owns)
     with claim_output(out_dir) as out:
-        stage = Path(tempfile.mkdtemp(prefix=f".partial-{os.getpid()}-", dir=out))
         try:
-            yield stage
-            with sigint_deferred():  # Ctrl-C here would leave half old, half new files
+            stage = Path(tempfile.mkdtemp(prefix=f".partial-{os.getpid()}-", dir=out))
+        except OSError as exc:
+            raise _no_space(exc, out) or exc
+        try:
+            with _space_errors(out):  # while the staged files still fill the disk
+                yield stage
+            with interrupts_deferred():  # Ctrl-C or SIGTERM here would leave half old, half new files
                 _commit(stage, out, owns)
         finally:
             shutil.rmtree(stage, ignore_errors=True)

@@ -39,8 +39,7 @@ import itertools
 import json
 import logging
 import os
-import sys
-import threading
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,7 +52,7 @@ from .._version import __version__  # noqa: F401
 from .._progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
-from ..io.atomic import atomic_file, write_csv, writes_output
+from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
 
 log = logging.getLogger(__name__)
 
@@ -138,26 +137,9 @@ def _key(table: dict[str, Any], readings: bool = True, version: str | None = Non
 
 def _die_with_parent(parent_pid: int) -> None:
     """Dask worker initializer: end this worker as soon as the study process dies, even by
-    SIGKILL, so that no orphan keeps scanning and writing rows.  Linux: the kernel sends
-    SIGKILL at the parent's death (``PR_SET_PDEATHSIG``); elsewhere a thread watches the
-    parent pid."""
-    if sys.platform.startswith("linux"):
-        import ctypes  # noqa: PLC0415
-        import signal  # noqa: PLC0415
-        try:
-            armed = ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0) == 0
-        except (OSError, AttributeError):
-            armed = False
-    else:
-        armed = False
-    if os.getppid() != parent_pid:  # the parent died before we armed
-        os._exit(1)
-    if not armed:
-        def watch() -> None:
-            while os.getppid() == parent_pid:
-                time.sleep(0.5)
-            os._exit(1)
-        threading.Thread(target=watch, name="simlidar-parent-watch", daemon=True).start()
+    SIGKILL, so that no orphan keeps scanning and writing rows."""
+    from .._fork import die_with_parent  # noqa: PLC0415
+    die_with_parent(parent_pid)
 
 
 def run_one(scene: str, overrides: list[str], rows_dir: str | None, readings: bool = True,
@@ -461,6 +443,8 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
     each row comes back to be written here as soon as its orchard is done."""
     if on_mismatch not in ("recompute", "refuse"):
         raise ConfigError("must be 'recompute' or 'refuse'", key="on_mismatch", value=on_mismatch)
+    from .._dask import check_scheduler  # noqa: PLC0415
+    check_scheduler(scheduler)  # an empty address is refused before any work
     scene = str(Path(scene).resolve())
     load_scene(scene)  # fail early, before any task, on a bad base scene
     grid = paper_grid() if grid is None else grid
@@ -512,12 +496,17 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
     rows = [_read_row(rows_dir / f"{k}.json", quiet=True) for k in keys]
     regression = regression_report(rows)
     regression["code_version"] = version
-    files = {"csv": out / "study.csv", "regression": out / "regression.json", "png": out / "correlations.png"}
-    write_csv(files["csv"], COLUMNS, rows, extrasaction="ignore")
-    with atomic_file(files["regression"]) as tmp:
-        tmp.write_text(json.dumps(regression, indent=2) + "\n")
-    _plot(rows, regression, files["png"])
-    return StudyResult(rows, regression, files)
+    # The final set is replaced as one: an interrupt or a failure while it is written leaves
+    # the earlier study.csv, regression.json and correlations.png together (rows/ is not in it).
+    with staged_dir(out, [re.escape(name) for name in FINAL_FILES.values()]) as stage:
+        write_csv(stage / FINAL_FILES["csv"], COLUMNS, rows, extrasaction="ignore")
+        (stage / FINAL_FILES["regression"]).write_text(json.dumps(regression, indent=2) + "\n")
+        _plot(rows, regression, stage / FINAL_FILES["png"])
+    return StudyResult(rows, regression, {k: out / name for k, name in FINAL_FILES.items()})
+
+
+#: The files a study writes at its end, from its rows.
+FINAL_FILES = {"csv": "study.csv", "regression": "regression.json", "png": "correlations.png"}
 
 
 def _run_local(scene: str, todo: list[tuple[list[str], str]], rows_dir: Path, readings: bool,

@@ -362,8 +362,9 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     :mod:`simlidar_mi.lidar.stream_sensor`; the same bytes): ``run.result`` is then a
     :class:`~simlidar_mi.lidar.stream.StreamedScan` (shape, counts, areas; no beams).
     """
-    from .._dask import cluster_client  # noqa: PLC0415
+    from .._dask import check_scheduler, cluster_client  # noqa: PLC0415
     from .scan import scan  # noqa: PLC0415
+    check_scheduler(scheduler)  # an empty address is refused before any work
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, overrides)
     check_variant(cfg["scene"]["variant"], cfg.source)  # before any work

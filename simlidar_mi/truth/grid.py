@@ -259,7 +259,13 @@ def _encoding(ds) -> dict:
 def write_grid(ds, path: str | Path) -> Path:
     """Write a grid Dataset to NetCDF-4 atomically (a temporary file, then a rename), with
     zlib compression, 3-D variables on (z, y, x) and classic-format types and ASCII
-    attributes (module docstring); nothing half-written is left at ``path``."""
+    attributes (module docstring); nothing half-written is left at ``path``.
+
+    Ctrl-C and SIGTERM wait for the end of the write: raised inside ``to_netcdf`` they
+    deadlocked it (its clean-up waits on a lock the interrupted write holds)."""
+    import errno  # noqa: PLC0415
+
+    from .._signals import interrupts_deferred  # noqa: PLC0415
     from ..io.atomic import atomic_file  # noqa: PLC0415
 
     path = Path(path)
@@ -268,9 +274,11 @@ def write_grid(ds, path: str | Path) -> Path:
     for name in ds.variables:
         ds[name].attrs = {k: _classic(v) for k, v in ds[name].attrs.items()}
     try:
-        with atomic_file(path) as tmp:
+        with atomic_file(path) as tmp, interrupts_deferred():
             ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4", encoding=_encoding(ds))
     except OSError as exc:
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):  # said once, for the folder (io.atomic)
+            raise
         raise OutputError(f"{path}: cannot write the voxel grid: {exc}") from exc
     return path
 

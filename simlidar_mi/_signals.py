@@ -18,6 +18,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from typing import Iterator
 
 INTERRUPTED_RC = 130  # 128 + SIGINT, what shells report for a command ended by Ctrl-C
@@ -64,6 +65,36 @@ def _raise_interrupt(signum, frame) -> None:  # noqa: ARG001
     raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
 
 
+def _redeliver_swallowed(unraisable, default=sys.unraisablehook) -> None:
+    """``sys.unraisablehook``: an interrupt raised where Python cannot propagate it (a weakref
+    callback such as importlib's module-lock clean-up, a ``__del__``) would be printed as
+    "Exception ignored … Traceback" and lost, and the command would run on.  Send the signal
+    again once this hook has returned, so that its handler raises in the code that follows.
+
+    Sent from a thread: a signal raised here would run its handler inside this hook."""
+    if not (isinstance(unraisable.exc_value, KeyboardInterrupt) and _received):
+        default(unraisable)
+        return
+    signum = signal.SIGTERM if isinstance(unraisable.exc_value, Terminated) else signal.SIGINT
+    main = threading.main_thread().ident
+    hook = sys._getframe().f_code
+
+    def in_hook() -> bool | None:  # None: the main thread has ended
+        frame = sys._current_frames().get(main)
+        if frame is None:
+            return None
+        while frame is not None and frame.f_code is not hook:
+            frame = frame.f_back
+        return frame is not None
+
+    def resend() -> None:
+        while (inside := in_hook()):
+            time.sleep(0.0005)  # until the hook has returned (a wait, not a timing)
+        if inside is not None:
+            signal.pthread_kill(main, signum)
+    threading.Thread(target=resend, name="simlidar-mi-resend-signal", daemon=True).start()
+
+
 def raise_on_interrupt() -> None:
     """SIGINT raises KeyboardInterrupt and SIGTERM :class:`Terminated`, replacing
     :func:`exit_on_interrupt` once the command runs and has outputs to clean up.  Forgets
@@ -74,6 +105,7 @@ def raise_on_interrupt() -> None:
     for signum in _DEFERRED:  # only the program's own (a caller of cli.main keeps its handlers)
         if signal.getsignal(signum) is _exit_at_start:
             signal.signal(signum, _raise_interrupt)
+            sys.unraisablehook = _redeliver_swallowed
 
 
 def received() -> int | None:

@@ -320,3 +320,33 @@ def test_sigterm_to_a_study_with_workers_is_one_line_and_leaks_nothing(tmp_path)
     assert "leaked" not in stderr and "Traceback" not in stderr
     assert not any(ln.startswith("simlidar-mi") for ln in lines[:-1]), stderr
     assert not (out / LOCK_NAME).exists() and not list(out.glob(".partial*"))
+
+
+_SWALLOWED = """
+import signal, sys, weakref
+from simlidar_mi._signals import exit_on_interrupt, raise_on_interrupt
+exit_on_interrupt(); raise_on_interrupt()  # as the command line sets them
+class Thing: pass
+thing = Thing()
+def callback(_):  # as importlib's module-lock clean-up: Python cannot raise out of it
+    signal.raise_signal(getattr(signal, sys.argv[1]))
+    x = 1  # the handler runs here, inside the callback
+ref = weakref.ref(thing, callback)
+try:
+    del thing
+    for _ in range(10**9):  # ~30 s: the resent signal ends it long before
+        pass
+    print("not interrupted")
+except KeyboardInterrupt as exc:
+    print(type(exc).__name__)
+"""
+
+
+@pytest.mark.parametrize("sig, name", [("SIGINT", "KeyboardInterrupt"), ("SIGTERM", "Terminated")])
+def test_an_interrupt_swallowed_by_a_weakref_callback_is_sent_again(sig, name):
+    """Landing in a weakref callback (importlib's module locks, in the signal fuzz), the
+    interrupt was printed as "Exception ignored ... Traceback" and lost; the run went on.
+    It is now sent again once the callback is over, and unwinds the code that follows."""
+    proc = subprocess.run([sys.executable, "-c", _SWALLOWED, sig], capture_output=True, text=True,
+                          timeout=120, cwd=REPO)
+    assert (proc.stdout, proc.stderr) == (f"{name}\n", "")

@@ -307,6 +307,16 @@ def test_evaluate_command_end_to_end(tmp_path):
     _, est = read_grid(out / "estimates" / "beer_lambert.nc", "PAD_m2_m3")
     assert est["PAD_m2_m3"].dims == truth["PAD_m2_m3"].dims == ("z", "y", "x")  # CF order, as on file
     assert est["PAD_m2_m3"].shape == truth["PAD_m2_m3"].shape == grid.shape[::-1]
+    # the truth's G along the beams, and the oracle runs that divide by it (PAD ~ 1/G)
+    g_leaf = truth["G_leaf"].values
+    assert truth["G_leaf"].dims == ("z", "y", "x") and np.nanmin(g_leaf) >= 0 and np.nanmax(g_leaf) <= 1
+    assert np.isfinite(g_leaf).sum() > 0 and np.all(np.isfinite(g_leaf) <= (truth["leaf_area_m2"].values > 0))
+    g_canopy = d["summary"]["G_plant_canopy"]
+    assert truth.attrs["G_plant_canopy"] == pytest.approx(g_canopy) and 0.3 < g_canopy < 0.6
+    for name in ("beer_lambert", "contact_mle"):
+        assert rows[(f"{name}_Gcanopy", "voxel")]["estimate_mean"] == pytest.approx(
+            rows[(name, "voxel")]["estimate_mean"] * 0.5 / g_canopy, rel=1e-9)
+        assert rows[(f"{name}_Gvoxel", "voxel")]["n"] == rows[(name, "voxel")]["n"]
     for name in ("scores.csv", "profiles.csv", "profiles.png", "scatter.png", "grid.nc", "scan/scan.exr",
                  "scan/points.las"):
         assert (out / name).is_file(), name

@@ -469,7 +469,7 @@ def _evaluate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", choices=("equal", "energy"), default="equal",
                    help="echo weights of the multi-return estimators (scans with a [sensor])")
     p.add_argument("--min-beams", type=float, default=5.0, metavar="N",
-                   help="beams that must enter a voxel for a beam-based estimate (default 5)")
+                   help="beams that must enter a voxel for it to be scored and for a beam-based estimate (default 5)")
     p.add_argument("--G", dest="G", type=float, default=0.5, metavar="G",
                    help="mean projection of unit plant area along the beams (default 0.5: spherical leaf angles)")
 
@@ -482,9 +482,11 @@ def _evaluate_run(args: argparse.Namespace) -> int:
     run = evaluate(args.scene, args.out, _overrides(args), estimators=args.estimator,
                    commands=args.estimator_cmd, voxel_m=args.voxel, row_spacing_m=args.row_spacing,
                    weights=args.weights, min_beams=args.min_beams, G=args.G, progress=True)
-    print(f"{'estimator':<22} {'scale':<8} {'n':>7} {'R2':>7} {'RMSE':>8} {'bias':>8}  (PAD m2/m3)")
+    print(f"{'estimator':<26} {'scale':<8} {'n':>7} {'cover':>6} {'R2':>7} {'RMSE':>8} {'bias':>8}  "
+          "(PAD m2/m3; abstentions as 0; cover: share of true area estimated)")
     for r in run.scores:
-        print(f"{r['estimator']:<22} {r['scale']:<8} {r['n']:>7} {r['r2']:7.3f} {r['rmse']:8.3f} {r['bias']:+8.3f}")
+        print(f"{r['estimator']:<26} {r['scale']:<8} {r['n']:>7} {100 * r['coverage_area']:5.1f}% {r['r2']:7.3f} "
+              f"{r['rmse']:8.3f} {r['bias']:+8.3f}")
     print(f"wrote {args.out}/scores.csv and {len(run.files) - 1} more outputs")
     return 0
 

@@ -194,7 +194,9 @@ def test_plugin_is_scored_like_the_builtin_and_bad_output_is_refused(cylinder_sc
         mine, builtin = run.get("contact_frequency", scale), run.get("contact_mle", scale)
         assert {k: mine[k] for k in ("n", "r2", "rmse", "bias")} == {k: builtin[k] for k in ("n", "r2", "rmse", "bias")}
     assert run.get("contact_mle")["n"] > 0
-    assert run.get("cmd1")["n"] == run.summary["n_observed_voxels"] > run.get("contact_mle")["n"]
+    # one voxel set for every estimator, fixed by the scan
+    assert run.get("cmd1")["n"] == run.get("contact_mle")["n"] == run.summary["n_observed_voxels"]
+    assert run.get("cmd1")["n_estimated"] == run.get("cmd1")["n"]
     for name in ("scores.csv", "scores.json", "profiles.csv", "profiles.png", "scatter.png", "truth.nc",
                  "grid.nc", "estimates/contact_mle.nc", "estimates/cmd1.nc"):
         assert (tmp_path / name).is_file(), name
@@ -305,6 +307,16 @@ def test_evaluate_command_end_to_end(tmp_path):
     _, est = read_grid(out / "estimates" / "beer_lambert.nc", "PAD_m2_m3")
     assert est["PAD_m2_m3"].dims == truth["PAD_m2_m3"].dims == ("z", "y", "x")  # CF order, as on file
     assert est["PAD_m2_m3"].shape == truth["PAD_m2_m3"].shape == grid.shape[::-1]
+    # the truth's G along the beams, and the oracle runs that divide by it (PAD ~ 1/G)
+    g_leaf = truth["G_leaf"].values
+    assert truth["G_leaf"].dims == ("z", "y", "x") and np.nanmin(g_leaf) >= 0 and np.nanmax(g_leaf) <= 1
+    assert np.isfinite(g_leaf).sum() > 0 and np.all(np.isfinite(g_leaf) <= (truth["leaf_area_m2"].values > 0))
+    g_canopy = d["summary"]["G_plant_canopy"]
+    assert truth.attrs["G_plant_canopy"] == pytest.approx(g_canopy) and 0.3 < g_canopy < 0.6
+    for name in ("beer_lambert", "contact_mle"):
+        assert rows[(f"{name}_Gcanopy", "voxel")]["estimate_mean"] == pytest.approx(
+            rows[(name, "voxel")]["estimate_mean"] * 0.5 / g_canopy, rel=1e-9)
+        assert rows[(f"{name}_Gvoxel", "voxel")]["n"] == rows[(name, "voxel")]["n"]
     for name in ("scores.csv", "profiles.csv", "profiles.png", "scatter.png", "grid.nc", "scan/scan.exr",
                  "scan/points.las"):
         assert (out / name).is_file(), name
@@ -365,8 +377,10 @@ def test_plugin_failures_are_one_line_and_odd_estimates_are_refused_or_reported(
         run = evaluate_beams(grid, truth, beams, scan_dir=out, plugins=[nothing, negative])
     said = [str(w.message) for w in caught if issubclass(w.category, SimlidarWarning)]
     n_obs = run.summary["n_observed_voxels"]
-    assert run.get("nothing")["n"] == 0 and n_obs > 0
-    assert f"estimator nothing: no finite PAD_m2_m3 in the {n_obs} voxels beams entered" in said[0]
+    assert run.get("nothing")["n_estimated"] == 0 and run.get("nothing")["n"] == n_obs > 0
+    assert run.get("nothing")["coverage_voxels"] == 0.0
+    assert run.get("nothing")["bias"] == pytest.approx(-1.0)  # abstentions scored as 0 against 1
+    assert f"estimator nothing: no finite PAD_m2_m3 in the {n_obs} voxels the scan observed" in said[0]
     assert said[1] == (f"estimator negative: {n_obs} voxels hold a negative PAD_m2_m3 (down to -2); "
                        "scored as given")
     assert run.get("negative")["bias"] == pytest.approx(-3.0)  # scored as given: -2 against 1

@@ -205,7 +205,7 @@ def test_evaluate_netcdf_outputs_are_cf_classic_and_gdal_grids(tmp_path, cf_chec
     assert main(["evaluate", str(REPO / "scenes" / "orchard_leafy.toml"), "--out", str(out), "--voxel", "0.25",
                  "--set", "scan.dtheta_deg=1.0", "--set", "scan.dy_m=0.04"]) == 0
     files = [out / "truth.nc", out / "grid.nc", *sorted((out / "estimates").glob("*.nc"))]
-    assert len(files) == 5
+    assert len(files) == 9  # truth, grid, vcp, beer_lambert, contact_mle and the two G oracle runs of the last two
     for path in files:
         got = cf_checker(path)
         assert got["errors"] == 0 and got["warnings"] == 0, (path.name, got["messages"])

@@ -75,8 +75,9 @@ def default_grid(geometry, voxel_m: float = 0.1, margin_m: float = 0.0,
 class Totals:
     """Accumulators of the three quantities (voxel units until :meth:`arrays`)."""
 
-    def __init__(self, grid: VoxelGrid):
+    def __init__(self, grid: VoxelGrid, leaf_pieces=None):
         self.grid = grid
+        self.leaf_pieces = leaf_pieces  # a leaf_g.LeafPieces collecting each leaf piece's normal
         self.leaf = Accumulator(grid.shape)
         self.wood = Accumulator(grid.shape)
         self.volume = Accumulator(grid.shape)
@@ -92,8 +93,13 @@ class Totals:
     def triangles(self, tri_m: np.ndarray, acc: Accumulator) -> None:
         if not len(tri_m):
             return
-        for ijk, w in clip_triangles(self.vox(tri_m)):
-            acc.add(ijk, w)
+        if acc is self.leaf and self.leaf_pieces is not None:
+            for ijk, w, owner in clip_triangles(self.vox(tri_m), owners=True):
+                acc.add(ijk, w)
+                self.leaf_pieces.add(tri_m, ijk, w, owner)
+        else:
+            for ijk, w in clip_triangles(self.vox(tri_m)):
+                acc.add(ijk, w)
         a = 0.5 * np.linalg.norm(np.cross(tri_m[:, 1] - tri_m[:, 0], tri_m[:, 2] - tri_m[:, 0]), axis=1)
         if acc is self.leaf:
             self.leaf_exact_m2 += float(a.sum())
@@ -219,7 +225,7 @@ def _instances(tot: Totals, inst, prog) -> None:
 
 
 def compute_truth(geometry, grid: VoxelGrid, progress=True, ground_area_m2: float | None = None, *,
-                  crs: str | None = None, ground_z_m: float = 0.0):
+                  crs: str | None = None, ground_z_m: float = 0.0, leaf_pieces=None):
     """Exact per-voxel leaf area, wood area, wood volume, plant area, LAD and PAD.
 
     ``geometry`` is a :class:`simlidar_mi.lidar.survey.SceneGeometry`; ``grid`` a
@@ -229,9 +235,11 @@ def compute_truth(geometry, grid: VoxelGrid, progress=True, ground_area_m2: floa
     variables ``LAD_profile_m2_m3`` / ``PAD_profile_m2_m3`` (z) are leaf / plant area
     per height bin divided by the footprint area and the voxel height. ``crs`` (the scene's
     ``[scene] crs``) and ``ground_z_m`` (its ground plane) describe the frame on file
-    (:func:`simlidar_mi.truth.grid.grid_dataset`)."""
+    (:func:`simlidar_mi.truth.grid.grid_dataset`). ``leaf_pieces``: a
+    :class:`~simlidar_mi.truth.leaf_g.LeafPieces` on ``grid`` that collects every leaf piece
+    with its normal (for the truth's G along a scan's beams)."""
     prog = make_progress(progress)
-    tot = Totals(grid)
+    tot = Totals(grid, leaf_pieces)
     if len(geometry.leaves):
         with prog.stage("truth: leaf triangles", total=1, unit="step") as st:
             tot.triangles(geometry.leaves.vertices, tot.leaf)

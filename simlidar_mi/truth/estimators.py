@@ -39,8 +39,13 @@ Beam-based (where the beams went, :func:`~simlidar_mi.truth.traverse.traverse`):
     It needs no saturation rule and no equal-path assumption. (Their further small-N
     bias correction is not applied; tests/test_estimators.py measures the bias left.)
 
-G is the mean projection of unit leaf area, 0.5 for a spherical leaf-angle
-distribution (Ross 1981); pass the scene's own G when known.
+G is the mean projection of unit leaf area along the beams, 0.5 for a spherical leaf-angle
+distribution (Ross 1981). Every estimator takes ``G`` as a number or as an array of
+``grid.shape`` (per voxel); each estimate is proportional to 1/G, so an estimate with another
+G is the same estimate times G_old/G_new (:func:`with_G`). ``evaluate`` runs them with the
+constant G and again with the truth's own G per voxel (:mod:`simlidar_mi.truth.leaf_g`; the
+``*_Gcanopy`` and ``*_Gvoxel`` oracle runs), which separates the error of G from the rest (clumping, finite
+leaves, sampling). G estimated from the points is not offered.
 
 Voxels fewer than ``min_beams`` (default 5, :data:`MIN_BEAMS`) beams entered are NaN for the
 beam-based estimators: Pimont et al. (2018) find the MLE consistent from about 5 beams, and
@@ -49,7 +54,7 @@ below that one grazing beam intercepted after a millimetre of path reads hundred
 Saturated voxels (I = N, T = 0) have no finite Beer–Lambert estimate. ``saturated =
 "cap"`` (default) sets T = 1/(N + 1), as if one more beam had passed: the estimate is
 then ln(N + 1)/(G·l̄), a lower bound that grows with N; ``"nan"`` leaves them NaN
-(scored as unobserved). Unobserved voxels (N = 0) are NaN for every beam-based
+(an abstention, scored as 0 by evaluate). Unobserved voxels (N = 0) are NaN for every beam-based
 estimator.
 
 Multi-return (``*_multi``; scans with a ``[sensor]``): each echo intercepts a share of
@@ -70,7 +75,8 @@ from .grid import VoxelGrid
 from .traverse import BeamCounts, Beams, traverse
 
 __all__ = ["beams_from_scan", "beams_from_exr", "point_occupancy", "beer_lambert_pad",
-           "contact_mle_pad", "vcp_pad", "estimate_all", "G_SPHERICAL", "BUILTIN", "MIN_BEAMS"]
+           "contact_mle_pad", "vcp_pad", "estimate_all", "with_G", "G_SPHERICAL", "BUILTIN", "MIN_BEAMS",
+           "ORACLE_G", "ORACLE_SUFFIX"]
 
 G_SPHERICAL = 0.5
 #: Built-in estimators: name → (description, needs echoes).
@@ -81,6 +87,11 @@ BUILTIN = {
     "beer_lambert_multi": "Beer–Lambert with every echo (weighted beams)",
     "contact_mle_multi": "maximum likelihood with every echo (weighted beams)",
 }
+#: The oracle runs of ``evaluate``: these estimators with the truth's own G per voxel.
+ORACLE_G = ("beer_lambert", "contact_mle", "beer_lambert_multi", "contact_mle_multi")
+ORACLE_SUFFIX = {"_Gcanopy": "the truth's plant G of the canopy (oracle; G_plant_canopy in truth.nc)",
+                 "_Gvoxel": "the truth's plant G per voxel (oracle; G_plant in truth.nc)"}
+BUILTIN.update({f"{k}{suffix}": f"{k} with {what}" for suffix, what in ORACLE_SUFFIX.items() for k in ORACLE_G})
 
 #: Units and long names of the arrays an estimate holds besides ``PAD_m2_m3`` (its NetCDF file).
 ESTIMATE_VARIABLES = {
@@ -92,6 +103,7 @@ ESTIMATE_VARIABLES = {
     "point_count": ("1", "vegetation returns in the voxel (weighted for multi-return beams)"),
     "point_density_m3": ("m-3", "vegetation returns per voxel volume"),
     "occupied": ("1", "1 where the voxel holds at least min_points returns, else 0"),
+    "G": ("1", "G used per voxel (the oracle runs: the truth's plant G)"),
 }
 
 
@@ -229,7 +241,7 @@ def _observed(counts: BeamCounts, min_beams: float = MIN_BEAMS) -> np.ndarray:
     return counts.n_in >= min_beams
 
 
-def beer_lambert_pad(counts: BeamCounts, G: float = G_SPHERICAL, saturated: str = "cap",
+def beer_lambert_pad(counts: BeamCounts, G=G_SPHERICAL, saturated: str = "cap",
                      min_beams: float = MIN_BEAMS) -> np.ndarray:
     """PAD = −ln(1 − I/N)/(G·l̄), l̄ = chord_m / N (module docstring; NaN where N < min_beams)."""
     if saturated not in ("cap", "nan"):
@@ -246,7 +258,7 @@ def beer_lambert_pad(counts: BeamCounts, G: float = G_SPHERICAL, saturated: str 
     return np.where(obs & np.isfinite(pad), pad, np.nan)
 
 
-def contact_mle_pad(counts: BeamCounts, G: float = G_SPHERICAL, min_beams: float = MIN_BEAMS) -> np.ndarray:
+def contact_mle_pad(counts: BeamCounts, G=G_SPHERICAL, min_beams: float = MIN_BEAMS) -> np.ndarray:
     """PAD = I/(G·Σ free path) (Pimont et al. 2018 maximum likelihood; NaN where N < min_beams)."""
     obs = _observed(counts, min_beams)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -255,7 +267,7 @@ def contact_mle_pad(counts: BeamCounts, G: float = G_SPHERICAL, min_beams: float
     return np.where(obs & np.isfinite(pad), pad, np.nan)
 
 
-def vcp_pad(counts: BeamCounts, occupied: np.ndarray, G: float = G_SPHERICAL,
+def vcp_pad(counts: BeamCounts, occupied: np.ndarray, G=G_SPHERICAL,
             min_beams: float = MIN_BEAMS) -> np.ndarray:
     """Voxel canopy profiling per voxel: occupied / (G·l̄) over observed voxels (module
     docstring). A voxel is observed when it holds points or ``min_beams`` beams entered it;
@@ -269,16 +281,23 @@ def vcp_pad(counts: BeamCounts, occupied: np.ndarray, G: float = G_SPHERICAL,
     return np.where(obs, pad, np.nan)
 
 
-def estimate_all(grid: VoxelGrid, first: Beams, multi: Beams | None = None, *, G: float = G_SPHERICAL,
+def with_G(pad: np.ndarray, G_used, G_new) -> np.ndarray:
+    """The same estimate under another G (numbers or arrays of the grid): pad·G_used/G_new."""
+    return np.asarray(pad, np.float64) * (np.asarray(G_used, np.float64) / np.asarray(G_new, np.float64))
+
+
+def estimate_all(grid: VoxelGrid, first: Beams, multi: Beams | None = None, *, G=G_SPHERICAL,
                  min_points: int = 1, saturated: str = "cap", min_beams: float = MIN_BEAMS,
-                 chunk_beams: int | None = None,
-                 progress=None) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, float]]:
-    """Every built-in estimator (:data:`BUILTIN`): (name → arrays on ``grid`` (``PAD_m2_m3``
-    and the counts behind it), name → seconds including its traversal). ``multi``: the
-    weighted every-echo beams, if the scan has echoes."""
+                 chunk_beams: int | None = None, progress=None,
+                 on_first_segment=None) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, float]]:
+    """Every built-in estimator of the scan (:data:`BUILTIN` but the oracle runs): (name →
+    arrays on ``grid`` (``PAD_m2_m3`` and the counts behind it), name → seconds including its
+    traversal). ``multi``: the weighted every-echo beams, if the scan has echoes. ``G``: a
+    number or an array of ``grid.shape``. ``on_first_segment``: passed to the first-return
+    traversal (:func:`~simlidar_mi.truth.traverse.traverse`'s ``on_segment``)."""
     kw = {"chunk_beams": chunk_beams} if chunk_beams else {}
     t0 = time.perf_counter()
-    c1 = traverse(grid, first, progress=progress, **kw)
+    c1 = traverse(grid, first, progress=progress, on_segment=on_first_segment, **kw)
     walk_s = time.perf_counter() - t0
     out, sec = {}, {}
 

@@ -6,14 +6,19 @@ the truth (any beams, any truth Dataset on a grid), which tests and benchmarks c
 Output folder (written atomically: every file appears together when all are done):
 
 ``scores.csv``, ``scores.json``
-    per estimator and scale (``voxel``, ``profile``): n, R², RMSE, bias, means
-    (definitions in :mod:`simlidar_mi.truth.scoring`), the seconds it took; the JSON adds
-    the z profiles, the canopy envelope (height, width, TRV and LWA when a row spacing is
-    given) of the truth and of the point cloud, and the run's settings.
+    per estimator and scale (``voxel``, ``profile``) over the voxels the scan observed (at
+    least ``min_beams`` first-return beams entered, fixed before any estimator runs): n,
+    the coverage (shares of voxels and of true area with an estimate), R², RMSE, bias and
+    means with abstentions scored as 0, the same where estimated (definitions in
+    :mod:`simlidar_mi.truth.scoring`), the seconds it took; the JSON adds the z profiles,
+    the canopy envelope (height, width, TRV and LWA when a row spacing is given) of the
+    truth and of the point cloud, the truth's G and the run's settings. With the truth's
+    leaf pieces (``leaf_pieces``), the G-proportional built-ins are scored a second time
+    with the truth's own G per voxel (``*_Gtruth``, :mod:`simlidar_mi.truth.leaf_g`).
 ``profiles.csv``, ``profiles.png``, ``scatter.png``
     truth vs estimate per height bin, and per voxel.
 ``truth.nc``, ``estimates/<name>.nc``, ``grid.nc``
-    the truth, each estimate and the empty grid (coordinates only, what a command
+    the truth (with ``G_leaf``, its G along the scan's beams, when computed), each estimate and the empty grid (coordinates only, what a command
     plug-in receives as ``{grid}``), NetCDF (:mod:`simlidar_mi.truth.grid`).
 ``scan/``
     the scan's scan.exr, points.las and measures.json (what plug-ins read).
@@ -32,16 +37,18 @@ import numpy as np
 from .._progress import make_progress
 from ..errors import ConfigError, SimlidarWarning
 from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
-from .estimators import BUILTIN, ESTIMATE_VARIABLES, G_SPHERICAL, MIN_BEAMS, estimate_all
-from .grid import VoxelGrid, grid_dataset, grid_values, write_grid
+from .estimators import (BUILTIN, ESTIMATE_VARIABLES, G_SPHERICAL, MIN_BEAMS, ORACLE_G, ORACLE_SUFFIX, estimate_all,
+                         with_G)
+from .grid import DIMS, VoxelGrid, grid_dataset, grid_values, write_grid
 from .scoring import call_plugin, check_command, layer_profile, load_plugin, run_command, score
 
 __all__ = ["EvaluateRun", "evaluate", "evaluate_beams", "EVALUATE_OUTPUTS"]
 
 EVALUATE_OUTPUTS = (r"scores\.(csv|json)", r"profiles\.(csv|png)", r"scatter\.png", r"truth\.nc",
                     r"grid\.nc", r"estimates", r"scan")
-SCORE_FIELDS = ("estimator", "variable", "scale", "n", "r2", "rmse", "bias", "truth_mean",
-                "estimate_mean", "seconds")
+SCORE_FIELDS = ("estimator", "variable", "scale", "n", "coverage_voxels", "coverage_area", "r2", "rmse", "bias",
+                "truth_mean", "estimate_mean", "n_estimated", "r2_estimated", "rmse_estimated", "bias_estimated",
+                "seconds")
 
 
 @dataclass
@@ -69,19 +76,28 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
                    min_points: int = 1, saturated: str = "cap", min_beams: float = MIN_BEAMS,
                    row_spacing_m: float | None = None, row_axis: str = "y", canopy_base: str = "ground",
                    ground_z_m: float = 0.0, progress=None, title: str = "",
-                   extra: dict | None = None, crs: str | None = None) -> EvaluateRun:
+                   extra: dict | None = None, crs: str | None = None, leaf_pieces=None) -> EvaluateRun:
     """Run the built-in estimators on ``first`` (and ``multi``) beams, the plug-ins
     (``plugins``: "module:function" specs or callables; ``commands``: command templates,
     which need ``scan_dir``), score all against ``truth`` (a Dataset on ``grid``) and,
     with ``stage`` (a folder), write the files of the module docstring there (``crs``, the
-    scene's, and ``ground_z_m`` describe their frame: :func:`~simlidar_mi.truth.grid.grid_dataset`)."""
+    scene's, and ``ground_z_m`` describe their frame: :func:`~simlidar_mi.truth.grid.grid_dataset`).
+    ``leaf_pieces`` (a :class:`~simlidar_mi.truth.leaf_g.LeafPieces` filled by ``compute_truth``):
+    the truth's G along these beams is added to ``truth`` (``G_leaf``) and the oracle runs scored."""
+    from .leaf_g import LeafG  # noqa: PLC0415
     shown = make_progress(progress)
     walked = shown.stage("evaluate: beams through the grid", len(first) + (len(multi) if multi is not None else 0),
                          "beam")
+    leaf_g = LeafG(leaf_pieces, first) if leaf_pieces is not None else None
     estimates, seconds = estimate_all(grid, first, multi, G=G, min_points=min_points,
-                                      saturated=saturated, min_beams=min_beams, progress=walked.update)
+                                      saturated=saturated, min_beams=min_beams, progress=walked.update,
+                                      on_first_segment=leaf_g.segment if leaf_g is not None else None)
     walked.close()
-    observed = estimates["beer_lambert"]["n_in"] > 0  # ≥ 1 first-return beam entered
+    # The scored voxels, fixed by the scan alone before any estimate is looked at.
+    observed = estimates["beer_lambert"]["n_in"] >= min_beams
+    g_summary = {"G": G}
+    if leaf_g is not None:
+        truth, g_summary = _add_truth_G(truth, grid, leaf_g, estimates, seconds, G)
     if stage is not None:
         grid_file = write_grid(grid_dataset(grid, {}, attrs={"title": "the evaluation's voxel grid"}, crs=crs,
                                             ground_z_m=ground_z_m), Path(stage) / "grid.nc")
@@ -113,7 +129,7 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
         if var not in truth:
             raise ConfigError(f"the truth has no {var}", key=var)
         s = score(grid_values(truth, var), arrays[var], observed)
-        _say_what_is_odd(name, var, np.asarray(arrays[var], np.float64), observed, s["voxel"]["n"])
+        _say_what_is_odd(name, var, np.asarray(arrays[var], np.float64), observed, s["voxel"]["n_estimated"])
         for scale in ("voxel", "profile"):
             rows.append({"estimator": name, "variable": var, "scale": scale, **s[scale],
                          "seconds": round(seconds.get(name, float("nan")), 4)})
@@ -121,8 +137,13 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
                      for zk, a, b in zip(z, s["z_truth"], s["z_estimate"])]
         bar.update()
     bar.close()
-    summary = {"grid": grid.attrs(), "G": G, "min_points": min_points, "saturated": saturated,
+    truth_area = grid_values(truth, "PAD_m2_m3")
+    summary = {"grid": grid.attrs(), **g_summary, "min_points": min_points, "saturated": saturated,
                "min_beams": min_beams, "n_beams": len(first), "n_observed_voxels": int(observed.sum()),
+               "scored_voxels": f"the voxels >= min_beams ({min_beams:g}) first-return beams entered; an "
+                                "estimator's NaN there is an abstention, scored as 0 in r2/rmse/bias",
+               "observed_share_of_plant_area": float(truth_area[observed].sum() / truth_area.sum())
+               if truth_area.sum() > 0 else float("nan"),
                "n_voxels": int(np.prod(grid.shape)), "estimators": {k: BUILTIN.get(k, "plug-in") for k in estimates},
                "envelope": _envelope(grid, truth, estimates["vcp"]["occupied"], row_spacing_m, row_axis,
                                      canopy_base, ground_z_m)}
@@ -133,12 +154,48 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
     return run
 
 
+def _add_truth_G(truth, grid, leaf_g, estimates, seconds, G):
+    """The truth's G along the beams (``G_leaf``, ``G_plant``) added to the truth Dataset,
+    and the oracle runs (:data:`ORACLE_G` with the truth's plant G of the canopy, and per
+    voxel with the constant ``G`` where a voxel has none) added to ``estimates``."""
+    t = time.perf_counter()
+    g_leaf = leaf_g.per_voxel()
+    g_plant, g_canopy = leaf_g.plant(grid_values(truth, "leaf_area_m2"), grid_values(truth, "plant_area_m2"))
+    along = leaf_g.along_beams()
+    summary = {"G": G, "G_leaf_canopy": leaf_g.canopy(), "G_plant_canopy": g_canopy,
+               "G_leaf_along_beams": {"min": float(along.min()), "max": float(along.max()), "n_directions": len(along)}
+               if len(along) else None,
+               "G_definition": "simlidar_mi.truth.leaf_g: sum a|n.Omega|/sum a over leaf triangles per voxel, "
+                               "weighted by first-return beam chord; plant G: wood half-area at G 0.5; canopy: "
+                               "area x beam chord weighted"}
+    gm = {"grid_mapping": truth["PAD_m2_m3"].attrs["grid_mapping"]} if "grid_mapping" in truth["PAD_m2_m3"].attrs else {}
+    truth = truth.assign(
+        G_leaf=(DIMS, g_leaf.transpose(2, 1, 0), {"units": "1", **gm, "long_name":
+                "G of the leaves: mean projection of unit one-sided leaf area along the first-return beams "
+                "that entered the voxel, weighted by beam chord (NaN: no leaf or no beam)"}),
+        G_plant=(DIMS, g_plant.transpose(2, 1, 0), {"units": "1", **gm, "long_name":
+                 "G of the plant area: G_leaf and 0.5 for the wood half-area, weighted by area (NaN: no "
+                 "plant area or no beam)"}))
+    truth.attrs.update({"G_leaf_canopy": summary["G_leaf_canopy"], "G_plant_canopy": g_canopy,
+                        "G_definition": summary["G_definition"]})
+    secs = time.perf_counter() - t
+    for suffix, g in (("_Gcanopy", g_canopy), ("_Gvoxel", np.where(np.isfinite(g_plant), g_plant, G))):
+        for name in ORACLE_G:
+            if name in estimates and np.all(np.isfinite(g)):
+                e = estimates[name]
+                estimates[name + suffix] = {"PAD_m2_m3": with_G(e["PAD_m2_m3"], G, g),
+                                            "G": np.broadcast_to(np.float64(g), grid.shape),
+                                            **{k: v for k, v in e.items() if k != "PAD_m2_m3"}}
+                seconds[name + suffix] = seconds[name] + secs
+    return truth, summary
+
+
 def _say_what_is_odd(name: str, var: str, estimate: np.ndarray, observed: np.ndarray, n: int) -> None:
-    """One warning line for an estimate that scores nothing or holds negative densities."""
+    """One warning line for an estimate that abstains everywhere or holds negative densities."""
     seen = estimate[observed]
     if n == 0 and observed.any():
         warnings.warn(SimlidarWarning(f"estimator {name}: no finite {var} in the {int(observed.sum())} voxels "
-                                      "beams entered, so it is scored on none (n = 0)"), stacklevel=3)
+                                      "the scan observed, so it abstains in all (scored as 0 there)"), stacklevel=3)
     neg = seen[np.isfinite(seen) & (seen < 0)]
     if len(neg):
         warnings.warn(SimlidarWarning(f"estimator {name}: {len(neg)} voxels hold a negative {var} (down to "
@@ -206,15 +263,15 @@ def _plots(run: EvaluateRun, stage: Path, truth, profiles, title) -> None:
     import matplotlib.pyplot as plt  # noqa: PLC0415
     names = list(run.estimates)
     fig, ax = plt.subplots(figsize=(6, 5), dpi=110)
-    observed = run.estimates["beer_lambert"]["n_in"] > 0
+    observed = run.estimates["beer_lambert"]["n_in"] >= run.summary["min_beams"]
     var0 = "PAD_m2_m3"
     z = np.unique([p["z_m"] for p in profiles])
     ax.plot(layer_profile(grid_values(truth, var0), observed), z, "k-", lw=2.5,
-            label="truth (voxels ≥ 1 beam entered)")
+            label=f"truth (voxels ≥ {run.summary['min_beams']:g} beams entered)")
     for name in names:
         pr = [p for p in profiles if p["estimator"] == name]
         ax.plot([p["estimate"] for p in pr], [p["z_m"] for p in pr], lw=1.2, label=name)
-    ax.set_xlabel("mean PAD over observed voxels (m²/m³)")
+    ax.set_xlabel("mean PAD over observed voxels, abstentions as 0 (m²/m³)")
     ax.set_ylabel("height z (m)")
     ax.set_title(f"{title}: profiles".strip(": "))
     ax.legend(fontsize=8)
@@ -236,9 +293,10 @@ def _plots(run: EvaluateRun, stage: Path, truth, profiles, title) -> None:
         hi = float(max(np.nanmax(t[m], initial=0), np.nanmax(e[m], initial=0), 1e-9))
         ax.plot([0, hi], [0, hi], "k--", lw=0.8)
         r = run.get(name)
-        ax.set_title(f"{name}\nR² {r['r2']:.2f}, RMSE {r['rmse']:.2f}, bias {r['bias']:+.2f}", fontsize=9)
+        ax.set_title(f"{name}\nR² {r['r2']:.2f}, RMSE {r['rmse']:.2f}, bias {r['bias']:+.2f}, "
+                     f"coverage {100 * r['coverage_area']:.0f} %", fontsize=9)
         ax.set_xlabel(f"truth {var}")
-        ax.set_ylabel("estimate")
+        ax.set_ylabel("estimate (where estimated)")
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
     fig.tight_layout()
@@ -261,6 +319,7 @@ def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_
     from ..lidar.survey import run_scan, scan_patterns  # noqa: PLC0415
     from .compute import compute_truth  # noqa: PLC0415
     from .estimators import beams_from_exr, beams_from_scan  # noqa: PLC0415
+    from .leaf_g import LeafPieces  # noqa: PLC0415
     from .run import row_spacing_of, truth_geometry, truth_grid  # noqa: PLC0415
     # The options first (each named as typed), then the scene and its grid: all before the scan.
     if voxel_m is not None and not (_real(voxel_m) and voxel_m > 0):
@@ -288,8 +347,9 @@ def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_
         run = run_scan(cfg, stage / "scan", write_png=False, progress=shown)
         scan_s = time.perf_counter() - t
         t = time.perf_counter()
+        pieces = LeafPieces(grid)
         truth = compute_truth(geometry, grid, progress=shown, ground_area_m2=tc["ground_area_m2"] or ground_area,
-                              crs=cfg["scene"]["crs"], ground_z_m=cfg["ground"]["z_m"])
+                              crs=cfg["scene"]["crs"], ground_z_m=cfg["ground"]["z_m"], leaf_pieces=pieces)
         truth_s = time.perf_counter() - t
         results = run.result if isinstance(run.result, list) else [run.result]
         if all(hasattr(r, "range_m") for r in results):
@@ -312,7 +372,7 @@ def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_
                              saturated=saturated, min_beams=min_beams, row_spacing_m=spacing,
                              row_axis=tc["row_axis"], canopy_base=tc["canopy_base"],
                              ground_z_m=cfg["ground"]["z_m"], progress=shown, title=cfg["scene"]["name"],
-                             extra=extra, crs=cfg["scene"]["crs"])
+                             extra=extra, crs=cfg["scene"]["crs"], leaf_pieces=pieces)
     out.files = {n: Path(out_dir) / n for n in ("scores.csv", "scores.json", "profiles.csv", "profiles.png",
                                                 "scatter.png", "truth.nc", "grid.nc", "estimates", "scan")}
     return out

@@ -1,20 +1,39 @@
 """Scores of estimated voxel grids against the truth, and user estimators (plug-ins).
 
 Scores (:func:`score`), per estimator, against the truth variable of the same name
-(``PAD_m2_m3``, or ``LAD_m2_m3`` for an estimator that gives only leaf area):
+(``PAD_m2_m3``, or ``LAD_m2_m3`` for an estimator that gives only leaf area), on **one
+voxel set fixed before any estimator runs**: the voxels the scan observed, those at least
+``min_beams`` first-return beams entered (the traversal's N >= ``--min-beams``, default 5).
+The rule depends on the scan alone, so every estimator, built-in or plug-in, is scored on
+the same voxels; ``n`` counts them.
+
+An estimate of NaN in a scored voxel is an **abstention**, scored explicitly:
+
+headline (``r2``, ``rmse``, ``bias``, ``estimate_mean``)
+    an abstained voxel counts as estimate 0 ("no plant area found"). Abstaining is thus
+    scored exactly as answering 0, an answer every estimator could give: it can gain
+    nothing that estimating 0 would not, and leaving out a voxel that holds plant area
+    costs its whole truth. (Blanking the voxels few beams entered, which improves the
+    "where estimated" figures, lowers the headline: tests/test_scoring.py.)
+coverage
+    ``coverage_voxels``, the share of the scored voxels with a finite estimate, and
+    ``coverage_area``, the share of the truth's area (sum of the scored variable over the
+    scored voxels) in them.
+where estimated (``n_estimated``, ``r2_estimated``, ``rmse_estimated``, ``bias_estimated``)
+    the same statistics over the scored voxels with a finite estimate only: secondary
+    figures, to be read with the coverage next to them.
 
 per voxel
-    over the voxels that at least one first-return beam entered (the traversal's
-    N ≥ 1; a voxel no beam reached is unobserved for every estimator alike, so all are
-    scored on one voxel set) and where the estimate is finite. ``n`` counts them.
+    over the scored voxels.
 per height bin (z profile)
-    the mean truth and mean estimate over those same voxels in each horizontal layer
-    of one voxel; scored over the layers that hold any.
+    the mean truth and mean estimate (abstentions as 0; the ``*_estimated`` figures: over
+    the voxels with an estimate) over the scored voxels of each horizontal layer of one
+    voxel; scored over the layers that hold any.
 
-``r2`` = 1 − Σ(e − t)²/Σ(t − t̄)² (the coefficient of determination of the estimate
-taken as a prediction of the truth, not of a fitted line: it is negative when the
-estimate is worse than the truth's mean), ``rmse`` = √mean (e − t)², ``bias`` =
-mean (e − t).
+``r2`` = 1 - sum (e - t)^2 / sum (t - mean t)^2 (the coefficient of determination of the
+estimate taken as a prediction of the truth, not of a fitted line: it is negative when the
+estimate is worse than the truth's mean), ``rmse`` = sqrt mean (e - t)^2, ``bias`` =
+mean (e - t).
 
 Plug-ins: a Python callable ``f(scan_dir: Path, grid: VoxelGrid)`` returning a dict of
 arrays of ``grid.shape`` (indexed [i, j, k] along x, y, z) or an xarray Dataset whose
@@ -38,10 +57,13 @@ import numpy as np
 from ..errors import ConfigError
 from .grid import VoxelGrid, read_grid
 
-__all__ = ["score", "layer_profile", "load_plugin", "call_plugin", "check_command", "run_command", "check_estimate",
+__all__ = ["score", "STAT_KEYS", "layer_profile", "load_plugin", "call_plugin", "check_command", "run_command", "check_estimate",
            "SCORED"]
 
 SCORED = ("PAD_m2_m3", "LAD_m2_m3")
+
+
+STAT_KEYS = ("r2", "rmse", "bias")
 
 
 def _stats(t: np.ndarray, e: np.ndarray) -> dict:
@@ -64,14 +86,26 @@ def layer_profile(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 
 def score(truth: np.ndarray, estimate: np.ndarray, observed: np.ndarray) -> dict:
-    """{"voxel": stats, "profile": stats, "z_truth": (nz,), "z_estimate": (nz,)} (module docstring)."""
+    """Scores of ``estimate`` against ``truth`` over the ``observed`` voxels (module docstring):
+    {"voxel": stats, "profile": stats, "z_truth": (nz,), "z_estimate": (nz,), "n_voxels"}; each
+    stats dict holds the headline (abstention = 0), the coverage and the ``*_estimated`` figures."""
     t = np.asarray(truth, np.float64)
     e = np.asarray(estimate, np.float64)
-    mask = np.asarray(observed, bool) & np.isfinite(e) & np.isfinite(t)
-    zt, ze = layer_profile(t, mask), layer_profile(e, mask)
-    ok = np.isfinite(zt)
-    return {"voxel": _stats(t[mask], e[mask]), "profile": _stats(zt[ok], ze[ok]),
-            "z_truth": zt, "z_estimate": ze, "n_voxels": int(mask.sum())}
+    mask = np.asarray(observed, bool) & np.isfinite(t)  # fixed before the estimate is looked at
+    est = mask & np.isfinite(e)
+    e0 = np.where(np.isfinite(e), e, 0.0)  # an abstention answers "no plant area"
+    cov = {"n_estimated": int(est.sum()),
+           "coverage_voxels": float(est.sum() / mask.sum()) if mask.any() else float("nan")}
+    area = float(t[mask].sum())
+    cov["coverage_area"] = float(t[est].sum()) / area if area > 0 else float("nan")
+    zt, ze = layer_profile(t, mask), layer_profile(e0, mask)
+    zt_est, ze_est = layer_profile(t, est), layer_profile(e, est)
+    ok, ok_est = np.isfinite(zt), np.isfinite(zt_est)
+    out = {"z_truth": zt, "z_estimate": ze, "n_voxels": int(mask.sum())}
+    for scale, head, where in (("voxel", _stats(t[mask], e0[mask]), _stats(t[est], e[est])),
+                               ("profile", _stats(zt[ok], ze[ok]), _stats(zt_est[ok_est], ze_est[ok_est]))):
+        out[scale] = {**head, **cov, **{f"{k}_estimated": where[k] for k in STAT_KEYS}}
+    return out
 
 
 def load_plugin(spec: str):

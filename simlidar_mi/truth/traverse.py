@@ -184,10 +184,12 @@ def walk(grid: VoxelGrid, origin_m, dir, t_end_m):
 
 
 def traverse(grid: VoxelGrid, beams: Beams, counts: BeamCounts | None = None, *,
-             chunk_beams: int = DEFAULT_CHUNK_BEAMS, progress=None) -> BeamCounts:
+             chunk_beams: int = DEFAULT_CHUNK_BEAMS, progress=None, on_segment=None) -> BeamCounts:
     """Accumulate ``beams`` into per-voxel :class:`BeamCounts` (module docstring), walking
     ``chunk_beams`` beams at a time so memory stays bounded; ``progress(n)`` is called
-    with the beams done after each chunk."""
+    with the beams done after each chunk. ``on_segment(beam, flat_voxel, w_in, chord_m)``,
+    if given, sees every segment counted in ``n_in`` (beam indices into ``beams``), e.g. to
+    weight a per-beam quantity as the counts are weighted (:mod:`~simlidar_mi.truth.leaf_g`)."""
     counts = counts or BeamCounts.zeros(grid)
     size = int(np.prod(grid.shape))
     acc = {k: getattr(counts, k).reshape(-1) for k in ("n_in", "hits", "path_m", "chord_m")}
@@ -211,6 +213,9 @@ def traverse(grid: VoxelGrid, beams: Beams, counts: BeamCounts | None = None, *,
             used &= w_in > 0
             if not used.all():
                 flat, w_in, hit, path, chord = flat[used], w_in[used], hit[used], path[used], chord[used]
+                idx = idx[used]
+            if on_segment is not None:
+                on_segment(a + idx, flat, w_in, np.maximum(chord, 0.0))
             acc["n_in"] += np.bincount(flat, w_in, size)
             acc["hits"] += np.bincount(flat, hit, size)
             acc["path_m"] += np.bincount(flat, np.maximum(path, 0.0), size)

@@ -182,10 +182,11 @@ def _slab_range(poly, cnt, axis):
     return lo, np.maximum(lo, hi)
 
 
-def clip_triangles(tri_vox: np.ndarray, chunk: int = 20_000):
+def clip_triangles(tri_vox: np.ndarray, chunk: int = 20_000, owners: bool = False):
     """Per-voxel pieces of triangles given in voxel units, (n, 3, 3).
 
-    Yields (ijk (m, 3) int64, area (m,) in voxel units²) per chunk of triangles."""
+    Yields (ijk (m, 3) int64, area (m,) in voxel units²) per chunk of triangles, with
+    ``owners`` also the index (m,) of the triangle each piece comes from."""
     for a in range(0, len(tri_vox), chunk):
         t = tri_vox[a:a + chunk]
         lo = np.floor(t.min(axis=1)).astype(np.int64)
@@ -193,7 +194,9 @@ def clip_triangles(tri_vox: np.ndarray, chunk: int = 20_000):
         one = np.all(lo == hi, axis=1)  # inside one voxel: no clipping
         if one.any():
             e1, e2 = t[one, 1] - t[one, 0], t[one, 2] - t[one, 0]
-            yield lo[one], 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+            piece = lo[one], 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+            yield (*piece, a + np.flatnonzero(one)) if owners else piece
+        src = a + np.flatnonzero(~one)
         t = t[~one]
         if not len(t):
             continue
@@ -206,13 +209,13 @@ def clip_triangles(tri_vox: np.ndarray, chunk: int = 20_000):
             rep = s1 - s0 + 1
             owner = np.repeat(np.arange(len(poly)), rep)
             slab = s0[owner] + (np.arange(len(owner)) - np.repeat(np.cumsum(rep) - rep, rep))
-            poly, cnt, ijk = poly[owner], cnt[owner], ijk[owner]
+            poly, cnt, ijk, src = poly[owner], cnt[owner], ijk[owner], src[owner]
             ijk[:, axis] = slab
             poly, cnt = _clip_plane(poly, cnt, axis, slab.astype(np.float64), True)
             poly, cnt = _clip_plane(poly, cnt, axis, slab + 1.0, False)
             keep = cnt >= 3
-            poly, cnt, ijk = poly[keep], cnt[keep], ijk[keep]
-        yield ijk, _poly_area(poly, cnt)
+            poly, cnt, ijk, src = poly[keep], cnt[keep], ijk[keep], src[keep]
+        yield (ijk, _poly_area(poly, cnt), src) if owners else (ijk, _poly_area(poly, cnt))
 
 
 def box_volume(lo_vox, hi_vox):

@@ -206,13 +206,13 @@ SECTIONS: dict[str, dict[str, Key]] = {
                          "receiver); 'basin' = peaks merged by single linkage within c·τ/2, kept "
                          "when their integrated energy reaches the threshold (the former rule)"),
         "noise_model": Key(STR, "snr", one_of("snr", "range"),
-                           "'snr': σ = range_noise_m·(width/τ)·sqrt(noise_ref_snr/SNR), SNR = "
+                           "'snr': σ = range_noise_m·(width/τ)·sqrt(max(noise_ref_snr/SNR, 1)), SNR = "
                            "threshold_snr·E/detection_threshold (lidar/noise.py); 'range': σ = "
                            "(range_noise_m + range_noise_per_m·(r − 1 m))/max(|cos i|, 0.1)"),
         "range_noise_m": Key(FLOAT, 0.0, nonneg, "Gaussian range σ: at noise_ref_snr ('snr'), at 1 m "
                              "and normal incidence ('range')"),
         "range_noise_per_m": Key(FLOAT, 0.0, nonneg, "growth of σ per metre beyond 1 m ('range' only)"),
-        "noise_ref_snr": Key(FLOAT, 100.0, positive, "'snr': the SNR at which range_noise_m is quoted"),
+        "noise_ref_snr": Key(FLOAT, 100.0, positive, "'snr': the SNR from which range_noise_m holds (its floor)"),
         "threshold_snr": Key(FLOAT, 10.0, positive, "'snr': the SNR of an echo at detection_threshold "
                              "(an assumption where a data sheet gives none)"),
         "intensity": Key(BOOL, False, None, "compute echo energies (Lambertian law, sensor.py)"),

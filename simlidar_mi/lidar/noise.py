@@ -16,16 +16,18 @@ the same way).  With the echo's SNR proportional to its energy E (shot/backgroun
 limited receiver) and anchored at the detection threshold,
 
     SNR = threshold_snr · E / detection_threshold,
-    σ   = range_noise_m · (w / τ) · sqrt(noise_ref_snr / SNR),
+    σ   = range_noise_m · (w / τ) · sqrt(max(noise_ref_snr / SNR, 1)),
 
 w the echo's waveform width (ns) and τ the pulse length: range and reflectance act through
 E ∝ ρ·|cos i|/r², incidence also through w (a grazing target smears the echo in range), and
-nothing else.  ``range_noise_m`` is the data sheet's precision at ``noise_ref_snr``.
-Anchors: Ouster OS1-64 ±3 cm at SNR 100 (its data sheet; the same sheet gives ±1.5 cm above
-SNR 250 and ±10 cm at SNR 12, where this law gives 1.9 cm and 8.7 cm: the sheet falls a
-little faster than 1/√SNR).  Other presets' data sheets give a precision without an SNR:
-it is taken at the default reference SNR 100, and every preset's threshold SNR is the
-default 10 (both assumptions, stated in the README).
+nothing else.  ``range_noise_m`` is the data sheet's precision, reached at ``noise_ref_snr``
+and kept above it (a floor: timing jitter and digitisation do not improve with signal, and
+data sheets quote their best case; the OS1's reads "±1.5 cm above SNR 250").  Anchors: Ouster
+OS1-64 ±1.5 cm from SNR 250 (its data sheet, which also gives ±3 cm at SNR 100 and ±10 cm at
+SNR 12, where this law gives 2.4 cm and 6.8 cm: the sheet falls faster than 1/√SNR).  Other
+presets' data sheets give a precision without an SNR: it is taken as the floor from the
+default reference SNR 100, and every preset's threshold SNR is the default 10 (both
+assumptions, stated in the README).
 
 ``"range"`` (the former law, no data-sheet basis for its incidence term):
 
@@ -96,7 +98,7 @@ def snr_sigma_m(energy, width_ns, *, range_noise_m: float, pulse_length_ns: floa
     snr = threshold_snr * e / detection_threshold
     with np.errstate(divide="ignore"):
         ratio = np.where(snr > 0, noise_ref_snr / snr, np.inf)
-    return range_noise_m * (np.asarray(width_ns, np.float64) / pulse_length_ns) * np.sqrt(ratio)
+    return range_noise_m * (np.asarray(width_ns, np.float64) / pulse_length_ns) * np.sqrt(np.maximum(ratio, 1.0))
 
 
 NOISE_MODELS = ("snr", "range")

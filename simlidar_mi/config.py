@@ -231,6 +231,11 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
         sections[name] = values
 
     sensor = sections["sensor"]
+    if sensor["noise_model"] == "snr" and sensor["range_noise_per_m"] > 0:
+        raise ConfigError("applies to noise_model = \"range\" only; the \"snr\" law's σ grows with range "
+                          "through the echo energy (set sensor.noise_model = \"range\" for the old law)",
+                          file=overridden.get("sensor.range_noise_per_m", src), key="sensor.range_noise_per_m",
+                          value=sensor["range_noise_per_m"])
     if sensor["range_max_m"] is not None and not sensor["range_max_m"] > sensor["range_min_m"]:
         raise ConfigError(f"must be greater than sensor.range_min_m ({sensor['range_min_m']} m)",
                           file=overridden.get("sensor.range_max_m", src), key="sensor.range_max_m",

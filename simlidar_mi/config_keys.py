@@ -200,8 +200,21 @@ SECTIONS: dict[str, dict[str, Key]] = {
                                    "echoes weaker than this share of the emitted energy are dropped"),
         "range_min_m": Key(FLOAT, 0.0, nonneg, "no return nearer than this"),
         "range_max_m": Key(FLOAT, None, positive, "no return farther than this (default unlimited)"),
-        "range_noise_m": Key(FLOAT, 0.0, nonneg, "Gaussian range σ at 1 m and normal incidence"),
-        "range_noise_per_m": Key(FLOAT, 0.0, nonneg, "growth of σ per metre beyond 1 m"),
+        "echo_rule": Key(STR, "amplitude", one_of("amplitude", "basin"),
+                         "waveform echoes: 'amplitude' = local maxima of the waveform reaching "
+                         "detection_threshold, later peaks within c·τ/2 of a trigger join it (a "
+                         "receiver); 'basin' = peaks merged by single linkage within c·τ/2, kept "
+                         "when their integrated energy reaches the threshold (the former rule)"),
+        "noise_model": Key(STR, "snr", one_of("snr", "range"),
+                           "'snr': σ = range_noise_m·(width/τ)·sqrt(max(noise_ref_snr/SNR, 1)), SNR = "
+                           "threshold_snr·E/detection_threshold (lidar/noise.py); 'range': σ = "
+                           "(range_noise_m + range_noise_per_m·(r − 1 m))/max(|cos i|, 0.1)"),
+        "range_noise_m": Key(FLOAT, 0.0, nonneg, "Gaussian range σ: at noise_ref_snr ('snr'), at 1 m "
+                             "and normal incidence ('range')"),
+        "range_noise_per_m": Key(FLOAT, 0.0, nonneg, "growth of σ per metre beyond 1 m ('range' only)"),
+        "noise_ref_snr": Key(FLOAT, 100.0, positive, "'snr': the SNR from which range_noise_m holds (its floor)"),
+        "threshold_snr": Key(FLOAT, 10.0, positive, "'snr': the SNR of an echo at detection_threshold "
+                             "(an assumption where a data sheet gives none)"),
         "intensity": Key(BOOL, False, None, "compute echo energies (Lambertian law, sensor.py)"),
         "pulse_rate_hz": Key(FLOAT, 0.0, nonneg, "with a platform speed: each beam its own time and pose"),
         "range_at_10pct_m": Key(FLOAT, 40.0, positive, "datasheet range of a 10 % Lambertian target; "

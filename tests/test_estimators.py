@@ -233,7 +233,7 @@ def test_multi_return_beams_from_exr_equal_the_scan(tmp_path):
     cfg = load_scene(REPO / "scenes" / "orchard_lms511.toml", ["scan.dy_m=0.2", "sensor.beam_samples=8"])
     res = run_scan(cfg, tmp_path / "scan", write_png=False).result
     assert res.echoes is not None and res.echoes.return_number.max() >= 2
-    for w in ("equal", "energy"):
+    for w in ("equal", "raw-energy"):
         a, b = beams_from_scan(res, w), beams_from_exr(tmp_path / "scan" / "scan.exr", weights=w)
         assert a.ret_range_m.shape == b.ret_range_m.shape
         np.testing.assert_array_equal(np.isfinite(a.ret_range_m), np.isfinite(b.ret_range_m))
@@ -244,6 +244,36 @@ def test_multi_return_beams_from_exr_equal_the_scan(tmp_path):
         np.testing.assert_array_equal(a.ret_veg, b.ret_veg)
     with pytest.raises(ConfigError):
         beams_from_scan(res, "loudest")
+    with pytest.raises(ConfigError, match="incidence"):  # the EXR holds no per-echo cos i
+        beams_from_exr(tmp_path / "scan" / "scan.exr", weights="energy")
+    w = beams_from_scan(res, "energy").ret_weight
+    fin = np.isfinite(beams_from_scan(res, "equal").ret_range_m[:, 0])
+    np.testing.assert_allclose(w.sum(axis=1)[fin], 1.0)
+
+
+def test_energy_weights_are_the_intercepted_share_two_target_closed_form():
+    """A leaf at 1.5 m (ρ 0.45, normal incidence) intercepts half of a beam in front of ground
+    at 3 m (ρ 0.2, cos i 0.5). Through the waveform detector (two sub-rays of weight ½, the
+    energy law of lidar/sensor.py) the echo energies are E ∝ ½·ρ·|cos i|/r²: E/ΣE gives the
+    leaf 0.947 (its voxel's PAD ~4× too high); E·r²/(ρ·|cos i|) normalised gives ½ and ½."""
+    from simlidar_mi.lidar.waveform import detect_echoes
+    from simlidar_mi.truth.estimators import _echo_beams
+    r = np.array([[1.5, 3.0]])
+    rho, cos = np.array([0.45, 0.2]), np.array([1.0, 0.5])
+    r_ref = 40.0 * np.sqrt(0.02 / 0.1)
+    e = 0.5 * rho * cos * (r_ref / r) ** 2
+    ech = detect_echoes(r, e, np.array([[3, 1]], np.uint8), np.zeros((1, 2), np.uint32), None,
+                        cos[None, :], np.array([0]), pulse_length_ns=3.0, detection_threshold=0.02,
+                        max_returns=5)
+    assert list(ech.range_m.round(6)) == [1.5, 3.0] and list(ech.cls) == [3, 1]
+    refl = np.array([0.0, 0.2, 0.35, 0.45])
+    args = (np.zeros((1, 3)), np.array([[1.0, 0, 0]]), 1, ech.beam, ech.return_number, ech.range_m,
+            ech.cls, ech.energy, 100.0)
+    share = _echo_beams(*args, "energy", ech.cos_incidence, refl).ret_weight[0]
+    np.testing.assert_allclose(share, [0.5, 0.5], rtol=1e-6)
+    raw = _echo_beams(*args, "raw-energy").ret_weight[0]
+    np.testing.assert_allclose(raw[0], 0.45 / 2.25 / (0.45 / 2.25 + 0.1 / 9), rtol=1e-6)
+    assert raw[0] > 0.94
 
 
 def test_bad_plugins_are_refused_naming_what_is_wrong(tmp_path):

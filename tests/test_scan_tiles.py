@@ -28,7 +28,8 @@ AIRBORNE = (SCENES / "forest_airborne.toml",
 SENSOR = (SCENES / "apple_orchard.toml",
           ["orchard.n_trees=1", "orchard.tree.iterations=4", "scan.dy_m=0.01", "scan.dtheta_deg=1.0",
            "scan.footprint=1", "sensor.divergence_mrad=3.0", "sensor.beam_samples=4", "sensor.max_returns=3",
-           "sensor.intensity=true", "sensor.range_noise_m=0.01", "sensor.range_noise_per_m=0.001"])
+           "sensor.intensity=true", "sensor.range_noise_m=0.01", "sensor.range_noise_per_m=0.001",
+           'sensor.noise_model="range"'])
 FILES = ("scan.exr", "scan.png", "points.las")
 
 

@@ -31,6 +31,10 @@ def _scene(tmp_path, body: str):
     ("sensor.beam_samples", "-3", "≥ 0"),
     ("sensor.beam_profile", '"tophat"', "gaussian"),
     ("sensor.range_noise_m", "-0.01", "≥ 0"),
+    ("sensor.range_noise_per_m", "0.001", "noise_model = \"range\" only"),
+    ("sensor.noise_model", '"sqrt"', "snr"),
+    ("sensor.echo_rule", '"loudest"', "amplitude"),
+    ("sensor.threshold_snr", "0.0", "> 0"),
     ("sensor.range_min_m", "-1.0", "≥ 0"),
     ("sensor.range_at_10pct_m", "0.0", "> 0"),
     ("sensor.intensity", "1", "true/false"),
@@ -96,7 +100,7 @@ def test_no_sensor_section_or_every_effect_off_resolves_to_none(tmp_path):
 @pytest.mark.parametrize("body, effect", [
     ("divergence_mrad = 2.0", "divergence"), ("max_returns = 3", "echoes"),
     ("intensity = true", "intensity"), ("range_noise_m = 0.01", "noise"),
-    ("range_noise_per_m = 0.001", "noise"), ("range_max_m = 80.0", "range_limits"),
+    ('range_noise_per_m = 0.001\nnoise_model = "range"', "noise"), ("range_max_m = 80.0", "range_limits"),
     ("range_min_m = 0.5", "range_limits"),
 ])
 def test_each_effect_alone_gives_a_model(tmp_path, body, effect):

@@ -269,25 +269,51 @@ def test_materials_reflectance_by_label_and_the_energy_constant():
 
 
 def test_range_noise_statistics_and_chunking():
-    """≥ 100 k beams on a plate: noise mean < σ/100, SD within 2 % of σ, with σ from the law
-    (range_noise_m + range_noise_per_m·(r − 1 m))/|cos i|; same seed → same bytes whatever the
-    chunk size, another seed → other ranges."""
+    """≥ 100 k beams on a plate: noise mean < σ/100, SD within 2 % of σ, with σ from the
+    former law (noise_model = "range": (range_noise_m + range_noise_per_m·(r − 1 m))/|cos i|);
+    same seed → same bytes whatever the chunk size, another seed → other ranges."""
     sigma0, per_m = 0.02, 0.001
     grid = "[-2.0, 2.0, 0.0125]"   # 320 × 321 beams
     base = static(f"[-2.0, 2.0, 0.0125]", grid) + plate(10.0)
     exact, _ = run(base + "[sensor]\nintensity = true\n")
-    noisy, _ = run(base + f"[sensor]\nrange_noise_m = {sigma0}\nrange_noise_per_m = {per_m}\n", seed=7)
+    law = f'[sensor]\nnoise_model = "range"\nrange_noise_m = {sigma0}\nrange_noise_per_m = {per_m}\n'
+    noisy, _ = run(base + law, seed=7)
     assert noisy.echoes is not None and len(noisy.echoes) == exact.range_m.size >= 100_000
     r0 = exact.echoes.range_m
     sigma = (sigma0 + per_m * (r0 - 1.0)) / np.maximum(exact.echoes.cos_incidence, 0.1)
     z = (noisy.echoes.range_m - r0) / sigma
     assert abs(z.mean()) < 0.01 and z.std() == pytest.approx(1.0, abs=0.02)
-    small, _ = run(base + f"[sensor]\nrange_noise_m = {sigma0}\nrange_noise_per_m = {per_m}\n", seed=7,
-                   chunk_rays=997)
+    small, _ = run(base + law, seed=7, chunk_rays=997)
     assert small.echoes.range_m.tobytes() == noisy.echoes.range_m.tobytes()
     assert small.range_m.tobytes() == noisy.range_m.tobytes()
-    other, _ = run(base + f"[sensor]\nrange_noise_m = {sigma0}\nrange_noise_per_m = {per_m}\n", seed=8)
+    other, _ = run(base + law, seed=8)
     assert np.mean(other.echoes.range_m == noisy.echoes.range_m) < 0.01
+
+
+@pytest.mark.parametrize("range_m, rho", [(10.0, 0.5), (20.0, 0.15), (25.0, 0.2), (30.0, 0.1)])
+def test_range_noise_follows_snr_on_plates(range_m, rho):
+    """The default "snr" law on plates at several ranges and reflectances (thin beams at
+    < 1.5° from the normal, so one sub-ray per beam and echo width τ): the echo's energy is
+    E = ρ·|cos i|·(R_ref/r)² (closed form from the plate's geometry), SNR = threshold_snr·E/t,
+    σ = range_noise_m·sqrt(max(noise_ref_snr/SNR, 1)): SNR 800 at 10 m, ρ 0.5 (the floor,
+    3 cm), 60 / 51 / 18 beyond (3.9 / 4.2 / 7.1 cm). The measured SD of (noisy − exact)/σ over
+    n ≈ 12 k beams has standard error 1/sqrt(2n) = 0.0064: 4 of those is the tolerance; the
+    mean is within 4/sqrt(n). The former law (no ρ, 1/cos i: 3 cm on every plate) misses the
+    last three by 1.3× to 2.4×, and no floor would put the first at 1.1 cm."""
+    grid = "[-1.5, 1.5, 0.0275]"   # 110 × 110 beams
+    body = static(grid, grid) + plate(range_m, extra=f"reflectance = {rho}\n")
+    exact, model = run(body + "[sensor]\nintensity = true\n")
+    noisy, nm = run(body + "[sensor]\nrange_noise_m = 0.03\n", seed=11)
+    assert nm.noise_model == "snr" and (nm.noise_ref_snr, nm.threshold_snr) == (100.0, 10.0)
+    r0, cos = exact.echoes.range_m, np.abs(exact.echoes.cos_incidence.astype(np.float64))
+    assert len(noisy.echoes) == len(r0) >= 12_000 and cos.min() > 0.999
+    energy = rho * cos * (model.r_ref_m / r0) ** 2
+    snr = 10.0 * energy / model.detection_threshold
+    sigma = 0.03 * np.sqrt(np.maximum(100.0 / snr, 1.0))
+    z = (noisy.echoes.range_m - r0) / sigma
+    n = len(z)
+    assert abs(z.mean()) < 4 / np.sqrt(n)
+    assert z.std() == pytest.approx(1.0, abs=4 / np.sqrt(2 * n))
 
 
 def test_run_scan_with_a_sensor_writes_its_echoes_and_measures(tmp_path, scenes_dir):

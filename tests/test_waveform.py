@@ -79,12 +79,62 @@ def test_targets_closer_than_c_tau_over_two_merge(sep_fwhm):
     assert ech.width_ns[0] > 3.0  # two pulses side by side are wider than one
 
 
-def test_chained_peaks_merge_into_one_echo():
-    # three equal targets 0.9 FWHM apart: each neighbour pair is closer than c·τ/2
+def test_chained_peaks_merge_by_single_linkage_only_under_the_basin_rule():
+    # three equal targets 0.9 FWHM apart (three peaks): each neighbour pair is closer than c·τ/2
     fwhm = range_fwhm_m(3.0)
     r = 30.0 + np.arange(3) * 0.9 * fwhm
-    ech = _detect(r, [0.1, 0.1, 0.1])
+    ech = _detect(r, [0.1, 0.1, 0.1], echo_rule="basin")
     assert len(ech) == 1 and ech.energy[0] == pytest.approx(0.3, rel=1e-7)
+    # a receiver's dead time runs from the trigger: the third peak (1.8 FWHM on) is a new echo
+    ech = _detect(r, [0.1, 0.1, 0.1])
+    assert len(ech) == 2
+    np.testing.assert_allclose(ech.energy, [0.2, 0.1], rtol=1e-7)
+    assert r[0] <= ech.range_m[0] < (r[0] + r[1]) / 2 and ech.element_id[0] in (0, 1)
+
+
+def test_merging_never_moves_a_return_past_the_first_surface():
+    """Surfaces at 10.00, 10.42 and 10.84 m (3 ns pulse: c·τ/2 = 0.45 m), energies 0.1, 0.08,
+    0.1: W has three peaks. Single linkage chains them into one echo at the highest peak
+    (10.79 m), losing the first surface; the amplitude rule triggers on the first peak (pulled
+    0.05 m deeper by its neighbour's tail), absorbs the second within the dead time and
+    reports the third as its own echo."""
+    r, e = [10.0, 10.42, 10.84], [0.1, 0.08, 0.1]
+    old = _detect(r, e, echo_rule="basin")
+    assert len(old) == 1 and old.range_m[0] > 10.75
+    ech = _detect(r, e)
+    assert len(ech) == 2
+    assert 10.0 <= ech.range_m[0] < 10.06 and ech.element_id[0] == 0
+    assert 10.75 < ech.range_m[1] < 10.84 and ech.element_id[1] == 2
+    np.testing.assert_allclose(ech.energy, [0.18, 0.10], rtol=1e-6)
+    np.testing.assert_array_equal(ech.number_of_returns, [2, 2])
+
+
+@pytest.mark.parametrize("margin, found", [(1.001, True), (0.999, False)])
+def test_amplitude_threshold_closed_form(margin, found):
+    """Two sub-rays of E/2 each, 6 bins (0.75 FWHM < 2σ) apart: W has one peak, at their
+    midpoint (a bin centre), of height A = E·exp(−d²/(8σ²)) = 0.677·E. An echo is reported iff
+    A ≥ threshold; the basin rule (integrated energy E ≥ threshold) reports it either way."""
+    fwhm = range_fwhm_m(3.0)
+    sigma = fwhm / (2 * math.sqrt(2 * math.log(2)))
+    d = 0.75 * fwhm
+    t = 0.02
+    amp_per_e = math.exp(-d * d / (8 * sigma * sigma))
+    e = margin * t / amp_per_e
+    assert e > t
+    r = [12.0, 12.0 + d]
+    ech = _detect(r, [e / 2, e / 2], threshold=t)
+    assert len(ech) == int(found)
+    if found:
+        assert ech.range_m[0] == pytest.approx(12.0 + d / 2, abs=1e-9)
+        assert ech.energy[0] == pytest.approx(e, rel=1e-7)
+    assert len(_detect(r, [e / 2, e / 2], threshold=t, echo_rule="basin")) == 1
+    # one target at one range: amplitude = energy, so both rules agree at the threshold
+    assert len(_detect([7.0], [t * margin], threshold=t)) == int(found)
+
+
+def test_unknown_echo_rule_is_refused():
+    with pytest.raises(ValueError, match="echo_rule"):
+        _detect([5.0], [0.5], echo_rule="loudest")
 
 
 def test_threshold_drops_the_weak_echo_and_keeps_one_at_the_threshold():

@@ -132,8 +132,11 @@ def _echoes(model: SensorModel, t, c, e, tr, cos_i, rho, weight, beam_index, *, 
     echoes = detect_echoes(t, E, c, e, tr, cos_i, beam_index, pulse_length_ns=model.pulse_length_ns,
                            detection_threshold=model.detection_threshold,
                            max_returns=model.max_returns, range_min_m=model.range_min_m,
-                           range_max_m=model.range_max_m)
+                           range_max_m=model.range_max_m, echo_rule=model.echo_rule)
     if model.noise:
         echoes = apply_range_noise(echoes, seed=seed, leg=leg, range_noise_m=model.range_noise_m,
-                                   range_noise_per_m=model.range_noise_per_m)
+                                   range_noise_per_m=model.range_noise_per_m, noise_model=model.noise_model,
+                                   pulse_length_ns=model.pulse_length_ns,
+                                   detection_threshold=model.detection_threshold,
+                                   noise_ref_snr=model.noise_ref_snr, threshold_snr=model.threshold_snr)
     return echoes

@@ -62,6 +62,10 @@ class SensorModel:
     range_max_m: float = math.inf
     range_noise_m: float = 0.0
     range_noise_per_m: float = 0.0
+    echo_rule: str = "amplitude"   # waveform.detect_echoes: "amplitude" or "basin"
+    noise_model: str = "snr"       # noise.apply_range_noise: "snr" or "range"
+    noise_ref_snr: float = 100.0
+    threshold_snr: float = 10.0
     intensity: bool = False
     pulse_rate_hz: float = 0.0
     range_at_10pct_m: float = 40.0
@@ -96,7 +100,7 @@ class SensorModel:
     @property
     def needs_energy(self) -> bool:
         """Echo energies (and so |cos i| per sub-ray) are needed: echoes, intensity, noise
-        (its σ grows as 1/|cos i|), or divergence read as a receiver does (``detection =
+        (its σ follows the echo energy, or 1/|cos i| under the old law), or divergence read as a receiver does (``detection =
         "waveform"``: only echoes above the threshold return, even with one return).  With
         ``detection = "nearest"`` divergence alone reports the nearest sub-ray hit."""
         return (self.max_returns > 1 or self.intensity or self.noise
@@ -175,7 +179,8 @@ def resolve_sensor(cfg, *, far_range_m: float | None = None,
         range_min_m=float(s["range_min_m"]),
         range_max_m=math.inf if s["range_max_m"] is None else float(s["range_max_m"]),
         range_noise_m=float(s["range_noise_m"]), range_noise_per_m=float(s["range_noise_per_m"]),
-        intensity=bool(s["intensity"]), pulse_rate_hz=float(s["pulse_rate_hz"]),
+        echo_rule=s["echo_rule"], noise_model=s["noise_model"], noise_ref_snr=float(s["noise_ref_snr"]),
+        threshold_snr=float(s["threshold_snr"]), intensity=bool(s["intensity"]), pulse_rate_hz=float(s["pulse_rate_hz"]),
         range_at_10pct_m=float(s["range_at_10pct_m"]), wavelength_nm=s["wavelength_nm"],
         preset=s["preset"], reflectance_wood=float(m["wood"]), reflectance_leaf=float(m["leaf"]),
         reflectance_ground=float(m["ground"]))

@@ -10,33 +10,37 @@ the emitted pulse (Gaussian, duration τ = ``pulse_length_ns`` at half maximum, 
 299 792 458 m/s) mapped to range.  W is sampled on bins of FWHM/8 and read like a
 digitiser does:
 
-1. **echoes** are the local maxima of W; an echo's energy is Σ E_j over the sub-rays
-   whose nearest bin lies in its basin (between the minima either side), so the energies
-   of all echoes of a beam add up to the beam's returned energy;
-2. its **range** is the vertex of the parabola through the logarithms of the three bins
-   around the peak (exact for one Gaussian, i.e. one target at one range);
-3. its **width** (ns) is the full width of W at half the peak height, walked outward from
-   the peak and interpolated the same way (τ for one target at one range);
-4. its class, element id, tree id and cos incidence are those of the sub-ray that brought
-   the most energy into it;
-5. peaks closer than c·τ/2 merge (chains merge too: single linkage): energies add, the
-   higher peak gives range and width;
-6. echoes with energy below ``detection_threshold`` are dropped, then those outside
-   [range_min_m, range_max_m]; the nearest ``max_returns`` are kept and numbered 1..n.
+1. **peaks** are the local maxima of W; a peak's energy is Σ E_j over the sub-rays whose
+   nearest bin lies in its basin (between the minima either side);
+2. its **range** and **amplitude** are the vertex of the parabola through ln W at the three
+   bins around it (exact for one Gaussian: r and E of one target at one range);
+3. its **width** (ns) is the full width of W at half the peak height, walked outward and
+   interpolated the same way (τ for one target at one range);
+4. an echo's class, ids and cos incidence are those of its strongest sub-ray;
+5. peaks become echoes by ``echo_rule``.  ``"amplitude"`` (default; a receiver's
+   discriminator): a peak whose amplitude reaches ``detection_threshold`` triggers an echo,
+   later peaks within c·τ/2 of the trigger (dead time) join it with their basin energies,
+   and the echo keeps the trigger's range, width and amplitude, so merging never moves a
+   return past its group's first surface; sub-threshold peaks report nothing.  HELIOS++'s
+   ``FullWaveformPulseRunnable::digestFullWaveform`` also takes local maxima above a minimum
+   energy (it keeps the higher of two peaks within ±``winSize_ns``, we keep the first).
+   ``"basin"`` (former rule): peaks closer than c·τ/2 merge by single linkage, the highest
+   gives range and width, and an echo stays if its integrated energy reaches the threshold:
+   grazing, range-smeared echoes pass more easily, and a chain can move a return past its
+   first surface (10.00, 10.42, 10.84 m → one echo near 10.8 m, tests/test_waveform.py);
+6. echoes outside [range_min_m, range_max_m] are dropped; the nearest ``max_returns`` are
+   kept and numbered 1..n.  A cluster with energy below the threshold gives no echo (W ≤ Σ E_j).
 
 Each sub-ray's pulse is evaluated exactly on the bins within ±6σ of it (the tail beyond is
 below 1.5e-8 of its peak); sub-rays of one beam more than that apart form independent
 clusters, laid end to end in one flat array, so ``np.bincount`` over chunks of sub-rays
 builds every waveform at once (no loop over beams).
 
-Most clusters are read without their whole waveform, with the same bits: a cluster whose
-energy is below the threshold gives no echo; one of a single sub-ray is read on the 11 bins
-around it; one whose sub-rays lie within 9 bins on a window 6 bins wider each side, when W has
-one peak there (:func:`_one_peak`).  The rest go through the full detector
-(:func:`_general_echoes`).  Every path sums each cluster's pulse terms in the same order
-(sums are never cut inside a cluster) and takes widths at the same cluster-local bin indices,
-so the result depends neither on the path nor on which other beams are in the call (the
-chunk of a scan: issue #8, streamed scans).
+Most clusters skip the whole waveform, with the same bits: one of a single sub-ray is read
+on its 11 bins, one spanning ≤ 9 bins on a window 6 bins wider each side when W has one peak
+there (:func:`_one_peak`); the rest take :func:`_general_echoes`.  Every path sums a cluster's
+pulse terms in the same order and reads widths at cluster-local bins, so the result depends
+neither on the path nor on the other beams in the call (a scan's chunk: issue #8).
 """
 from __future__ import annotations
 
@@ -61,7 +65,9 @@ _TILE_SUBRAYS = 1 << 12
 _SINGLE_TAPS = 11
 #: Narrow clusters (sub-rays within 9 bins): W from 6 bins before the first to 6 after the last.
 _NARROW_SPAN_BINS, _NARROW_PAD = 9, 6
-_Part = namedtuple("_Part", "key row range energy width_m strongest")
+_Part = namedtuple("_Part", "key row range energy width_m strongest height")
+#: Echo rules of :func:`detect_echoes` (module docstring, item 5).
+ECHO_RULES = ("amplitude", "basin")
 
 
 def range_fwhm_m(pulse_length_ns: float) -> float:
@@ -169,7 +175,8 @@ def first_return_arrays(echoes: Echoes, shape: tuple[int, int], escape_m: float)
 
 def detect_echoes(range_m, energy, cls, element_id, tree_id, cos_incidence, beam_index, *,
                   pulse_length_ns: float, detection_threshold: float, max_returns: int,
-                  range_min_m: float = 0.0, range_max_m: float = math.inf) -> Echoes:
+                  range_min_m: float = 0.0, range_max_m: float = math.inf,
+                  echo_rule: str = "amplitude") -> Echoes:
     """Echoes of B beams from their S sub-rays each (module docstring).
 
     ``range_m``, ``energy``, ``cls``, ``element_id``, ``tree_id`` (or None),
@@ -187,6 +194,8 @@ def detect_echoes(range_m, energy, cls, element_id, tree_id, cos_incidence, beam
         raise ValueError(f"pulse_length_ns must be > 0, got {pulse_length_ns}")
     if int(max_returns) < 1:
         raise ValueError(f"max_returns must be ≥ 1, got {max_returns}")
+    if echo_rule not in ECHO_RULES:
+        raise ValueError(f"echo_rule must be one of {ECHO_RULES}, got {echo_rule!r}")
     fwhm = range_fwhm_m(pulse_length_ns)
     sigma = fwhm * _SIGMA_PER_FWHM
     h = fwhm / BINS_PER_FWHM
@@ -241,17 +250,19 @@ def detect_echoes(range_m, energy, cls, element_id, tree_id, cos_incidence, beam
         parts.append(part)
         general[several[~ok]] = True
     if general.any():
-        parts.append(_general_echoes(np.flatnonzero(general), starts, cl, nj, frac, ej, fwhm, kb, **fwd))
+        parts.append(_general_echoes(np.flatnonzero(general), starts, cl, nj, frac, ej, fwhm, kb,
+                                     echo_rule=echo_rule, threshold=detection_threshold, **fwd))
     if not parts:
         return Echoes.empty(with_tree)
-    # Per echo: order key (global bin of its peak: the original group order), beam row,
-    # range, energy, width (m), index of the strongest sub-ray in ``flat``.
-    key, grow, g_range, g_energy, width_m, strong = (np.concatenate(c) for c in zip(*parts))
+    # Per echo: order key (its peak's global bin), row, range, energy, width (m), strongest, amplitude.
+    key, grow, g_range, g_energy, width_m, strong, g_height = (np.concatenate(c) for c in zip(*parts))
     strong = strong.copy()
     if len(parts) > 1:
         o = np.argsort(key, kind="stable")
-        grow, g_range, g_energy, width_m, strong = grow[o], g_range[o], g_energy[o], width_m[o], strong[o]
-    keep = (g_energy >= detection_threshold) & (g_range >= range_min_m) & (g_range <= range_max_m)
+        grow, g_range, g_energy, width_m, strong, g_height = (
+            x[o] for x in (grow, g_range, g_energy, width_m, strong, g_height))
+    level = g_height if echo_rule == "amplitude" else g_energy
+    keep = (level >= detection_threshold) & (g_range >= range_min_m) & (g_range <= range_max_m)
     if not keep.all():
         grow, g_range, g_energy, width_m, strong = (x[keep] for x in (grow, g_range, g_energy, width_m, strong))
     if len(grow) == 0:
@@ -323,7 +334,8 @@ def _one_peak(V, bin0, lo, h):
     detector of :func:`_general_echoes` finds exactly one peak iff the slope signs in the
     window (flats carrying the slope before them) change once from + to −; then W rises to
     it and falls after it, and the half-height walk is read off the window.  Returns ``ok``
-    (else the cluster goes to the general path), the peak's range and the width (m)."""
+    (else the cluster goes to the general path), the peak's range, the width (m) and the
+    peak's amplitude."""
     n, T = V.shape
     up = np.empty((n, T), np.int8)
     up[:, 0] = 1
@@ -356,7 +368,7 @@ def _one_peak(V, bin0, lo, h):
                                             V[rows, a - 1], half, -1)
     right = (g0 + b) + 1 * _crossing_values(V[rows, b], V[rows, b - 1], V[rows, b + 1],
                                             V[rows, b + 1], half, 1)
-    return ok, peak_r, (right - left) * h
+    return ok, peak_r, (right - left) * h, height
 
 
 def _single_echoes(c, starts, nj, frac, ej, c_energy, *, lo, offset, nb, crow, h, bin_sigmas):
@@ -367,10 +379,10 @@ def _single_echoes(c, starts, nj, frac, ej, c_energy, *, lo, offset, nb, crow, h
     taps = np.arange(-(_SINGLE_TAPS // 2), _SINGLE_TAPS // 2 + 1)
     V = _pulse(taps.astype(np.float64), frac[j], ej[j], bin_sigmas)
     bin0 = nj[j] + taps[0]
-    ok, peak_r, width_m = _one_peak(V, bin0, lo[c], h)
+    ok, peak_r, width_m, height = _one_peak(V, bin0, lo[c], h)
     ok &= (bin0 >= 1) & (bin0 + _SINGLE_TAPS < nb[c])
     gpeak = offset[c] + nj[j]
-    return ok, _Part(gpeak[ok], crow[c][ok], peak_r[ok], c_energy[c][ok], width_m[ok], j[ok])
+    return ok, _Part(gpeak[ok], crow[c][ok], peak_r[ok], c_energy[c][ok], width_m[ok], j[ok], height[ok])
 
 
 def _members(c, cl, n_cl):
@@ -423,13 +435,13 @@ def _narrow_echoes(c, starts, ends, cl, nj, frac, ej, c_energy, *, lo, offset, n
             span_bins = (int(k[b - 1]) + 1) * T - base
             V[base:base + span_bins] += np.bincount(idx.ravel(), vals.ravel(), minlength=span_bins)
         V = V.reshape(len(cs), T)
-        good, peak_r, width_m = _one_peak(V, bin0, lo[cs], h)
+        good, peak_r, width_m, height = _one_peak(V, bin0, lo[cs], h)
         good &= (bin0 >= 1) & (bin0 + T < nb[cs])
         ok[sel] = good
         cg = cs[good]
         # one echo per cluster: the cluster's bin offset orders it among the others
         parts.append(_Part(offset[cg], crow[cg], peak_r[good], c_energy[cg], width_m[good],
-                           strong[sel[good]]))
+                           strong[sel[good]], height[good]))
     return ok, _Part(*(np.concatenate(x) for x in zip(*parts)))
 
 
@@ -446,9 +458,7 @@ def _pieces(sub, k, row_start=None, tile=_TILE_SUBRAYS):
     """Pieces [a, b) of the sub-rays ``sub`` (positions in the flat list, increasing) for
     one bincount each, cache-sized: cut at a cluster start about every ``tile`` sub-rays.
     A cluster is never cut, so each bin of W is its own cluster's pulse terms added in
-    sub-ray order from 0, whatever else the call holds (until issue #8 the sums were also
-    cut every 65536 sub-rays of the call's flat list, so W's last bits could depend on the
-    chunk of beams a cluster fell in)."""
+    sub-ray order from 0, whatever else the call holds."""
     n = len(sub)
     if row_start is None:                              # first sub-ray of each cluster
         row_start = np.r_[0, np.flatnonzero(np.diff(k)) + 1]
@@ -464,7 +474,25 @@ def _pieces(sub, k, row_start=None, tile=_TILE_SUBRAYS):
     return out
 
 
-def _general_echoes(c, starts, cl, nj, frac, ej, fwhm, kb, *, lo, offset, nb, crow, h, bin_sigmas):
+def _no_part() -> _Part:
+    return _Part(*(np.zeros(0, dt) for dt in (np.int64,) * 2 + (np.float64,) * 3 + (np.int64, np.float64)))
+
+
+def _dead_time_leaders(r, row, dead_m) -> np.ndarray:
+    """Per peak (sorted by row, then range): True where it triggers an echo (first of its beam,
+    or ≥ ``dead_m`` beyond the last trigger).  One pass per echo depth, not per peak."""
+    lead = np.zeros(len(r), bool)
+    todo = np.arange(len(r))
+    while len(todo):
+        first = todo[np.r_[True, row[todo][1:] != row[todo][:-1]]]
+        lead[first] = True
+        trig = first[np.searchsorted(first, todo, side="right") - 1]
+        todo = todo[r[todo] - r[trig] >= dead_m]
+    return lead
+
+
+def _general_echoes(c, starts, cl, nj, frac, ej, fwhm, kb, *, lo, offset, nb, crow, h, bin_sigmas,
+                    echo_rule="amplitude", threshold=0.0):
     """Clusters ``c`` (any shape) read on all their bins: the full detector of the module
     docstring.  Bins are laid out compactly here; widths are taken at cluster-local bin
     indices and no sum is cut inside a cluster, so every path gives the bits the
@@ -499,17 +527,31 @@ def _general_echoes(c, starts, cl, nj, frac, ej, fwhm, kb, *, lo, offset, nb, cr
     peak_r = lo[c][pcl] + (peak - coff[pcl] + d) * h
     beam_row = crow[c][pcl]
 
-    # Merge peaks closer than c·τ/2 within a beam; the highest peak of a group represents it.
-    gnew = np.ones(len(peak), bool)
-    gnew[1:] = (beam_row[1:] != beam_row[:-1]) | (np.diff(peak_r) >= fwhm)
-    group = np.cumsum(gnew) - 1
-    n_groups = int(group[-1]) + 1
-    by_height = np.lexsort((height, group))
-    rep = by_height[np.r_[np.flatnonzero(np.diff(group[by_height])), len(peak) - 1]]
+    if echo_rule == "amplitude":  # triggers ≥ threshold; peaks within c·τ/2 after one join it
+        cand = np.flatnonzero(height >= threshold)
+        if len(cand) == 0:
+            return _no_part()
+        lead = _dead_time_leaders(peak_r[cand], beam_row[cand], fwhm)
+        group = np.full(len(peak), -1, np.int64)
+        group[cand] = np.cumsum(lead) - 1
+        n_groups = int(np.count_nonzero(lead))
+        rep = cand[lead]
+    else:  # single linkage within c·τ/2 in a beam; the highest peak represents its group
+        gnew = np.ones(len(peak), bool)
+        gnew[1:] = (beam_row[1:] != beam_row[:-1]) | (np.diff(peak_r) >= fwhm)
+        group = np.cumsum(gnew) - 1
+        n_groups = int(group[-1]) + 1
+        by_height = np.lexsort((height, group))
+        rep = by_height[np.r_[np.flatnonzero(np.diff(group[by_height])), len(peak) - 1]]
 
     # Energy and attributes from the sub-rays: sub-ray → basin (= peak) → group.  Sub-rays
     # are in (beam, range) order, so each group's sub-rays are one run of this list.
     gsub = group[basin[gbin]]
+    if echo_rule == "amplitude":  # drop the sub-rays of peaks that reported nothing
+        mine = gsub >= 0
+        gsub, sub, ej_s = gsub[mine], sub[mine], ej_s[mine]
+        if len(gsub) == 0:
+            return _no_part()
     g_energy = np.bincount(gsub, weights=ej_s, minlength=n_groups)
     run = np.flatnonzero(np.r_[True, gsub[1:] != gsub[:-1]])
     top = np.maximum.reduceat(ej_s, run)
@@ -522,7 +564,8 @@ def _general_echoes(c, starts, cl, nj, frac, ej, fwhm, kb, *, lo, offset, nb, cr
     rp = rep[g]
     width_m = _fwhm_bins(wave, peak[rp], height[rp], coff[pcl[rp]], coff[pcl[rp]] + cnb[pcl[rp]],
                          -coff[pcl[rp]]) * h
-    return _Part(peak[rp] + shift[pcl[rp]], beam_row[rp], peak_r[rp], g_energy[g], width_m, strongest[g])
+    return _Part(peak[rp] + shift[pcl[rp]], beam_row[rp], peak_r[rp], g_energy[g], width_m, strongest[g],
+                 height[rp])
 
 
 def _waveforms(gbin, frac, ej, total, kb, bin_sigmas, pieces) -> np.ndarray:
@@ -585,11 +628,9 @@ def _crossing_values(w0, wm, wp, wn, level, step) -> np.ndarray:
 
 
 def echo_statistics(results) -> dict | None:
-    """The ``echoes`` block of measures.json for one scan result or several legs.
-
-    Beams with 0, 1, 2, … returns and their shares; echoes per class per return number;
-    None when no result carries echoes.  Needs only ``.echoes`` and ``.shape``.
-    """
+    """The ``echoes`` block of measures.json for one scan result or several legs: beams with
+    0, 1, 2, … returns and their shares, echoes per class per return number; None when no
+    result carries echoes.  Needs only ``.echoes`` and ``.shape``."""
     results = results if isinstance(results, (list, tuple)) else [results]
     results = [res for res in results if getattr(res, "echoes", None) is not None]
     if not results:

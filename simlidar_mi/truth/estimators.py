@@ -58,11 +58,32 @@ then ln(N + 1)/(G·l̄), a lower bound that grows with N; ``"nan"`` leaves them 
 estimator.
 
 Multi-return (``*_multi``; scans with a ``[sensor]``): each echo intercepts a share of
-its beam, ``weights = "equal"`` (1/n per echo) or ``"energy"`` (the echo's energy over
-the beam's total echo energy, a waveform-style share); the beam's remaining weight
-enters the next voxels and N, I and the paths are weighted sums (traverse.py). A beam
-ends at its last echo (its weights sum to 1). Both are our documented conventions;
-BENCHMARKS.md §10d measures how far they move the result from the first-return ones.
+its beam, ``weights = "equal"`` (1/n per echo) or ``"energy"`` (the share of the beam's
+cross-section the echo intercepted, from its energy); the beam's remaining weight enters
+the next voxels and N, I and the paths are weighted sums (traverse.py).
+
+``"energy"``: an echo's energy is E_j ∝ a_j·ρ_j·|cos i_j|/r_j² (the Lambertian law of
+lidar/sensor.py), a_j the intercepted share, so the share is recovered as
+
+    a_j ∝ E_j·r_j² / (ρ_j·|cos i_j|),   normalised over the beam's echoes,
+
+ρ_j the reflectance of the echo's class ([materials]) and cos i_j its incidence (both
+known in a simulator; |cos i| is floored at 0.01 so a grazing echo cannot take the whole
+beam). This is the reflectance-corrected return-energy ratio of the multi-return
+gap-fraction literature (Armston et al. 2013, "Direct retrieval of canopy gap probability
+using airborne waveform lidar", Remote Sens. Environ. 134:24–38,
+doi:10.1016/j.rse.2013.02.021: P_gap = 1 − R_v/(R_v + (ρ_v/ρ_g)·R_g); Hopkinson & Chasmer
+2009, "Testing LiDAR models of fractional cover across multiple forest ecozones", Remote
+Sens. Environ. 113:275–288, the intensity-based cover), with the 1/r² and cos i terms they
+drop for near-nadir airborne beams restored, since ranges here differ along a beam.
+Closure: normalising over the echoes assumes the beam's whole energy came back in its
+echoes (the last echo stops the rest, as the ground does in Armston et al.); what escaped
+or fell below the threshold is not represented, so a beam ends at its last echo (its
+weights sum to 1) under both weightings. The uncorrected E/ΣE share (``"raw-energy"``)
+overweights near, bright echoes (a leaf at 1.5 m intercepting half a beam in front of
+ground at 3 m gets 0.95 instead of 0.5) and is kept only to measure that.
+These are our documented conventions; BENCHMARKS.md §10d measures how far they move the
+result from the first-return ones.
 """
 from __future__ import annotations
 
@@ -116,8 +137,8 @@ def beams_from_scan(results, weights: str | None = None) -> Beams:
 
     Directions and origins come from the pattern as the scan traced them
     (``BeamPattern.beam_origins_m``/``world_dirs``, as ``ScanResult.points_m``).
-    ``weights`` None: first returns; ``"equal"`` / ``"energy"``: every echo
-    (module docstring), which needs ``result.echoes``."""
+    ``weights`` None: first returns; ``"equal"`` / ``"energy"`` / ``"raw-energy"``: every
+    echo (module docstring), which needs ``result.echoes``."""
     results = results if isinstance(results, (list, tuple)) else [results]
     parts = []
     for res in results:
@@ -133,7 +154,8 @@ def beams_from_scan(results, weights: str | None = None) -> Beams:
                               "energy detection)", key="weights", value=weights)
         e = res.echoes
         parts.append(_echo_beams(o, d, n * m, e.beam, e.return_number, e.range_m, e.cls,
-                                 e.energy, p.escape_m, weights))
+                                 e.energy, p.escape_m, weights, e.cos_incidence,
+                                 _class_reflectance(res.sensor)))
     if len(parts) == 1:
         return parts[0]
     k = max(b.ret_range_m.shape[1] for b in parts)
@@ -145,22 +167,56 @@ def beams_from_scan(results, weights: str | None = None) -> Beams:
                  pad([b.ret_weight for b in parts], 0.0), pad([b.ret_veg for b in parts], False))
 
 
-def _echo_beams(o, d, n_beams, beam, ret_no, range_m, cls_code, energy, escape_m, weights) -> Beams:
-    """Weighted beams from echo lists (sorted by beam, then return number)."""
-    if weights not in ("equal", "energy"):
-        raise ConfigError("echo weights must be 'equal' or 'energy'", key="weights", value=weights)
+#: Echo weightings of the multi-return estimators (module docstring).
+ECHO_WEIGHTS = ("equal", "energy", "raw-energy")
+#: |cos i| floor of the energy share: a grazing echo's E/cos i stays bounded.
+_COS_FLOOR = 0.01
+
+
+def _class_reflectance(sensor: dict | None) -> np.ndarray:
+    """ρ per class code (escape, ground, wood, leaf) from a resolved sensor dict (a scan's
+    ``result.sensor`` or an EXR's ``simlidar_sensor`` header); [materials] defaults if absent."""
+    from ..lidar.sensor import SensorModel  # noqa: PLC0415
+    sensor = sensor or {}
+    d = SensorModel()
+    return np.array([0.0, sensor.get("reflectance_ground", d.reflectance_ground),
+                     sensor.get("reflectance_wood", d.reflectance_wood),
+                     sensor.get("reflectance_leaf", d.reflectance_leaf)], np.float64)
+
+
+def echo_shares(energy, range_m, cos_incidence, reflectance) -> np.ndarray:
+    """Unnormalised intercepted share E·r²/(ρ·max(|cos i|, 0.01)) of each echo (module
+    docstring); 0 where ρ is 0 (no material to correct for)."""
+    e = np.asarray(energy, np.float64)
+    r = np.asarray(range_m, np.float64)
+    rho = np.asarray(reflectance, np.float64)
+    cos = np.maximum(np.abs(np.asarray(cos_incidence, np.float64)), _COS_FLOOR)
+    return np.divide(e * r * r, rho * cos, out=np.zeros_like(e), where=rho > 0)
+
+
+def _echo_beams(o, d, n_beams, beam, ret_no, range_m, cls_code, energy, escape_m, weights,
+                cos_incidence=None, reflectance=None) -> Beams:
+    """Weighted beams from echo lists (sorted by beam, then return number).
+    ``cos_incidence`` (per echo) and ``reflectance`` (per class code) for ``"energy"``."""
+    if weights not in ECHO_WEIGHTS:
+        raise ConfigError(f"echo weights must be one of {', '.join(ECHO_WEIGHTS)}", key="weights",
+                          value=weights)
     beam = np.asarray(beam, np.int64)
+    cls_code = np.asarray(cls_code)
     k = int(np.max(ret_no)) if len(beam) else 1
     R = np.full((n_beams, k), np.inf)
     W = np.zeros((n_beams, k))
     V = np.zeros((n_beams, k), bool)
     j = np.asarray(ret_no, np.int64) - 1
     R[beam, j] = range_m
-    V[beam, j] = _veg(np.asarray(cls_code))
+    V[beam, j] = _veg(cls_code)
     if weights == "equal":
         W[beam, j] = 1.0
-    else:
+    elif weights == "raw-energy":
         W[beam, j] = np.asarray(energy, np.float64)
+    else:
+        rho = np.asarray(reflectance, np.float64)[cls_code.astype(np.int64)]
+        W[beam, j] = echo_shares(energy, range_m, cos_incidence, rho)
     tot = W.sum(axis=1, keepdims=True)
     W = np.divide(W, tot, out=np.zeros_like(W), where=tot > 0)
     # A beam ends at its last echo (its weights sum to 1); a beam without echoes escapes.
@@ -173,7 +229,8 @@ def beams_from_exr(path, pattern=None, weights: str | None = None) -> Beams:
     layout, simlidar_mi/io/exr.py). The tractor's rays follow from its header settings;
     other platforms' EXRs do not hold every ray, so pass their ``pattern``
     (:func:`simlidar_mi.lidar.survey.scan_patterns` of the scene). ``weights`` as in
-    :func:`beams_from_scan`, from the ``echo{r}.*`` layers."""
+    :func:`beams_from_scan`, from the ``echo{r}.*`` layers, except ``"energy"`` (the EXR
+    holds no per-echo incidence; ``"raw-energy"`` reads the intensity layers)."""
     from ..lidar.scan import read_scan_exr  # noqa: PLC0415
     channels, header = read_scan_exr(path)
     for name in ("range", "class"):
@@ -198,19 +255,23 @@ def beams_from_exr(path, pattern=None, weights: str | None = None) -> Beams:
     if "n_returns" not in channels:
         raise ConfigError("multi-return estimators need an EXR with echo layers (n_returns)",
                           file=str(path), key="n_returns")
+    if weights == "energy":  # the share needs each echo's cos i, which scan.exr does not hold
+        raise ConfigError("energy weights need each echo's incidence, which a scan EXR does not hold; "
+                          "use the scan result (beams_from_scan), or 'raw-energy' / 'equal'",
+                          file=str(path), key="weights", value=weights)
     nret = channels["n_returns"].ravel().astype(np.int64)
     beam, ret, rng, cls_, en = [], [], [], [], []
     for r in range(1, int(nret.max(initial=0)) + 1):
         pre = "" if r == 1 else f"echo{r}."
         have = np.nonzero(nret >= r)[0]
-        if weights == "energy" and f"{pre}intensity" not in channels:
+        if weights == "raw-energy" and f"{pre}intensity" not in channels:
             raise ConfigError("energy weights need the intensity layers (sensor intensity = true)",
                               file=str(path), key=f"{pre}intensity")
         beam.append(have)
         ret.append(np.full(len(have), r))
         rng.append(channels[f"{pre}range"].ravel()[have].astype(np.float64))
         cls_.append(channels[f"{pre}class"].ravel()[have])
-        en.append(channels[f"{pre}intensity"].ravel()[have] if weights == "energy" else np.ones(len(have)))
+        en.append(channels[f"{pre}intensity"].ravel()[have] if weights == "raw-energy" else np.ones(len(have)))
     cat = np.concatenate
     return _echo_beams(o, d, n * m, cat(beam), cat(ret), cat(rng), cat(cls_), cat(en),
                        pattern.escape_m, weights)

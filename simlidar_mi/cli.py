@@ -392,7 +392,10 @@ def _compare_args(p: argparse.ArgumentParser) -> None:
                    help="CSV pairing photos or measured P0 with scene, camera, zenith_deg, step "
                         "(see simlidar_mi.canopy.compare; example: scenes/strawberry_manifest.csv)")
     p.add_argument("--out", required=True, metavar="DIR",
-                   help="output folder: comparison.csv, pairs.csv, comparison.png, masks")
+                   help="output folder: comparison.csv, pairs.csv, readings.csv, comparison.png, masks")
+    p.add_argument("--no-readings", dest="readings", action="store_false",
+                   help="skip the second render of strawberry scenes under the other petiole reading "
+                        "(readings.csv)")
 
 
 @command("compare", "Virtual vs measured gap fraction from a manifest: r, RMSE, bias per view "
@@ -403,7 +406,7 @@ def _compare_run(args: argparse.Namespace) -> int:
 
     from .canopy.compare import compare
 
-    res = compare(args.manifest, args.out, progress=True)
+    res = compare(args.manifest, args.out, progress=True, readings=args.readings)
     print(f"{'row':>4}  {'camera':<12}  {'zenith':>6}  {'step':>4}  {'measured':>8}  "
           f"{'virtual':>7}  {'sd':>6}  {'sd/plot':>7}  {'reps':>4}  {'diff':>7}")
     for p in res.pairs:
@@ -421,6 +424,16 @@ def _compare_run(args: argparse.Namespace) -> int:
               f"{s['bias']:+8.4f}  {f(s['bias_se'], '.4f'):>6}  {s['bias_r']:+7.2%}  "
               f"{f(s['scatter'], '.4f'):>7}  {f(s['paper_rmse'], '.3f'):>11}  "
               f"{f(s['paper_bias'], '.3f'):>6}  {f(s['paper_scatter'], '.4f'):>7}")
+    if res.readings:
+        from .canopy.compare import PETIOLE_READINGS, READINGS_NOTE
+        print(f"\nboth petiole readings (strawberry rows; the scenes' own: {res.own_reading}):")
+        print(f"{'reading':<8}  {'zenith':>6}  {'n':>3}  {'bias':>8}  {'± se':>6}  {'rmse':>7}  what")
+        for name, sts in res.readings.items():
+            for s in sts:
+                z = s["zenith_deg"] if isinstance(s["zenith_deg"], str) else f"{s['zenith_deg']:g}"
+                print(f"{name:<8}  {z:>6}  {s['n']:>3}  {s['bias']:+8.4f}  {f(s['bias_se'], '.4f'):>6}  "
+                      f"{s['rmse']:7.4f}  {PETIOLE_READINGS.get(name, '')}")
+        print(READINGS_NOTE)
     print(f"wrote {', '.join(str(f) for f in res.files.values())}")
     return 0
 

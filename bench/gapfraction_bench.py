@@ -150,7 +150,8 @@ CAUSES = [
      ["strawberry.leaf.area_mean_m2=16.57e-4", "strawberry.leaf.area_sd_m2=6.400e-4"]),
     ("plot edge: 8 × 8 plants instead of 4 × 4 (same inset window rule)",
      ["strawberry.rows=8", "strawberry.plants_per_row=8"]),
-    ("window: the central half of the inset window (window_fraction 0.5)", ["gapfraction.window_fraction=0.5"]),
+    ("window: the central half of the image (window_fraction 0.5)", ["gapfraction.window_fraction=0.5"]),
+    ("window: no leaf-size margin (inset by canopy height × tan θ only, margin_m 0)", ["gapfraction.margin_m=0.0"]),
     ("orthographic camera instead of the 60° perspective", ['gapfraction.cameras=["orthographic"]']),
 ]
 

@@ -295,6 +295,15 @@ def test_shipped_strawberry_manifest(tmp_path: Path) -> None:
         assert s["paper_scatter"] == pytest.approx(paper_scatter, abs=1e-4)
         assert math.isnan(s["scatter"])  # one (mean) pair per zenith: no scatter to measure
     assert (tmp_path / "out" / "comparison.png").is_file()
+    # Both petiole readings in full, as the README prints them (same seeds, same values): the
+    # default (φ the zenith), chosen because it fits these values, and θ the zenith.
+    assert res.own_reading == "phi"
+    for name, want in (("phi", (-0.041, -0.028, -0.040)), ("theta", (-0.096, -0.091, -0.102))):
+        got = [st["bias"] for st in res.readings[name][:3]]
+        assert got == pytest.approx(want, abs=6e-4), name
+        assert all(0.007 < st["bias_se"] < 0.011 for st in res.readings[name][:3])
+    assert [(st["bias"], st["bias_se"]) for st in res.readings["phi"]] == \
+        [(st["bias"], st["bias_se"]) for st in res.stats]
 
 
 def test_cli_compare(scenes: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -6,6 +6,7 @@ Each sub-command is a ``(name, help, add_arguments, run)`` entry in COMMANDS;
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import warnings
 from typing import Callable
@@ -100,10 +101,26 @@ def _study_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-readings", dest="readings", action="store_false",
                    help="skip the re-scans under the paper's other readings (fraction rule, "
                         "far-side limits, the old study) that regression.json compares")
+    p.add_argument("--trunk-distances", type=_distances, default=None, metavar="D1,D2,...",
+                   help="repeat the grid with the trunks D metres from the scanner line "
+                        "(orchard.row_x_m = scan.x0_m + D), e.g. 1.5,2,2.5; regression.json fits "
+                        "each distance on its own (default: the scene's own placement; the paper "
+                        "does not give it)")
     p.add_argument("--on-mismatch", choices=["recompute", "refuse"], default="recompute",
                    help="rows already in DIR/rows for this grid's orchards but scanned from another "
                         "scene or by other code: 'recompute' (default) rescans them and says which "
                         "and why; 'refuse' stops before any scan, saying the same")
+
+
+def _distances(text: str) -> list[float]:
+    """``--trunk-distances 1.5,2,2.5`` → [1.5, 2.0, 2.5] (argparse names the option on error)."""
+    try:
+        ds = [float(t) for t in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a comma-separated list of metres: {text!r}") from None
+    if not ds or not all(math.isfinite(d) and d > 0 for d in ds):
+        raise argparse.ArgumentTypeError(f"every distance must be a number of metres > 0: {text!r}")
+    return ds
 
 
 @command("study", "SIMLIDAR §5 study: scan the 96-orchard grid, fit A_PR and A_L against A_IM "
@@ -114,17 +131,24 @@ def _study_run(args: argparse.Namespace) -> int:
     grid = [list(args.overrides) + g for g in paper_grid()]
     res = run_study(args.scene, args.out, grid, workers=args.workers, progress=True,
                     hit_rule=args.hit_rule, footprint=args.footprint, readings=args.readings,
-                    on_mismatch=args.on_mismatch, scheduler=args.scheduler)
+                    on_mismatch=args.on_mismatch, scheduler=args.scheduler,
+                    trunk_distances_m=args.trunk_distances)
     print(f"hit rule {', '.join(res.regression['scan']['hit_rule'])}, footprint P = "
           f"{', '.join(map(str, res.regression['scan']['footprint']))}")
     for key, name in (("A_PR_vs_A_IM", "A_PR"), ("A_L_vs_A_IM", "A_L")):
         fit, paper = res.regression[key], res.regression["paper"][key]
         print(f"{name} = {fit['slope']:.4f}·A_IM (R² {fit['r2']:.3f}, n {fit['n']}); "
               f"paper: {paper['slope']}·A_IM (R² {paper['r2']})")
-    sub = res.regression["subsets"]["A_PR_vs_A_IM"]
-    if sub["n_subsets"]:
-        print(f"A_PR slope over {sub['n_subsets']} random {sub['size']}-orchard subsets: "
-              f"{sub['slope_2.5%']:.3f} … {sub['slope_97.5%']:.3f} (95 %)")
+    boot = res.regression["bootstrap"]["A_PR_vs_A_IM"]
+    for what, b in (("this grid's slope", boot["grid"]), ("a study of", boot["paper_size"])):
+        if b["n_resamples"]:
+            name = what if b is boot["grid"] else f"{what} {b['size']} orchards"
+            print(f"A_PR slope, bootstrap 95 % ({b['n_resamples']} resamples, seed {b['seed']}), "
+                  f"{name}: {b['slope_2.5%']:.3f} … {b['slope_97.5%']:.3f}")
+    if len(res.regression["by_trunk_distance"]) > 1:
+        for t in res.regression["by_trunk_distance"]:
+            print(f"  trunks {t['trunk_distance_m']:g} m from the scanner line: A_PR = {t['slope']:.4f}·A_IM "
+                  f"(R² {t['r2']:.3f}, n {t['n']})")
     for name, fit in res.regression["A_PR_vs_A_IM_by_reading"].items():
         print(f"  reading {name:<8} A_PR = {fit['slope']:.4f}·A_IM (R² {fit['r2']:.3f})  {fit['what']}")
     for path in res.files.values():
@@ -368,7 +392,10 @@ def _compare_args(p: argparse.ArgumentParser) -> None:
                    help="CSV pairing photos or measured P0 with scene, camera, zenith_deg, step "
                         "(see simlidar_mi.canopy.compare; example: scenes/strawberry_manifest.csv)")
     p.add_argument("--out", required=True, metavar="DIR",
-                   help="output folder: comparison.csv, pairs.csv, comparison.png, masks")
+                   help="output folder: comparison.csv, pairs.csv, readings.csv, comparison.png, masks")
+    p.add_argument("--no-readings", dest="readings", action="store_false",
+                   help="skip the second render of strawberry scenes under the other petiole reading "
+                        "(readings.csv)")
 
 
 @command("compare", "Virtual vs measured gap fraction from a manifest: r, RMSE, bias per view "
@@ -379,7 +406,7 @@ def _compare_run(args: argparse.Namespace) -> int:
 
     from .canopy.compare import compare
 
-    res = compare(args.manifest, args.out, progress=True)
+    res = compare(args.manifest, args.out, progress=True, readings=args.readings)
     print(f"{'row':>4}  {'camera':<12}  {'zenith':>6}  {'step':>4}  {'measured':>8}  "
           f"{'virtual':>7}  {'sd':>6}  {'sd/plot':>7}  {'reps':>4}  {'diff':>7}")
     for p in res.pairs:
@@ -397,6 +424,16 @@ def _compare_run(args: argparse.Namespace) -> int:
               f"{s['bias']:+8.4f}  {f(s['bias_se'], '.4f'):>6}  {s['bias_r']:+7.2%}  "
               f"{f(s['scatter'], '.4f'):>7}  {f(s['paper_rmse'], '.3f'):>11}  "
               f"{f(s['paper_bias'], '.3f'):>6}  {f(s['paper_scatter'], '.4f'):>7}")
+    if res.readings:
+        from .canopy.compare import PETIOLE_READINGS, READINGS_NOTE
+        print(f"\nboth petiole readings (strawberry rows; the scenes' own: {res.own_reading}):")
+        print(f"{'reading':<8}  {'zenith':>6}  {'n':>3}  {'bias':>8}  {'± se':>6}  {'rmse':>7}  what")
+        for name, sts in res.readings.items():
+            for s in sts:
+                z = s["zenith_deg"] if isinstance(s["zenith_deg"], str) else f"{s['zenith_deg']:g}"
+                print(f"{name:<8}  {z:>6}  {s['n']:>3}  {s['bias']:+8.4f}  {f(s['bias_se'], '.4f'):>6}  "
+                      f"{s['rmse']:7.4f}  {PETIOLE_READINGS.get(name, '')}")
+        print(READINGS_NOTE)
     print(f"wrote {', '.join(str(f) for f in res.files.values())}")
     return 0
 

@@ -9,6 +9,7 @@ images, so a comparison renders in well under a second), real photos from
 from __future__ import annotations
 
 import csv
+import json
 import math
 import os
 from pathlib import Path
@@ -294,6 +295,15 @@ def test_shipped_strawberry_manifest(tmp_path: Path) -> None:
         assert s["paper_scatter"] == pytest.approx(paper_scatter, abs=1e-4)
         assert math.isnan(s["scatter"])  # one (mean) pair per zenith: no scatter to measure
     assert (tmp_path / "out" / "comparison.png").is_file()
+    # Both petiole readings in full, as the README prints them (same seeds, same values): the
+    # default (φ the zenith), chosen because it fits these values, and θ the zenith.
+    assert res.own_reading == "phi"
+    for name, want in (("phi", (-0.041, -0.028, -0.040)), ("theta", (-0.096, -0.091, -0.102))):
+        got = [st["bias"] for st in res.readings[name][:3]]
+        assert got == pytest.approx(want, abs=6e-4), name
+        assert all(0.007 < st["bias_se"] < 0.011 for st in res.readings[name][:3])
+    assert [(st["bias"], st["bias_se"]) for st in res.readings["phi"]] == \
+        [(st["bias"], st["bias_se"]) for st in res.stats]
 
 
 def test_cli_compare(scenes: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -399,3 +409,41 @@ def test_bad_photo_error_keeps_earlier_outputs(scenes: Path) -> None:
     with pytest.raises(ManifestError):
         compare(bad, scenes / "out")
     assert sorted(p.name for p in (scenes / "out").iterdir()) == before
+
+
+def test_both_petiole_readings_are_reported_in_full(scenes: Path) -> None:
+    """Strawberry rows are also rendered with the other petiole reading; both series, with the
+    note that the default was chosen to fit the measured gap fractions."""
+    m = _manifest(scenes, "scene,camera,zenith_deg,step,p0_measured\n"
+                  "sb.toml,orthographic,0,mean,0.25\nsb.toml,orthographic,15,mean,0.27\n"
+                  "rl.toml,orthographic,0,0,0.3\n")
+    out = scenes / "out"
+    res = compare(m, out)
+    assert res.own_reading == "phi" and list(res.readings) == ["phi", "theta"]
+    # φ: the scene's own renders, over the strawberry rows only (not rl.toml's)
+    sb_pairs = res.pairs[:2]
+    assert res.readings["phi"][0] == {**res.readings["phi"][0], **comparison_stats(
+        [sb_pairs[0].p0_virtual], [0.25])}
+    assert res.readings["phi"][-1]["n"] == 2
+    # θ: the same views of the scene rendered with θ as the petiole zenith
+    alt = run_gapfraction(scenes / "sb.toml", None, ["gapfraction.cameras=['orthographic']",
+                                                      "gapfraction.zeniths_deg=[0.0, 15.0]",
+                                                      'strawberry.leaf.petiole_zenith="theta"'])
+    for st, z, measured in zip(res.readings["theta"], (0.0, 15.0), (0.25, 0.27)):
+        want = np.mean([s.p0 for s in alt.summary if s.zenith_deg == z])  # mean over the steps
+        assert st["zenith_deg"] == z and st["bias"] == pytest.approx(want - measured, abs=1e-12)
+        assert st["bias_se"] > 0
+    # the readings differ (θ's wider petiole zeniths spread the leaves differently)
+    assert res.readings["theta"][-1]["bias"] != res.readings["phi"][-1]["bias"]
+    rows = _read_csv(out / "readings.csv")
+    assert tuple(rows[0]) == ("reading",) + COMPARISON_COLUMNS
+    assert [(r["reading"], r["zenith_deg"]) for r in rows] == [
+        ("phi", "0"), ("phi", "15"), ("phi", "all"), ("theta", "0"), ("theta", "15"), ("theta", "all")]
+    meta = json.loads((out / "comparison.json").read_text())["readings"]["petiole_zenith"]
+    assert meta["own"] == "phi" and "not an independent check" in meta["note"]
+    # without strawberry rows, or with readings=False: no second render, no readings.csv
+    res2 = compare(m, scenes / "out2", readings=False)
+    assert res2.readings == {} and not (scenes / "out2" / "readings.csv").exists()
+    only_rl = _manifest(scenes, "scene,camera,zenith_deg,step,p0_measured\nrl.toml,orthographic,0,0,0.3\n",
+                        "rl.csv")
+    assert compare(only_rl, scenes / "out3").readings == {}

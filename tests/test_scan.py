@@ -322,8 +322,10 @@ def test_eq8_limits_come_from_the_nearest_wood_in_the_scanned_rows():
 
 def _orchard_scenes():
     from tests.conftest import SCENES
-    # tractor sweeps only (eq. 8 sets their θ limits); other platforms have a [platform] table
-    return sorted(p for p in SCENES.glob("*.toml") if "[orchard" in (t := p.read_text()) and "[platform]" not in t)
+    # tractor sweeps whose θ limits eq. 8 sets; other platforms have a [platform] table, and the
+    # Table 3 scene sweeps a fixed 150° (its coverage: test_table3_scene_fires_the_papers_beam_count)
+    return sorted(p for p in SCENES.glob("*.toml") if "[orchard" in (t := p.read_text()) and "[platform]" not in t
+                  and "\ntheta_min_deg" not in t)
 
 
 @pytest.mark.parametrize("path", _orchard_scenes(), ids=lambda p: p.stem)
@@ -347,14 +349,27 @@ def test_default_sweep_covers_every_branch_of_the_orchard_scenes(path):
 
 
 def test_table3_scene_fires_the_papers_beam_count():
-    """Table 3's 7×4 row: N×M = 2,467,105 = 4105 × 601 angles; ours within 5 %, M exactly 601."""
+    """Table 3's 7×4 row: N×M = 2,467,105 = 4105 × 601 angles; ours within 5 %, M exactly 601.
+
+    The Table 3 reading is the §5 scanner (x0 = 1 m) with one fixed sweep, beam centres from
+    −75° to +75° in 601 beams (eq. 7: Int(150.25°/0.25°) = 601), the same for every row; it
+    replaced eq. 8 with the scanner moved per row to x0 = 0.709 m (M = 601 too, θ −70.24…79.76°).
+    At x0 = 1 m eq. 8's near side would give 696 angles, not Table 3's 601."""
     from simlidar_mi.lidar.survey import generate, scan_patterns
     from tests.conftest import SCENES
     cfg = load_scene(SCENES / "simlidar_table3_7x4.toml")
     geo = generate(cfg)
     (s,) = scan_patterns(cfg, *geo.bounds_m(), geo.near_x_m)
-    assert s.n_angles == 601 and s.theta_limits_side == "near"
+    assert (s.x0_m, s.n_angles, s.theta_limits_side) == (1.0, 601, "given")
+    assert (s.theta_deg[0], s.theta_deg[-1]) == pytest.approx((-75.0, 75.0), abs=1e-9)
+    assert (s.n_positions, s.n_beams) == (4196, 2_521_796)
     assert s.n_beams == pytest.approx(2_467_105, rel=0.05)
+    # The wood the fixed sweep leaves out: 1.2 % of A_PR (the lowest twigs 7 cm ahead of the scanner).
+    assert s.swept_share(geo.branches) == pytest.approx(0.988, abs=0.001)
+    eq8 = load_scene(SCENES / "simlidar_table3_7x4.toml", ["scan.theta_limits_side=\"near\""])
+    eq8.sections["scan"].update(theta_min_deg=None, theta_max_deg=None)
+    (e,) = scan_patterns(eq8, *geo.bounds_m(), geo.near_x_m)
+    assert e.n_angles == 696
 
 
 def _low_branch_scene(rule):

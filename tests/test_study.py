@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from simlidar_mi.errors import ConfigError
-from simlidar_mi.lidar.study import (READINGS, fit_through_origin, paper_grid, regression_report,
-                                    run_study, scan_overrides, subset_slopes)
+from simlidar_mi.lidar.study import (READINGS, bootstrap_slopes, fit_through_origin, paper_grid,
+                                    regression_report, run_study, scan_overrides, with_trunk_distances)
 from tests.conftest import SCENES
 
 
@@ -88,7 +88,7 @@ def test_bad_base_scene_is_refused_before_any_task(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-def test_uncentred_r2_and_subset_slopes_against_direct_formulas():
+def test_uncentred_r2_and_bootstrap_slopes_against_direct_formulas():
     rng = np.random.default_rng(7)
     x = rng.uniform(0.2, 3, 96)
     y = 1.5 * x + rng.normal(0, 0.3, 96)
@@ -96,18 +96,65 @@ def test_uncentred_r2_and_subset_slopes_against_direct_formulas():
     res = y - fit["slope"] * x
     assert fit["r2_uncentred"] == pytest.approx(1 - np.sum(res ** 2) / np.sum(y ** 2), rel=1e-12)
     assert fit["r2_uncentred"] > fit["r2"]
-    sub = subset_slopes(x, y, size=42, n_subsets=500, seed=3)
-    # recompute the same draws directly
-    draw = np.random.default_rng(3)
-    slopes = []
-    for _ in range(500):
-        i = draw.choice(96, 42, replace=False)
-        slopes.append(np.dot(x[i], y[i]) / np.dot(x[i], x[i]))
-    assert sub["slope_2.5%"] == pytest.approx(np.percentile(slopes, 2.5), rel=1e-12)
-    assert sub["slope_97.5%"] == pytest.approx(np.percentile(slopes, 97.5), rel=1e-12)
-    assert sub["slope_2.5%"] < fit["slope"] < sub["slope_97.5%"]
-    # a grid no larger than a subset has no spread to report
-    assert subset_slopes(x[:42], y[:42])["n_subsets"] == 0
+    boot = bootstrap_slopes(x, y, n_resamples=500, seed=3)
+    # the same draws, directly: 500 × 96 row indices with replacement
+    idx = np.random.default_rng(3).integers(0, 96, size=(500, 96))
+    slopes = [np.dot(x[i], y[i]) / np.dot(x[i], x[i]) for i in idx]
+    assert boot["slope_2.5%"] == pytest.approx(np.percentile(slopes, 2.5), rel=1e-12)
+    assert boot["slope_97.5%"] == pytest.approx(np.percentile(slopes, 97.5), rel=1e-12)
+    assert boot["slope_2.5%"] < fit["slope"] < boot["slope_97.5%"]
+    assert (boot["size"], boot["n_resamples"], boot["seed"]) == (96, 500, 3)
+    # Same seed, same interval, bit for bit.
+    assert bootstrap_slopes(x, y, n_resamples=500, seed=3) == boot
+
+
+def test_bootstrap_of_a_42_orchard_study_is_wider_than_subsets_by_the_finite_population_factor():
+    """42 of 96 without replacement (the old subset range) understates where a 42-orchard study
+    could land by √((96 − 42)/(96 − 1)) = √(54/95) = 0.754; drawing with replacement does not."""
+    rng = np.random.default_rng(7)
+    x = rng.uniform(0.2, 3, 96)
+    y = 1.5 * x * rng.lognormal(0, 0.3, 96)
+    boot = bootstrap_slopes(x, y, size=42, n_resamples=20000, seed=1)
+    draw = np.random.default_rng(2)
+    idx = np.array([draw.choice(96, 42, replace=False) for _ in range(20000)])
+    sub = np.sum(x[idx] * y[idx], axis=1) / np.sum(x[idx] ** 2, axis=1)
+    width_sub = np.subtract(*np.percentile(sub, [97.5, 2.5]))
+    width_boot = boot["slope_97.5%"] - boot["slope_2.5%"]
+    assert width_sub / width_boot == pytest.approx(np.sqrt(54 / 95), rel=0.04)
+    # Too few rows: no interval rather than a wrong one.
+    assert bootstrap_slopes(x[:1], y[:1])["n_resamples"] == 0
+
+
+def test_trunk_distance_is_a_study_dimension(tmp_path):
+    base = ["orchard.tree.iterations=4", "orchard.n_trees=1", "scan.dtheta_deg=1.0", "scan.dy_m=0.01"]
+    grid = with_trunk_distances(str(SCENES / "apple_orchard.toml"), [base], [1.5, 2.5])
+    # apple_orchard.toml has scan.x0_m = 1: trunks at x = 2.5 (its own placement) and 3.5
+    assert grid == [base + ["orchard.row_x_m=2.5"], base + ["orchard.row_x_m=3.5"]]
+    res = run_study(SCENES / "apple_orchard.toml", tmp_path / "s", [base], trunk_distances_m=[1.5, 2.5],
+                    readings=False)
+    near, far = res.rows
+    assert (near["trunk_distance_m"], far["trunk_distance_m"]) == (1.5, 2.5)
+    # The same tree moved 1 m away: the same wood, a different scan.
+    assert near["A_PR_m2"] == pytest.approx(far["A_PR_m2"], rel=1e-12) and near["A_IM_m2"] != far["A_IM_m2"]
+    by = res.regression["by_trunk_distance"]
+    assert [b["trunk_distance_m"] for b in by] == [1.5, 2.5] and [b["n"] for b in by] == [1, 1]
+    assert by[1]["slope"] == pytest.approx(far["A_PR_m2"] / far["A_IM_m2"], rel=1e-12)
+    assert "trunk_distance_m" in (tmp_path / "s" / "study.csv").read_text().splitlines()[0]
+    # The scene's own placement is the default, and is the 1.5 m row (same key: reused).
+    own = run_study(SCENES / "apple_orchard.toml", tmp_path / "s", [base], readings=False)
+    assert own.rows[0]["key"] == near["key"]
+    for bad in ([], [0.0], [-1.0], [float("nan")]):
+        with pytest.raises(ConfigError, match="trunk_distances_m"):
+            with_trunk_distances(str(SCENES / "apple_orchard.toml"), [base], bad)
+
+
+def test_cli_refuses_a_bad_trunk_distance(tmp_path, capsys):
+    from simlidar_mi.cli import main
+    with pytest.raises(SystemExit) as exc:
+        main(["study", str(SCENES / "apple_orchard.toml"), "--out", str(tmp_path / "o"),
+              "--trunk-distances", "1.5,0"])
+    assert exc.value.code == 2
+    assert "--trunk-distances" in capsys.readouterr().err and not (tmp_path / "o").exists()
 
 
 def _row(it, n, a_im, a_pr):

@@ -32,8 +32,16 @@ Outputs (written together, or not at all)
     Measured (x) vs virtual (y) P0, one panel per zenith, with the 1:1 line (Fig. 4).
 ``photo_mask_row<row>_<photo>_<method>.png``, ``virtual_<scene>_gap_<camera>_z<zenith>_s<step>.png``
     What each photo was classified as, and each virtual image used (window outlined).
+``readings.csv``
+    ``reading`` then :data:`COMPARISON_COLUMNS`: the same statistics under both readings of
+    the strawberry paper's petiole angles (:data:`PETIOLE_READINGS`), over the manifest rows
+    whose scene has a ``[strawberry]`` section (each such scene is rendered a second time with
+    ``strawberry.leaf.petiole_zenith`` swapped); absent when no row has one, or with
+    ``readings=False``.  The scene's own reading (φ as the zenith by default) was chosen
+    because it fits the paper's measured gap fractions better, so its agreement is not an
+    independent check of the model (:data:`READINGS_NOTE`).
 ``comparison.json``
-    Manifest and scene checksums, settings, the statistics.
+    Manifest and scene checksums, settings, the statistics (and ``readings``).
 """
 from __future__ import annotations
 
@@ -54,7 +62,7 @@ from .manifest import ManifestError, ManifestRow, read_manifest
 
 __all__ = [
     "Pair", "ComparisonResult", "COMPARISON_COLUMNS", "PAIRS_COLUMNS", "PAPER_TABLE5",
-    "comparison_stats", "compare", "plot_comparison",
+    "comparison_stats", "compare", "plot_comparison", "PETIOLE_READINGS", "READINGS_NOTE",
 ]
 
 COMPARISON_COLUMNS = ("zenith_deg", "n", "r", "rmse", "rmse_r", "bias", "bias_r", "bias_se",
@@ -64,9 +72,16 @@ PAIRS_COLUMNS = ("row", "scene", "camera", "zenith_deg", "step", "p0_measured", 
                  "photo", "method", "crop", "lai_virtual", "note")
 # The files a comparison owns in its folder (whole-name regular expressions): a re-run
 # removes the masks of rows, photos and scenes the manifest no longer has.
-COMPARE_OUTPUTS = (r"comparison\.(csv|json|png)", r"pairs\.csv", r"virtual_.+\.png",
+COMPARE_OUTPUTS = (r"comparison\.(csv|json|png)", r"pairs\.csv", r"readings\.csv", r"virtual_.+\.png",
                    r"photo_mask_row\d+_.+\.png")
 
+#: The strawberry paper's two petiole angles, φ (45 ± 5.6°) and θ (65 ± 45°): which one is the
+#: petiole's zenith (the other being the azimuth step between leaves) it does not say.
+PETIOLE_READINGS = {"phi": "φ (45 ± 5.6°) the petiole zenith, θ the divergence",
+                    "theta": "θ (65 ± 45°) the petiole zenith, φ the divergence"}
+READINGS_NOTE = ("The default petiole reading (phi as the zenith) was chosen because it fits the "
+                 "measured gap fractions (Table 5's implied means) better than the other; its "
+                 "agreement with them is therefore not an independent check of the model.")
 #: The paper's Table 5 per view zenith: (RMSE, Bias) over its 4 densities.  Its error
 #: scatter √(RMSE² − Bias²) is 0.0209, 0.0145 and 0.0089.
 PAPER_TABLE5 = {0.0: (0.022, 0.007), 15.0: (0.015, 0.004), 30.0: (0.012, 0.008)}
@@ -122,12 +137,19 @@ class ComparisonResult:
         :data:`COMPARISON_COLUMNS`.
     files : dict of str to pathlib.Path
         Files written.
+    readings : dict of str to list of dict
+        Per petiole reading (``"phi"``, ``"theta"``), the statistics rows over the manifest
+        rows whose scene is a strawberry plot; empty when none is, or with ``readings=False``.
+    own_reading : str or None
+        Which of them the scenes themselves use.
     """
 
     manifest: Path
     pairs: list[Pair]
     stats: list[dict[str, Any]]
     files: dict[str, Path] = field(default_factory=dict)
+    readings: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
+    own_reading: str | None = None
 
     def stats_for(self, zenith_deg: float | str) -> dict[str, Any]:
         """The statistics row of one zenith (or ``"all"``)."""
@@ -230,8 +252,11 @@ def _photo_p0s(rows: list[ManifestRow], src: str, mask_dir: Path) -> dict[int, A
     return out
 
 
-def _render_scenes(rows: list[ManifestRow], src: str, progress=False):
-    """Render every distinct scene once (all its replicate plots); {scene: (run, cfg)}."""
+def _render_scenes(rows: list[ManifestRow], src: str, progress=False, extra=None):
+    """Render every distinct scene once (all its replicate plots); {scene: (run, cfg)}.
+
+    ``extra(cfg)``: overrides to render a scene with instead (None: skip the scene), given its
+    configuration as the manifest asks for it."""
     from ..config import load_scene  # noqa: PLC0415
     from .gapfraction import run_gapfraction  # noqa: PLC0415
     by_scene: dict[Path, list[ManifestRow]] = {}
@@ -245,6 +270,11 @@ def _render_scenes(rows: list[ManifestRow], src: str, progress=False):
                      "gapfraction.zeniths_deg=[" + ", ".join(repr(float(z)) for z in zens) + "]"]
         try:
             cfg = load_scene(scene, overrides)
+            if extra is not None:
+                more = extra(cfg)
+                if more is None:
+                    continue
+                cfg = load_scene(scene, overrides + more)
             run = run_gapfraction(cfg, None, progress=progress)
         except SimlidarError as exc:
             raise ManifestError(f"cannot render this scene: {exc}", file=src, row=rs[0].row,
@@ -365,7 +395,7 @@ def plot_comparison(pairs: Sequence[Pair], stats: Sequence[dict[str, Any]], path
 # ----------------------------------------------------------------------- the API
 @writes_output("out_dir")
 def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[str], *,
-            progress=False) -> ComparisonResult:
+            progress=False, readings: bool = True) -> ComparisonResult:
     """Pair measured and virtual P0 as a manifest says; write the Table 5 statistics.
 
     Parameters
@@ -377,6 +407,9 @@ def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[st
         ``comparison.json``, ``photo_mask_*.png``, ``virtual_*.png``.  Files appear together
         when everything succeeded; a failure leaves the folder as it was.
     progress : see :func:`simlidar_mi._progress.make_progress` (the scenes' renders).
+    readings : bool
+        Also render every strawberry scene under the other petiole reading and report both
+        series (``readings.csv``); False skips that second render.
 
     Returns
     -------
@@ -407,12 +440,18 @@ def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[st
             pairs.append(Pair(r, float(p0_m), float(np.mean(values)), lai, photos.get(r.row),
                               replicate_sd(values), len(values)))
         stats = _group_stats(pairs)
+        by_reading, own = _petiole_readings(rows, runs, pairs, src, progress) if readings else ({}, None)
         files: dict[str, Path] = {}
         write_csv(stage / "comparison.csv", COMPARISON_COLUMNS,
                   ({k: _fmt(s[k]) for k in COMPARISON_COLUMNS} for s in stats))
         files["comparison.csv"] = out / "comparison.csv"
         write_csv(stage / "pairs.csv", PAIRS_COLUMNS, (p.to_row() for p in pairs))
         files["pairs.csv"] = out / "pairs.csv"
+        if by_reading:
+            write_csv(stage / "readings.csv", ("reading",) + COMPARISON_COLUMNS,
+                      ({"reading": name, **{k: _fmt(st[k]) for k in COMPARISON_COLUMNS}}
+                       for name, sts in by_reading.items() for st in sts))
+            files["readings.csv"] = out / "readings.csv"
         plot_comparison(pairs, stats, stage / "comparison.png", title=f"{mpath.name}: "
                         "virtual vs measured gap fraction")
         files["comparison.png"] = out / "comparison.png"
@@ -422,15 +461,56 @@ def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[st
                 "scenes": {str(k): {"sha256": cfg.sha256, "seed": cfg.seed,
                                     "gapfraction": cfg["gapfraction"]}
                            for k, (_run, cfg) in runs.items()},
-                "stats": [{k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-                           for k, v in s.items()} for s in stats]}
+                "stats": _json_stats(stats)}
+        if by_reading:
+            meta["readings"] = {"petiole_zenith": {
+                "own": own, "what": PETIOLE_READINGS, "note": READINGS_NOTE,
+                "stats": {name: _json_stats(sts) for name, sts in by_reading.items()}}}
         with atomic_file(stage / "comparison.json") as tmp:
             tmp.write_text(json.dumps(meta, indent=2, default=str) + "\n", encoding="utf-8")
         files["comparison.json"] = out / "comparison.json"
     for p in pairs:  # the mask paths moved with the staging folder
         if p.photo_result is not None and p.photo_result.mask_file is not None:
             p.photo_result = _moved(p.photo_result, stage, out)
-    return ComparisonResult(mpath, pairs, stats, files)
+    return ComparisonResult(mpath, pairs, stats, files, by_reading, own)
+
+
+def _json_stats(stats: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    return [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in s.items()}
+            for s in stats]
+
+
+def _petiole_readings(rows: list[ManifestRow], runs: dict, pairs: list[Pair], src: str,
+                      progress) -> tuple[dict[str, list[dict[str, Any]]], str | None]:
+    """Both petiole readings' statistics over the rows whose scene is a strawberry plot: the
+    scenes' own (from ``pairs``) and the other (each such scene rendered again with
+    ``petiole_zenith`` swapped).  ({reading: stats rows}, the scenes' own reading)."""
+    def own_of(cfg) -> str | None:
+        return (cfg["strawberry.leaf"]["petiole_zenith"] or "phi") if cfg.has("strawberry") else None
+    owns = {own_of(cfg) for _run, cfg in runs.values()} - {None}
+    if not owns:
+        return {}, None
+    if len(owns) > 1:  # scenes of both readings: each row is paired with its scene's own and the other
+        own = "mixed"
+    else:
+        (own,) = owns
+
+    def other(cfg) -> list[str] | None:
+        o = own_of(cfg)
+        return None if o is None else [f'strawberry.leaf.petiole_zenith="{"theta" if o == "phi" else "phi"}"']
+    alt_runs = _render_scenes(rows, src, progress, extra=other)
+    mine, theirs = [], []
+    for r, pair in zip(rows, pairs):
+        alt = alt_runs.get(r.scene.resolve())
+        if alt is None:
+            continue
+        values, lai, _imgs = _virtual(r, alt[0], src)
+        mine.append(pair)
+        theirs.append(Pair(r, pair.p0_measured, float(np.mean(values)), lai, None,
+                           replicate_sd(values), len(values)))
+    if own == "mixed":  # name the series by what they are to each scene
+        return {"own": _group_stats(mine), "other": _group_stats(theirs)}, own
+    return {own: _group_stats(mine), "theta" if own == "phi" else "phi": _group_stats(theirs)}, own
 
 
 def _moved(result, stage: Path, out: Path):

@@ -70,9 +70,10 @@ test: llvm test-tools $(STAMP) bytecode
 	$(VPY) -m pytest -q
 
 # The documentation (docs/, Sphinx + MyST) with its references generated from the code; any
-# warning (a broken page, reference or generated table) fails the build.
+# warning (a broken page, reference or generated table) fails the build; -E reads every page
+# again, as an incremental build does not repeat the warnings of pages it did not re-read.
 docs: llvm $(STAMP) bytecode
-	$(VENV)/bin/sphinx-build -b html -W --keep-going docs docs/_build/html
+	$(VENV)/bin/sphinx-build -E -b html -W --keep-going docs docs/_build/html
 	@echo "docs in docs/_build/html/index.html"
 
 bench: llvm $(STAMP) bytecode

@@ -10,6 +10,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
 import pytest
 
 from tests.conftest import REPO
@@ -173,7 +178,22 @@ def _sybil():
                         f"stderr: {proc.stderr[-3000:]}")
             return None
 
-    return Sybil(parsers=[PythonCodeBlockParser(), ShellBlock(), SkipParser()])
+    class TomlBlock(CodeBlockParser):
+        """A ```toml block: valid TOML; one whose first line names a file (``# sensors/x.toml``)
+        is written there in the page's scratch clone, for the blocks after it to use."""
+
+        language = "toml"
+
+        def evaluate(self, example):
+            tomllib.loads(example.parsed)
+            m = re.match(r"#\s*(\S+\.toml)\s*$", example.parsed.splitlines()[0])
+            if m:
+                path = example.namespace["_clone"] / m.group(1)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_text(example.parsed)
+            return None
+
+    return Sybil(parsers=[PythonCodeBlockParser(), ShellBlock(), TomlBlock(), SkipParser()])
 
 
 # `make` lines install and run for minutes: they run as a dry run (`make -n`) of this repository's
@@ -217,11 +237,14 @@ def _fences(text: str) -> list[tuple[str, int, int]]:
     return blocks
 
 
+RUN = ("python", "sh", "toml")  # the languages _sybil() runs
+
+
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(DOCS)))
 def test_page_code_blocks_run(page, tmp_path, monkeypatch):
     blocks = _fences(page.read_text())
-    unknown = [b for b in blocks if not b[0].startswith("{") and b[0] not in ("python", "sh")]
-    assert not unknown, f"{page.name}: blocks {unknown} have no runner here (add one, or use sh/python)"
+    unknown = [b for b in blocks if not b[0].startswith("{") and b[0] not in RUN]
+    assert not unknown, f"{page.name}: blocks {unknown} have no runner here (add one, or use {RUN})"
     document = _sybil().parse(page)
     examples = list(document.examples())
     for lang, first, last in blocks:  # every python/sh block is run (a doctest block: each example)

@@ -239,7 +239,7 @@ def _literal(text: str) -> nodes.paragraph:
 def _section(document, title: str, ident: str) -> nodes.section:
     sec = nodes.section(ids=[nodes.make_id(ident)], names=[nodes.fully_normalize_name(ident)])
     sec += nodes.title(text=title)
-    document.note_implicit_target(sec, sec)
+    document.note_explicit_target(sec, sec)  # a label: {ref}`keys-sensor` links to it
     return sec
 
 

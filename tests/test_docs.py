@@ -188,7 +188,11 @@ def _sybil():
             tomllib.loads(example.parsed)
             m = re.match(r"#\s*(\S+\.toml)\s*$", example.parsed.splitlines()[0])
             if m:
-                path = example.namespace["_clone"] / m.group(1)
+                clone = example.namespace["_clone"]
+                path = clone / m.group(1)
+                # scenes/ and examples/ are links to the repository: never write through them
+                assert path.resolve().is_relative_to(clone.resolve()), \
+                    f"{m.group(1)}: a page writes only into its scratch clone"
                 path.parent.mkdir(parents=True, exist_ok=True)
                 path.write_text(example.parsed)
             return None

@@ -20,7 +20,7 @@ extensions = [
     "simlidar_ref",
 ]
 source_suffix = {".md": "markdown"}
-exclude_patterns = ["_build", "README.md"]
+exclude_patterns = ["_build"]
 myst_heading_anchors = 3
 html_theme = "furo"
 html_title = f"simlidar-mi {release}"

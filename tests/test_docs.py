@@ -31,12 +31,28 @@ BOUND_S = 600  # stops a hung build or command; no assertion depends on time
 @pytest.fixture(scope="module")
 def built(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("docs_html")
-    proc = subprocess.run([sys.executable, "-m", "sphinx", "-b", "html", "-W", "--keep-going", "-E",
-                           "-q", "-d", str(out / ".doctrees"), str(DOCS), str(out)],
-                          capture_output=True, text=True, timeout=BOUND_S)
+    proc = _build(DOCS, out)
     assert proc.returncode == 0, f"sphinx-build -W failed:\n{proc.stderr[-5000:]}"
     assert "WARNING" not in proc.stderr, proc.stderr[-5000:]
     return out
+
+
+def _build(src: Path, out: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "sphinx", "-b", "html", "-W", "--keep-going", "-E",
+                           "-q", "-d", str(out / ".doctrees"), str(src), str(out)],
+                          capture_output=True, text=True, timeout=BOUND_S)
+
+
+def test_a_broken_link_fails_the_build(tmp_path):
+    """-W works: a page linking to a page that does not exist fails the build, naming it."""
+    import shutil
+    src = tmp_path / "docs"
+    shutil.copytree(DOCS, src, ignore=shutil.ignore_patterns("_build"))
+    with open(src / "getting-started.md", "a") as f:
+        f.write("\nSee {doc}`no-such-page`.\n")
+    proc = _build(src, tmp_path / "html")
+    assert proc.returncode != 0
+    assert "no-such-page" in proc.stderr
 
 
 def _text(page: Path) -> str:

@@ -6,7 +6,7 @@ STAMP   := $(VENV)/.installed
 SCENE   ?= scenes/apple_orchard.toml
 OUT     ?= out
 
-.PHONY: demo test bench llvm test-tools bytecode clean
+.PHONY: demo test docs bench llvm test-tools bytecode clean
 
 # Dr.Jit needs libLLVM >= 17; Debian 12 ships libllvm19. The package's own finder
 # (simlidar_mi/_llvm.py, standard library only, so it runs before the venv exists)
@@ -69,8 +69,15 @@ demo: llvm $(STAMP) bytecode
 test: llvm test-tools $(STAMP) bytecode
 	$(VPY) -m pytest -q
 
+# The documentation (docs/, Sphinx + MyST) with its references generated from the code; any
+# warning (a broken page, reference or generated table) fails the build; -E reads every page
+# again, as an incremental build does not repeat the warnings of pages it did not re-read.
+docs: llvm $(STAMP) bytecode
+	$(VENV)/bin/sphinx-build -E -b html -W --keep-going docs docs/_build/html
+	@echo "docs in docs/_build/html/index.html"
+
 bench: llvm $(STAMP) bytecode
 	$(VPY) bench/run_all.py
 
 clean:
-	rm -rf $(VENV) $(OUT) build *.egg-info
+	rm -rf $(VENV) $(OUT) build docs/_build *.egg-info

@@ -25,29 +25,30 @@ MAX_DIVERGENCE_MRAD = 100.0
 
 SECTIONS: dict[str, dict[str, Key]] = {
     "scene": {
-        "name": Key(STR, "scene"),
+        "name": Key(STR, "scene", None, "the scene's name, shown in titles and file headers"),
         "seed": Key(INT, 0, nonneg, "master seed; every tree/plant gets a child stream"),
-        "representation": Key(STR, "mesh", one_of("mesh", "cylinder", "linearcurve")),
+        "representation": Key(STR, "mesh", one_of("mesh", "cylinder", "linearcurve"),
+                             "branch geometry: k-facet prism mesh, analytic cylinders or round curves"),
         "facets": Key(INT, 12, at_least(3), "prism facets k of the mesh representation"),
         "origin_m": Key(LIST, None, vec3, "float64 scene origin; default bbox centre"),
-        "variant": Key(STR, "llvm_ad_mono"),
+        "variant": Key(STR, "llvm_ad_mono", None, "Mitsuba variant (cuda_ad_mono on an NVIDIA GPU)"),
         "crs": Key(STR, None, _epsg, '"EPSG:<code>" of a projected CRS in metres that the scene '
                    "coordinates are in; written to points.las as an OGC WKT record"),
     },
     "orchard": {
-        "n_trees": Key(INT, 1, at_least(1)),
+        "n_trees": Key(INT, 1, at_least(1), "trees in the row"),
         "spacing_m": Key(FLOAT, 2.5, positive, "distance between trees along the row"),
         "row_x_m": Key(FLOAT, 3.0, _finite, "x of the tree row (the scanner looks along +x)"),
         "y_start_m": Key(FLOAT, 0.0, _finite, "y of the first tree"),
     },
     "orchard.tree": {
-        "iterations": Key(INT, 5, at_least(1)),
-        "angle_deg": Key(FLOAT, 20.0, _finite),
-        "rotation_deg": Key(FLOAT, 20.0, _finite),
-        "d_min_m": Key(FLOAT, 0.005, positive),
+        "iterations": Key(INT, 5, at_least(1), "L-system generations Ns (the paper studies 4-7)"),
+        "angle_deg": Key(FLOAT, 20.0, _finite, "turn of +/- about L"),
+        "rotation_deg": Key(FLOAT, 20.0, _finite, "turn of T/t (R/r) about U"),
+        "d_min_m": Key(FLOAT, 0.005, positive, "smallest branch diameter d_m (paper: 5, 6, 7 mm)"),
         "h0_m": Key(FLOAT, 0.4, positive, "trunk element length (order 1)"),
         "pruning": Key(BOOL, False, None, "remove the branches that descend in z"),
-        "stochastic": Key(BOOL, False),
+        "stochastic": Key(BOOL, False, None, "use the three-successor (stochastic) grammar"),
         "pruning_mode": Key(STR, "subtree", one_of("subtree", "segment"),
                             "subtree: a descending segment goes with everything growing from it; "
                             "segment: only the segment goes, its children float"),
@@ -88,17 +89,17 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "preview_max_trees": Key(INT, 300, at_least(1), "trees drawn in preview.png (a central strip)"),
     },
     "ground": {
-        "enabled": Key(BOOL, True),
-        "z_m": Key(FLOAT, 0.0, _finite),
+        "enabled": Key(BOOL, True, None, "a ground plane under the scene"),
+        "z_m": Key(FLOAT, 0.0, _finite, "height of the ground plane"),
     },
     "scan": {
         "x0_m": Key(FLOAT, 1.0, _finite, "scanner line x"),
         "z0_m": Key(FLOAT, 1.0, _finite, "scanner height"),
         "y_start_m": Key(FLOAT, None, _finite, "first beam-centre y; default min y of the scene"),
         "y_end_m": Key(FLOAT, None, _finite, "last y; default max y of the scene"),
-        "dy_m": Key(FLOAT, 0.002, positive),
+        "dy_m": Key(FLOAT, 0.002, positive, "tractor advance Δy between two sweeps"),
         "gap": Key(INT, 0, nonneg, "sweeps skipped between two recorded ones"),
-        "dtheta_deg": Key(FLOAT, 0.25, positive),
+        "dtheta_deg": Key(FLOAT, 0.25, positive, "angle step Δθ between two beams of a sweep"),
         "theta_min_deg": Key(FLOAT, None, _finite, "default −atan((z0 − ground z)/(x_near − x0)) (eq. 8)"),
         "theta_max_deg": Key(FLOAT, None, _finite, "default atan((max z − z0)/(x_near − x0)) (eq. 8)"),
         "theta_limits_side": Key(STR, "near", one_of("near", "far"),
@@ -121,7 +122,8 @@ SECTIONS: dict[str, dict[str, Key]] = {
     },
     # --- gap fraction (simlidar_mi.canopy.gapfraction); generators validate their own laws too
     "platform": {  # where the scanner is; "tractor" uses [scan]'s x0_m/z0_m/dy_m/dtheta_deg
-        "kind": Key(STR, "tractor", one_of("tractor", "static", "path", "airborne", "rotating", "rosette")),
+        "kind": Key(STR, "tractor", one_of("tractor", "static", "path", "airborne", "rotating", "rosette"),
+                    "the scanner's platform (the keys below say which kinds they apply to)"),
         "position_m": Key(LIST, None, vec3, "static/rotating/rosette: scanner position (z = mount height)"),
         "elevation_deg": Key(LIST, [-30.0, 60.0, 0.25], range3, "static/path: [min, max, step]"),
         "azimuth_deg": Key((int, float, list), 0.0, azimuth, "static: one angle (2D) or [start, stop, step] (3D)"),
@@ -143,7 +145,7 @@ SECTIONS: dict[str, dict[str, Key]] = {
                          "rotating/rosette along waypoints_m: required"),
         "pulse_rate_hz": Key(FLOAT, None, positive, "airborne (default 300000) and rosette (default "
                              "[sensor] pulse_rate_hz, else 100000): pulses per second"),
-        "pulses_per_line": Key(INT, 400, at_least(1)),
+        "pulses_per_line": Key(INT, 400, at_least(1), "airborne: pulses across one scan line"),
         "channels_deg": Key(LIST, [-15.0, 1.0, -13.0, 3.0, -11.0, 5.0, -9.0, 7.0, -7.0, 9.0, -5.0, 11.0, -3.0,
                                    13.0, -1.0, 15.0],
                             lambda v: None if v and _numbers(v) and all(-90 <= x <= 90 for x in v)
@@ -236,19 +238,20 @@ SECTIONS: dict[str, dict[str, Key]] = {
             isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
             for x in v) and v[0] <= v[1] else "must be [z_min, z_max], finite, z_min ≤ z_max (metres)",
             "leaf-centre heights, uniform"),
-        "angle_law": Key(STR, "spherical", one_of("horizontal", "vertical", "spherical")),
-        "shape": Key(STR, "square", one_of("square", "disc")),
+        "angle_law": Key(STR, "spherical", one_of("horizontal", "vertical", "spherical"),
+                          "leaf inclination law"),
+        "shape": Key(STR, "square", one_of("square", "disc"), "leaf outline"),
         "n_sides": Key(INT, 16, at_least(3), "polygon sides of a disc leaf"),
     },
     "strawberry": {
         "rows": Key(INT, 4, at_least(1), "rows run along x"),
-        "plants_per_row": Key(INT, 4, at_least(1)),
+        "plants_per_row": Key(INT, 4, at_least(1), "plants along each row"),
         "inter_row_m": Key(FLOAT, 0.268, positive, "Table 3: 0.268 ± 0.03 m"),
-        "inter_row_sd_m": Key(FLOAT, 0.03, nonneg),
+        "inter_row_sd_m": Key(FLOAT, 0.03, nonneg, "SD of the distance between rows"),
         "intra_row_m": Key(FLOAT, 0.227, positive, "Table 3: 0.227 ± 0.02 m"),
-        "intra_row_sd_m": Key(FLOAT, 0.02, nonneg),
+        "intra_row_sd_m": Key(FLOAT, 0.02, nonneg, "SD of the distance between plants of a row"),
         "leaves_per_plant_mean": Key(FLOAT, 42.0, positive, "Table 3: 42 ± 5"),
-        "leaves_per_plant_sd": Key(FLOAT, 5.0, nonneg),
+        "leaves_per_plant_sd": Key(FLOAT, 5.0, nonneg, "SD of the leaves per plant"),
         "base_height_m": Key(FLOAT, 0.0, nonneg, "petioles' start point above the ground"),
         "extraction_fractions": Key(LIST, None, lambda v: None if all(
             isinstance(x, (int, float)) and not isinstance(x, bool) and 0 <= x <= 1 for x in v)
@@ -262,19 +265,31 @@ SECTIONS: dict[str, dict[str, Key]] = {
             "~254-leaf canopy); excludes extraction_fractions"),
     },
     "strawberry.leaf": {  # StrawberryLeafParams; omitted keys keep the paper's Tables 1–3
-        **{k: Key(FLOAT, None, _finite) for k in (
-            "area_mean_m2", "area_sd_m2", "b_over_a_mean", "b_over_a_sd", "c_over_b_mean",
-            "c_over_b_sd", "p_over_a_mean", "p_over_a_sd", "lateral_area_ratio",
-            "lateral_b_over_a_factor", "lateral_c_over_b_factor", "alpha_mean_deg", "alpha_sd_deg",
-            "beta_mean_deg", "beta_sd_deg", "gamma_mean_deg", "gamma_sd_deg", "lambda_mean_deg",
-            "lambda_sd_deg", "theta_mean_deg", "theta_sd_deg", "phi_mean_deg", "phi_sd_deg")},
+        **{k: Key(FLOAT, None, _finite, doc) for k, doc in (
+            ("area_mean_m2", "central-leaflet area S, mean (Table 3)"), ("area_sd_m2", "its SD"),
+            ("b_over_a_mean", "central-leaflet length/width ratio, mean (Table 1)"), ("b_over_a_sd", "its SD"),
+            ("c_over_b_mean", "relative position of the axes' crossing along the midrib, from the "
+             "leaflet base, mean (Table 1)"), ("c_over_b_sd", "its SD"),
+            ("p_over_a_mean", "petiole length / central-leaflet width, mean (Table 1)"), ("p_over_a_sd", "its SD"),
+            ("lateral_area_ratio", "S'/S, lateral over central leaflet area (Table 1)"),
+            ("lateral_b_over_a_factor", "(b'/a')/(b/a) (Table 1)"),
+            ("lateral_c_over_b_factor", "(c'/b')/(c/b) (Table 1)"),
+            ("alpha_mean_deg", "central-leaflet midrib fold α, mean (Table 2)"), ("alpha_sd_deg", "its SD"),
+            ("beta_mean_deg", "lateral-leaflet midrib fold β, mean (Table 2)"), ("beta_sd_deg", "its SD"),
+            ("gamma_mean_deg", "lift γ of the lateral leaflets out of the leaf plane, mean (Table 2)"),
+            ("gamma_sd_deg", "its SD"),
+            ("lambda_mean_deg", "leaf-plane inclination λ to the horizontal, mean (Table 2)"),
+            ("lambda_sd_deg", "its SD"),
+            ("theta_mean_deg", "petiole angle θ, mean (Table 2)"), ("theta_sd_deg", "its SD"),
+            ("phi_mean_deg", "petiole angle φ, mean (Table 2)"), ("phi_sd_deg", "its SD"))},
         "petiole_zenith": Key(STR, None, one_of("phi", "theta"),
                               "which petiole angle is the zenith; the other is the divergence"),
     },
     "gapfraction": {
         "cameras": Key(LIST, ["orthographic", "perspective"], lambda v: None if v and all(
             x in ("orthographic", "perspective") for x in v) and len(set(v)) == len(v)
-            else "must be a non-empty list of distinct 'orthographic' / 'perspective'"),
+            else "must be a non-empty list of distinct 'orthographic' / 'perspective'",
+            "camera models rendered"),
         "zeniths_deg": Key(LIST, [0.0, 15.0, 30.0], lambda v: None if v and all(
             isinstance(x, (int, float)) and not isinstance(x, bool) and 0 <= x <= 80 for x in v)
             and len(set(v)) == len(v) else "must be a non-empty list of distinct angles in [0, 80] degrees",
@@ -313,20 +328,21 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "spp": Key(INT, 16, at_least(1), "samples per pixel of the photo (box filter)"),
         "max_depth": Key(INT, 3, at_least(1), "path length (2 = direct light only)"),
         "variant": Key(STR, "llvm_ad_rgb", lambda v: None if "rgb" in v.split("_")
-                       else "must be an RGB Mitsuba variant such as 'llvm_ad_rgb'"),
+                       else "must be an RGB Mitsuba variant such as 'llvm_ad_rgb'",
+                       "Mitsuba variant of the photo render"),
     },
 }
 # Sections that hold a list of tables ([[primitive]]).
 ARRAY_SECTIONS: dict[str, dict[str, Key]] = {
     "primitive": {
-        "type": Key(STR, None, one_of("cylinder", "box", "obj")),
-        "p0_m": Key(LIST, None, vec3),
-        "p1_m": Key(LIST, None, vec3),
-        "diameter_m": Key(FLOAT, None, positive),
-        "min_m": Key(LIST, None, vec3),
-        "max_m": Key(LIST, None, vec3),
-        "path": Key(STR, None),
-        "label": Key(STR, "wood", one_of("wood", "leaf")),
+        "type": Key(STR, None, one_of("cylinder", "box", "obj"), "shape of the primitive"),
+        "p0_m": Key(LIST, None, vec3, "cylinder: centre of one end"),
+        "p1_m": Key(LIST, None, vec3, "cylinder: centre of the other end"),
+        "diameter_m": Key(FLOAT, None, positive, "cylinder: diameter"),
+        "min_m": Key(LIST, None, vec3, "box: lowest corner"),
+        "max_m": Key(LIST, None, vec3, "box: highest corner"),
+        "path": Key(STR, None, None, "obj: Wavefront OBJ file (relative to the scene file)"),
+        "label": Key(STR, "wood", one_of("wood", "leaf"), "class of the hits on this shape"),
         "reflectance": Key(FLOAT, None, unit_interval, "this shape's reflectance in [0, 1] "
                            "(default: [materials] of its label)"),
     },

@@ -60,6 +60,7 @@ SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
 
 def safe_name(v):
+    """1-64 letters, digits, '_', '-' or '.', starting with a letter or digit (part of a file name)"""
     return None if SAFE_NAME.fullmatch(v) else (
         "becomes part of a file name, so it must be 1-64 letters, digits, '_', '-' or '.', "
         "starting with a letter or digit")

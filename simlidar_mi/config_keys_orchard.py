@@ -54,9 +54,9 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "petiole_angle_deg": Key(FLOAT, 45.0, lambda v: None if 0 <= v <= 180 else "must lie in [0, 180]",
                                  "petiole angle from the shoot axis"),
         "length_mean_m": Key(FLOAT, 0.085, positive, "blade length ℓ (truncated normal, ±2 SD)"),
-        "length_sd_m": Key(FLOAT, 0.015, nonneg),
+        "length_sd_m": Key(FLOAT, 0.015, nonneg, "SD of the blade length"),
         "width_ratio_mean": Key(FLOAT, 0.6, positive, "blade width / length (truncated normal, ±2 SD)"),
-        "width_ratio_sd": Key(FLOAT, 0.05, nonneg),
+        "width_ratio_sd": Key(FLOAT, 0.05, nonneg, "SD of the blade width / length"),
         "sides": Key(INT, 8, _even_sides, "blade = a fan of this many triangles (an inscribed "
                      "k-gon of the ℓ × w ellipse; area (k/8)·sin(2π/k)·ℓw, k = 8: 0.707·ℓw)"),
         "angle_distribution": Key((str, list), "spherical", _angle_law,

@@ -1,0 +1,290 @@
+"""The documentation (docs/) builds without a warning, its generated references hold everything the
+code holds, the scene-file schema describes every key, and every code block of its pages runs."""
+from __future__ import annotations
+
+import argparse
+import html
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
+import pytest
+
+from tests.conftest import REPO
+
+DOCS = REPO / "docs"
+sys.path.insert(0, str(DOCS / "_ext"))
+import simlidar_ref  # noqa: E402  (docs/_ext: the generator of the references)
+
+PAGES = sorted(p for p in DOCS.rglob("*.md") if "_build" not in p.parts)
+BOUND_S = 600  # stops a hung build or command; no assertion depends on time
+
+
+# --- (a) the build ------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def built(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("docs_html")
+    proc = _build(DOCS, out)
+    assert proc.returncode == 0, f"sphinx-build -W failed:\n{proc.stderr[-5000:]}"
+    assert "WARNING" not in proc.stderr, proc.stderr[-5000:]
+    return out
+
+
+def _build(src: Path, out: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "sphinx", "-b", "html", "-W", "--keep-going", "-E",
+                           "-q", "-d", str(out / ".doctrees"), str(src), str(out)],
+                          capture_output=True, text=True, timeout=BOUND_S)
+
+
+def test_a_broken_link_fails_the_build(tmp_path):
+    """-W works: a page linking to a page that does not exist fails the build, naming it."""
+    import shutil
+    src = tmp_path / "docs"
+    shutil.copytree(DOCS, src, ignore=shutil.ignore_patterns("_build"))
+    with open(src / "getting-started.md", "a") as f:
+        f.write("\nSee {doc}`no-such-page`.\n")
+    proc = _build(src, tmp_path / "html")
+    assert proc.returncode != 0
+    assert "no-such-page" in proc.stderr
+
+
+def _text(page: Path) -> str:
+    return html.unescape(page.read_text())
+
+
+def _section_text(page: str, ident: str) -> str:
+    """The text (tags removed: a literal's words are split into spans) from a section's id on."""
+    return html.unescape(re.sub(r"<[^>]+>", "", page[page.index(f'id="{ident}"'):]))
+
+
+def test_docs_build_without_warnings(built):
+    for page in PAGES:
+        rel = page.relative_to(DOCS).with_suffix(".html")
+        assert (built / rel).stat().st_size > 0, rel
+
+
+def test_scene_key_reference_lists_every_key(built):
+    """One table per section and one row per key of the schema, with its default and range."""
+    from simlidar_mi.config_keys import ARRAY_SECTIONS, SECTIONS
+    page = _text(built / "reference" / "scene-keys.html")
+    rows = simlidar_ref.key_rows()
+    assert len(rows) == sum(len(k) for k in (*SECTIONS.values(), *ARRAY_SECTIONS.values()))
+    n_tables = page.count("<table")
+    assert n_tables == len(SECTIONS) + len(ARRAY_SECTIONS)
+    assert page.count("<tr") - n_tables == len(rows)  # one header row per table
+    for section in (*SECTIONS, *ARRAY_SECTIONS):
+        assert f'id="keys-{section.replace(".", "-").replace("_", "-")}"' in page, section
+    # one key read through, every column: [sensor] max_returns
+    row = next(r for r in rows if (r.section, r.name) == ("sensor", "max_returns"))
+    assert (row.type, row.unit, row.default) == ("integer", "", "1")
+    assert row.range == "[1, 15] (LAS 1.4 holds return numbers 1-15)"
+    assert row.range in page and row.doc in page
+    speed = next(r for r in rows if (r.section, r.name) == ("platform", "speed_m_s"))
+    assert (speed.type, speed.unit, speed.default) == ("number", "m/s", "—")
+
+
+def test_cli_reference_lists_every_command_and_option(built):
+    from simlidar_mi.cli import COMMANDS, build_parser
+    page = (built / "reference" / "cli.html").read_text()
+    subs = simlidar_ref.subcommands(build_parser())
+    assert list(subs) == [name for name, *_ in COMMANDS]
+    for name, sub in subs.items():
+        assert f'id="cli-{name}"' in page, name
+        section = _section_text(page, f"cli-{name}")
+        for action in sub._actions:
+            if isinstance(action, argparse._HelpAction):  # -h, --help: in the usage line
+                continue
+            for opt in action.option_strings:
+                assert opt in section, (name, opt)
+            if action.help:
+                assert action.help in section, (name, action.dest)  # shown as written, not as markup
+
+
+def test_api_reference_documents_every_exported_name(built):
+    import simlidar_mi
+    page = (built / "reference" / "api.html").read_text()
+    missing = [n for n in simlidar_mi.__all__ if n != "__version__" and f'id="simlidar_mi.{n}"' not in page]
+    assert not missing
+
+
+def test_sensor_reference_shows_every_preset_value_and_source(built):
+    from simlidar_mi import sensor_presets as sp
+    page = (built / "reference" / "sensors.html").read_text()
+    for p in sp.BUILTIN.values():
+        assert f'id="preset-{p.name}"' in page
+        section = _section_text(page, f"preset-{p.name}")
+        for dotted, v in p.values().items():
+            assert dotted in section and sp._fmt(v.value) in section, (p.name, dotted)
+            assert p.sources.get(v.source, v.source) in section, (p.name, dotted)
+
+
+# --- (b) the schema describes every key ---------------------------------------------------
+def test_every_scene_key_has_a_description_unit_and_range():
+    assert simlidar_ref.problems() == []
+
+
+def test_schema_check_finds_what_a_key_lacks(monkeypatch):
+    """The check above can fail: an undocumented key, a quantity without a unit, a check whose
+    range cannot be read are each reported."""
+    from simlidar_mi import config_keys as ck
+    odd = lambda v: None if v != 3 else "is three"  # noqa: E731 - no 'must' complaint
+    n = 2
+    closes_over = lambda v: None if v != n else "must not be two"  # noqa: E731
+    monkeypatch.setitem(ck.SECTIONS, "extra", {
+        "height": ck.Key(ck.FLOAT, 1.0, ck.positive, "a height with no unit in its name"),
+        "count": ck.Key(ck.INT, 1, ck.at_least(1)),
+        "odd": ck.Key(ck.INT, 1, odd, "a check without words"),
+        "closure": ck.Key(ck.INT, 1, closes_over, "a check closing over an unknown value"),
+    })
+    found = simlidar_ref.problems()
+    assert found == [
+        "[extra] height: a number with no unit: end its name with the unit (_m, _deg, ...) or, if "
+        "it has none, add it to NO_UNIT",
+        "[extra] count: no description (Key's doc)",
+        "[extra] odd: check test_schema_check_finds_what_a_key_lacks.<locals>.<lambda> has no "
+        "docstring and no 'must ...' text",
+        "[extra] closure: check test_schema_check_finds_what_a_key_lacks.<locals>.<lambda> closes "
+        "over ['n']"]
+
+
+@pytest.mark.parametrize(("check", "text"), [
+    ("positive", "> 0"), ("nonneg", "≥ 0"), ("unit_interval", "in [0, 1]"),
+    ("at_least(3)", "≥ 3"), ("within(0, 100, 'why')", "[0, 100] (why)"),
+    ("one_of('a', 'b')", 'one of "a", "b"'), ("vec2", "a list of two numbers [x, y] in metres"),
+])
+def test_allowed_range_is_read_from_the_check(check, text):
+    from simlidar_mi import config_keys as ck
+    assert simlidar_ref.key_range(eval(check, vars(ck))) == text
+
+
+def test_unit_is_read_from_the_key_name():
+    assert [simlidar_ref.unit("s", k) for k in ("speed_m_s", "background_per_m2", "leaves_per_m",
+            "leaf_area_m2", "divergence_mrad", "fov_deg", "rotation_hz", "block_period_us",
+            "pulse_length_ns", "wavelength_nm", "x0_m", "duration_s", "n_trees")] == [
+        "m/s", "m⁻²", "m⁻¹", "m²", "mrad", "°", "Hz", "µs", "ns", "nm", "m", "s", ""]
+
+
+# --- (c) every code block of every page runs ----------------------------------------------
+def _sybil():
+    from sybil import Sybil
+    from sybil.parsers.myst import CodeBlockParser, PythonCodeBlockParser, SkipParser
+
+    class ShellBlock(CodeBlockParser):
+        """A ```sh block, run by bash in the page's scratch clone, after the page's earlier blocks
+        (their exported environment carries over, as in one terminal)."""
+
+        language = "sh"
+
+        def evaluate(self, example):
+            ns = example.namespace
+            env_file = ns["_env_file"]
+            script = (f'set -e\nsource "{env_file}"\n{SHELL_PRELUDE}\n{example.parsed}\n'
+                      f'export -p > "{env_file}"\n')
+            proc = subprocess.run(["bash", "-c", script], cwd=ns["_clone"], env=ns["_env"],
+                                  capture_output=True, text=True, timeout=BOUND_S)
+            if proc.returncode != 0 or "Traceback" in proc.stderr:
+                return (f"exit {proc.returncode}\nstdout: {proc.stdout[-2000:]}\n"
+                        f"stderr: {proc.stderr[-3000:]}")
+            return None
+
+    class TomlBlock(CodeBlockParser):
+        """A ```toml block: valid TOML; one whose first line names a file (``# sensors/x.toml``)
+        is written there in the page's scratch clone, for the blocks after it to use."""
+
+        language = "toml"
+
+        def evaluate(self, example):
+            tomllib.loads(example.parsed)
+            m = re.match(r"#\s*(\S+\.toml)\s*$", example.parsed.splitlines()[0])
+            if m:
+                clone = example.namespace["_clone"]
+                path = clone / m.group(1)
+                # scenes/ and examples/ are links to the repository: never write through them
+                assert path.resolve().is_relative_to(clone.resolve()), \
+                    f"{m.group(1)}: a page writes only into its scratch clone"
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_text(example.parsed)
+            return None
+
+    return Sybil(parsers=[PythonCodeBlockParser(), ShellBlock(), TomlBlock(), SkipParser()])
+
+
+# `make` lines install and run for minutes: they run as a dry run (`make -n`) of this repository's
+# Makefile, which checks that each target exists and its recipe expands.
+SHELL_PRELUDE = f'make() {{ command make -n -C "{REPO}" "$@" >/dev/null; }}'
+
+
+def _clone(tmp_path: Path) -> tuple[Path, dict]:
+    """A scratch clone as `make` leaves it: scenes/ and examples/ linked, and a .venv whose bin/
+    holds `simlidar-mi`, `python` and `activate` for this interpreter. `simlidar-mi` is not on
+    PATH until a block activates .venv or calls .venv/bin/simlidar-mi, as for a new user."""
+    clone = tmp_path / "clone"
+    bin_ = clone / ".venv" / "bin"
+    bin_.mkdir(parents=True)
+    for name in ("scenes", "examples"):
+        (clone / name).symlink_to(REPO / name)
+    shims = {"simlidar-mi": f'exec "{sys.executable}" -m simlidar_mi.cli "$@"',
+             "python": f'exec "{sys.executable}" "$@"'}
+    for name, body in shims.items():
+        (bin_ / name).write_text(f"#!/bin/sh\n{body}\n")
+        (bin_ / name).chmod(0o755)
+    (bin_ / "activate").write_text(f'export VIRTUAL_ENV="{clone / ".venv"}"\n'
+                                   'export PATH="$VIRTUAL_ENV/bin:$PATH"\n')
+    path = [d for d in os.environ["PATH"].split(os.pathsep) if d and not (Path(d) / "simlidar-mi").exists()]
+    return clone, dict(os.environ, PATH=os.pathsep.join(path))
+
+
+def _fences(text: str) -> list[tuple[str, int, int]]:
+    """Each fenced block of a page: its language (a MyST directive's is '{name}') and its first
+    and last line (1-based)."""
+    blocks, inside = [], None
+    for i, line in enumerate(text.splitlines(), 1):
+        m = re.match(r"^(`{3,})(.*)$", line.strip())
+        if not m:
+            continue
+        if inside is None:
+            inside = (m.group(1), m.group(2).strip().split(" ")[0], i)
+        elif m.group(1) == inside[0] and not m.group(2).strip():
+            blocks.append((inside[1], inside[2], i))
+            inside = None
+    return blocks
+
+
+RUN = ("python", "sh", "toml")  # the languages _sybil() runs
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(DOCS)))
+def test_page_code_blocks_run(page, tmp_path, monkeypatch):
+    blocks = _fences(page.read_text())
+    unknown = [b for b in blocks if not b[0].startswith("{") and b[0] not in RUN]
+    assert not unknown, f"{page.name}: blocks {unknown} have no runner here (add one, or use {RUN})"
+    document = _sybil().parse(page)
+    examples = list(document.examples())
+    for lang, first, last in blocks:  # every python/sh block is run (a doctest block: each example)
+        assert lang.startswith("{") or any(first <= e.line <= last for e in examples), (page.name, first)
+    clone, env = _clone(tmp_path)
+    env_file = tmp_path / "env.sh"
+    env_file.write_text("")
+    document.namespace.update(_clone=clone, _env=env, _env_file=env_file)
+    monkeypatch.chdir(clone)  # Python blocks read scenes/ and write out/ where the shell ones do
+    for example in examples:
+        example.evaluate()
+
+
+def test_shell_blocks_fail_where_a_new_user_would(tmp_path):
+    """The runner is strict: a bare `simlidar-mi` before .venv is activated fails, as it does in a
+    new shell after `make demo`; a make target that does not exist fails."""
+    clone, env = _clone(tmp_path)
+    for line, ok in (("simlidar-mi --version", False), (".venv/bin/simlidar-mi --version", True),
+                     ("source .venv/bin/activate && simlidar-mi --version", True),
+                     ("make demo", True), ("make no-such-target", False)):
+        proc = subprocess.run(["bash", "-c", f"set -e\n{SHELL_PRELUDE}\n{line}"], cwd=clone, env=env,
+                              capture_output=True, text=True, timeout=BOUND_S)
+        assert (proc.returncode == 0) is ok, (line, proc.stderr)

@@ -46,7 +46,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from .._progress import bar
+from .._progress import bar, make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
@@ -448,6 +448,9 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     protos: dict[tuple[int, int], RandomTree] = {}    # (species, k) → prototype, wood scaled
     proto_scale: dict[tuple[int, int], float] = {}
     n_grown = [0]
+    # one progress stage for all the batches the thinning asks for
+    stage = make_progress(progress).stage("trees" if not params.instancing else "prototypes",
+                                          unit="tree")
 
     def proto_of(i: np.ndarray) -> np.ndarray:
         """Prototype k of a species' candidates (arrival index i): blocks of trees_per_prototype
@@ -465,8 +468,9 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
         seeds = np.array([tree_seed(seed, j, int(i)) for i in idx], np.int64)
         if not params.instancing:
             for i, t in zip(idx, _grow(params, np.full(len(idx), j), seeds, np.zeros(len(idx), np.int64),
-                                       progress, "trees")):
+                                       False, "trees")):
                 trees[(j, int(i))] = t
+            stage.update(len(idx))
             t_grow += time.perf_counter() - t0
             return np.array([trees[(j, int(i))].crown_radius_m for i in idx])
         ks = sorted({int(k) for k in proto_of(idx)} - {k for (jj, k) in protos if jj == j})
@@ -474,9 +478,10 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
             sc = [1.0 if whole else prototype_scale(seed, j, k, (lo, hi)) for k in ks]
             grown = _grow(params, np.full(len(ks), j), np.array([prototype_seed(seed, j, k) for k in ks],
                                                                   np.int64), np.zeros(len(ks), np.int64),
-                          progress, "prototypes")
+                          False, "prototypes")
             for k, t, s_ in zip(ks, grown, sc):
                 protos[(j, k)], proto_scale[(j, k)] = t.wood_scaled(s_), s_
+            stage.update(len(ks))
         r = np.array([protos[(j, int(k))].crown_radius_m for k in proto_of(idx)])
         if whole:   # each tree's scale comes from its own seed (after its yaw)
             r = r * np.array([_yaw_scale(int(s_), lo, hi)[1] for s_ in seeds])
@@ -525,6 +530,7 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
         info["n_trees_grown"] = len(trees)
         prototype = np.full(n, -1, np.int32)
         yaw, scale = np.zeros(n), np.ones(n)
+    stage.close()
     seconds["grow"] = t_grow + time.perf_counter() - t0
     return Forest(params, seed, placement, seeds, prototype, yaw, scale, protos_used, proto_sp,
                   proto_seed, placed, seconds=seconds, info=info)

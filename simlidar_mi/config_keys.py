@@ -64,8 +64,8 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "prototypes_per_species": Key((int, str), "auto", lambda v: None if v == "auto" or (
                                       isinstance(v, int) and 1 <= v <= 1000)
                                       else "must be 'auto' or a whole number in [1, 1000]",
-                                      "K distinct trees per species; auto: ceil(Poisson points / "
-                                      "trees_per_prototype)"),
+                                      "K distinct trees per species (candidate i places i mod K); "
+                                      "auto: candidate i places i // trees_per_prototype"),
         "trees_per_prototype": Key(INT, 5, at_least(1), "most trees placed per prototype (auto K)"),
         "scale_range": Key(LIST, [1.0, 1.0], lambda v: None if _numbers(v, 2) and 0 < v[0] <= v[1]
                            else "must be [min, max] with 0 < min ≤ max",

@@ -88,9 +88,9 @@ class ForestParams:
     species : at least one, distinct names.
     min_distance_m : minimum distance between any two trees (0: no thinning).
     instancing : prototypes + per-tree transforms (true) or one draw per tree (false).
-    prototypes_per_species : K, or ``"auto"``: ``ceil(Poisson points of the species /
-        trees_per_prototype)``, so no prototype is placed more than
-        ``trees_per_prototype`` times.
+    prototypes_per_species : K (candidate i of a species places prototype ``i mod K``), or
+        ``"auto"``: candidate i places prototype ``i // trees_per_prototype``, so no
+        prototype is placed more than ``trees_per_prototype`` times.
     scale_range : ``(min, max)`` of the uniform scale of instanced trees (``(1, 1)``:
         none; every placed tree is then a tree the species' laws drew).
     max_trees : refuse placements with more trees.

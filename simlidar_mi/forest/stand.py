@@ -444,8 +444,11 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     whole = params.scale_mode == "whole-tree"
     tpp = params.trees_per_prototype
     fixed_k = None if params.prototypes_per_species == "auto" else int(params.prototypes_per_species)
-    trees: dict[tuple[int, int], RandomTree] = {}     # (species, candidate) → tree (no instancing)
-    protos: dict[tuple[int, int], RandomTree] = {}    # (species, k) → prototype, wood scaled
+    # only crown radii are kept while thinning (the grown candidates of a 300 m stand are
+    # 2886 prototypes, 7.8 GB); the kept trees and used prototypes are grown again after it,
+    # from the same seeds, so they are the same bytes
+    tree_r: dict[tuple[int, int], float] = {}      # (species, candidate) → crown radius (no instancing)
+    proto_r: dict[tuple[int, int], float] = {}     # (species, k) → prototype crown radius, wood scaled
     proto_scale: dict[tuple[int, int], float] = {}
     n_grown = [0]
     # one progress stage for all the batches the thinning asks for
@@ -457,6 +460,23 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
         ("auto": no prototype serves more), or i mod K; arrival order is already random."""
         return i // tpp if fixed_k is None else i % fixed_k
 
+    def grow_trees(j: int, idx) -> list[RandomTree]:
+        """Candidates ``idx`` of species ``j``, each grown from its own seed."""
+        seeds = np.array([tree_seed(seed, j, int(i)) for i in idx], np.int64)
+        out = _grow(params, np.full(len(idx), j), seeds, np.zeros(len(idx), np.int64), False, "trees")
+        stage.update(len(idx))
+        return out
+
+    def grow_protos(j: int, ks) -> list[RandomTree]:
+        """Prototypes ``ks`` of species ``j``, wood scaled (their scale noted)."""
+        sc = [1.0 if whole else prototype_scale(seed, j, k, (lo, hi)) for k in ks]
+        grown = _grow(params, np.full(len(ks), j), np.array([prototype_seed(seed, j, k) for k in ks],
+                                                              np.int64), np.zeros(len(ks), np.int64),
+                      False, "prototypes")
+        proto_scale.update({(j, k): s_ for k, s_ in zip(ks, sc)})
+        stage.update(len(ks))
+        return [t.wood_scaled(s_) for t, s_ in zip(grown, sc)]
+
     def crown(x, y, j: int, idx: np.ndarray) -> np.ndarray:
         """The crown radii of candidates ``idx`` of species ``j``, growing what they need."""
         nonlocal t_grow
@@ -465,26 +485,15 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
         if n_grown[0] > params.max_trees * 4 + 1000:   # growing candidates costs memory; refuse early
             raise ConfigError(f"the Poisson processes drew {n_grown[0]} trees, far more than "
                               "forest.max_trees", key="forest.max_trees", value=params.max_trees)
-        seeds = np.array([tree_seed(seed, j, int(i)) for i in idx], np.int64)
         if not params.instancing:
-            for i, t in zip(idx, _grow(params, np.full(len(idx), j), seeds, np.zeros(len(idx), np.int64),
-                                       False, "trees")):
-                trees[(j, int(i))] = t
-            stage.update(len(idx))
+            tree_r.update({(j, int(i)): t.crown_radius_m for i, t in zip(idx, grow_trees(j, idx))})
             t_grow += time.perf_counter() - t0
-            return np.array([trees[(j, int(i))].crown_radius_m for i in idx])
-        ks = sorted({int(k) for k in proto_of(idx)} - {k for (jj, k) in protos if jj == j})
-        if ks:
-            sc = [1.0 if whole else prototype_scale(seed, j, k, (lo, hi)) for k in ks]
-            grown = _grow(params, np.full(len(ks), j), np.array([prototype_seed(seed, j, k) for k in ks],
-                                                                  np.int64), np.zeros(len(ks), np.int64),
-                          False, "prototypes")
-            for k, t, s_ in zip(ks, grown, sc):
-                protos[(j, k)], proto_scale[(j, k)] = t.wood_scaled(s_), s_
-            stage.update(len(ks))
-        r = np.array([protos[(j, int(k))].crown_radius_m for k in proto_of(idx)])
+            return np.array([tree_r[(j, int(i))] for i in idx])
+        ks = sorted({int(k) for k in proto_of(idx)} - {k for (jj, k) in proto_r if jj == j})
+        proto_r.update({(j, k): t.crown_radius_m for k, t in zip(ks, grow_protos(j, ks))})
+        r = np.array([proto_r[(j, int(k))] for k in proto_of(idx)])
         if whole:   # each tree's scale comes from its own seed (after its yaw)
-            r = r * np.array([_yaw_scale(int(s_), lo, hi)[1] for s_ in seeds])
+            r = r * np.array([_yaw_scale(tree_seed(seed, j, int(i)), lo, hi)[1] for i in idx])
         t_grow += time.perf_counter() - t0
         return r
 
@@ -512,22 +521,26 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
         used = sorted(set(keys))
         where = {key: m for m, key in enumerate(used)}
         prototype = np.array([where[key] for key in keys], np.int32)
-        protos_used = tuple(_with_tree_id(protos[key], m) for m, key in enumerate(used))
+        grown = {}
+        for j in sorted({j for j, _ in used}):
+            ks = [k for jj, k in used if jj == j]
+            grown.update({(j, k): t for k, t in zip(ks, grow_protos(j, ks))})
+        protos_used = tuple(_with_tree_id(grown[key], m) for m, key in enumerate(used))
         proto_sp = np.array([j for j, _ in used], np.int32)
         proto_seed = np.array([prototype_seed(seed, j, k) for j, k in used], np.int64)
-        info["n_prototypes_grown"] = len(protos)
+        info["n_prototypes_grown"] = len(proto_r)
         ys = [_yaw_scale(int(s_), lo, hi) for s_ in seeds]
         yaw = np.array([a for a, _ in ys], np.float64)
         scale = np.array([b if whole else proto_scale[key] for (_, b), key in zip(ys, keys)], np.float64)
         placed = None
     else:
         proto_sp, proto_seed, protos_used = np.zeros(0, np.int32), np.zeros(0, np.int64), ()
-        missing = [m for m in range(n) if (int(sp[m]), int(cand[m])) not in trees]
-        if missing:   # no crown rule: only the kept trees are grown
-            for j in np.unique(sp[missing]):
-                crown(None, None, int(j), cand[missing][sp[missing] == j])
-        placed = tuple(_with_tree_id(trees[(int(j), int(c))], i) for i, (j, c) in enumerate(zip(sp, cand)))
-        info["n_trees_grown"] = len(trees)
+        grown = {}
+        for j in np.unique(sp):
+            idx = cand[sp == j]
+            grown.update({(int(j), int(i)): t for i, t in zip(idx, grow_trees(int(j), idx))})
+        placed = tuple(_with_tree_id(grown[(int(j), int(c))], i) for i, (j, c) in enumerate(zip(sp, cand)))
+        info["n_trees_grown"] = len(tree_r) or n
         prototype = np.full(n, -1, np.int32)
         yaw, scale = np.zeros(n), np.ones(n)
     stage.close()

@@ -345,14 +345,17 @@ def _forest_run(args: argparse.Namespace) -> int:
 
     run = run_forest(args.scene, args.out, args.overrides, progress=True)
     s = run.summary
-    print(f"{s['n_trees']} trees ({s['removed_by_min_distance']} removed by the "
+    print(f"{s['n_trees']} trees ({s['removed_by_thinning']} candidates removed by the "
           f"{s['min_distance_m']:g} m distance and crown_factor {s['crown_factor']:g} rules; "
           f"{100 * s['crown_overlap_share']:.1f} % with a neighbour's trunk in their crown), "
           f"{s['n_branches']} branches, {s['n_leaves']} leaves; "
           f"instancing {'on: ' + str(s['n_prototypes']) + ' prototypes' if s['instancing'] else 'off'}")
     for sp in s["species"]:
-        print(f"  {sp['name']:<16} {sp['count']:>7} trees  (expected {sp['expected_before_thinning']:.1f} "
-              f"before thinning, {sp['count_before_thinning']} drawn, {sp['removed_by_min_distance']} removed)")
+        short = "" if sp["count_reached"] else f"; SHORT of its target {sp['target_count']}"
+        print(f"  {sp['name']:<16} {sp['count']:>7} trees, {sp['density_per_ha']:.2f}/ha  (requested "
+              f"{sp['requested_count']:.1f}, {sp['requested_density_per_ha']:.2f}/ha, as the "
+              f"{sp['count_mode']} count; {sp['candidates_drawn']} candidates drawn at "
+              f"{sp['candidate_factor']:.2f}×λ, {sp['removed_by_thinning']} removed{short})")
     print(f"leaf table: {s['leaf_table']}, export: {s['export']}; seconds: "
           + ", ".join(f"{k} {v:.2f}" for k, v in s["seconds"].items()))
     for path in run.files.values():

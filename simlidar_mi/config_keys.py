@@ -65,8 +65,8 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "prototypes_per_species": Key((int, str), "auto", lambda v: None if v == "auto" or (
                                       isinstance(v, int) and 1 <= v <= 1000)
                                       else "must be 'auto' or a whole number in [1, 1000]",
-                                      "K distinct trees per species; auto: ceil(Poisson points / "
-                                      "trees_per_prototype)"),
+                                      "K distinct trees per species (candidate i places i mod K); "
+                                      "auto: candidate i places i // trees_per_prototype"),
         "trees_per_prototype": Key(INT, 5, at_least(1), "most trees placed per prototype (auto K)"),
         "scale_range": Key(LIST, [1.0, 1.0], lambda v: None if _numbers(v, 2) and 0 < v[0] <= v[1]
                            else "must be [min, max] with 0 < min ≤ max",
@@ -75,6 +75,10 @@ SECTIONS: dict[str, dict[str, Key]] = {
                           "wood: one scale per prototype, wood only, leaves keep their size; "
                           "whole-tree: one per tree, leaves scaled too (earlier behaviour)"),
         "crown_factor": Key(FLOAT, 0.65, nonneg, "k of the crown rule d_ij ≥ k·(r_i + r_j); 0: none"),
+        "max_candidate_factor": Key(FLOAT, 20.0, within(1, 1000),
+                                    "(×, 1–1000) a [[species]] with count = 'stand' draws Poisson "
+                                    "candidates up to this multiple of its intensity λ; if the thinning "
+                                    "still keeps too few, forest.json reports the shortfall"),
         "max_trees": Key(INT, 100_000, at_least(1), "refuse forests with more trees", knob=True),
         "leaf_table": Key(STR, "auto", one_of("auto", "all", "prototypes", "none"),
                           "auto: 'all' up to leaf_table_max_rows leaves, else 'prototypes' (instancing) or 'all'"),
@@ -355,6 +359,21 @@ ARRAY_SECTIONS: dict[str, dict[str, Key]] = {
                      "must be a list of tables {C_per_m2, x0_m, y0_m, h_m2, l_m2}",
                      "squared-exponential intensity terms C·exp(−[(x−x0)²/h + (y−y0)²/l])"),
         "background_per_m2": Key(FLOAT, 0.0, nonneg, "constant intensity added everywhere"),
+        "count": Key(STR, "auto", one_of("auto", "poisson", "stand"),
+                     "what ∫λ (trees) counts: 'poisson', the Poisson points before the thinning (the "
+                     "paper's reading); 'stand', the trees of the final stand (C solved after the "
+                     "thinning: candidates drawn until a Poisson(∫λ) target is kept); 'auto': 'stand' "
+                     "when forest.crown_factor > 0, else 'poisson'"),
+        "leaf_length_tree_cv": Key(FLOAT, None, within(0, 0.3),
+                                   "(1, 0–0.3; default: the preset's) between-tree coefficient of "
+                                   "variation of a tree's mean leaf length: each tree draws a factor "
+                                   "f ~ N(1, cv²) cut to 1 ± 3cv and its leaves draw f × leaf_length_m"),
+        "n_daughters_tree_cv": Key(FLOAT, None, within(0, 0.3),
+                                   "(1, 0–0.3; default: the preset's) the same for a tree's mean number "
+                                   "of daughter branches (per-branch counts f × draw, rounded at random)"),
+        "leaves_per_branch_tree_cv": Key(FLOAT, None, within(0, 0.3),
+                                         "(1, 0–0.3; default: the preset's) the same for a tree's mean "
+                                         "number of leaves per leaf-bearing branch"),
         "tree": Key((dict,), None, None, "overrides of the preset's laws and constants"),
     },
 }

@@ -19,7 +19,9 @@ from simlidar_mi.forest.params import (CROWN_FACTOR, ForestParams, ForestSpecies
 from simlidar_mi.forest.run import run_forest
 from simlidar_mi.forest.stand import make_forest, place_tree
 from simlidar_mi.io.mesh_export import PART_LEAVES, PART_WOOD, read_obj, read_ply
-from simlidar_mi.forest.placement import Bump, Domain, SpeciesIntensity, crown_overlap_share, place_trees
+from simlidar_mi.forest.placement import (Bump, Domain, SpeciesIntensity, candidate_points, crown_overlap_share,
+                                          expected_count,
+                                          place_trees)
 from simlidar_mi.plants.random_tree import random_tree
 from simlidar_mi.plants.tree_params import species_preset
 
@@ -72,10 +74,11 @@ def world_max_z(forest, i: int) -> float:
 
 
 def candidates(f):
-    """All Poisson points of forest f (no thinning): the same streams as make_forest."""
+    """The candidates forest f drew, per species in arrival order: the same streams as make_forest."""
     p = f.params
-    return place_trees([s.intensity for s in p.species], p.domain, 0.0,
-                       np.random.default_rng(np.random.SeedSequence(f.seed, spawn_key=(0,))))
+    return candidate_points([s.intensity for s in p.species], p.domain,
+                            np.random.default_rng(np.random.SeedSequence(f.seed, spawn_key=(0,))),
+                            f.placement.count_before)
 
 
 @pytest.mark.parametrize("run", ["full_run", "inst_run"])
@@ -86,10 +89,10 @@ def test_placement_keeps_the_distance_and_crown_rules(run, request):
     assert p.crown_factor == CROWN_FACTOR == 0.65 and p.min_distance_m == 3.0
     cand = candidates(f)
     c = f.placement.candidate
-    # the kept trees are Poisson points, counted per species before and after the thinning
-    np.testing.assert_array_equal(f.x_m, cand.x_m[c])
-    np.testing.assert_array_equal(f.species, cand.species[c])
-    np.testing.assert_array_equal(f.placement.count_before, cand.count_before)
+    # the kept trees are candidates of their species, counted per species before and after
+    for j, (x, y, _) in enumerate(cand):
+        np.testing.assert_array_equal(f.x_m[f.species == j], x[c[f.species == j]])
+        np.testing.assert_array_equal(f.y_m[f.species == j], y[c[f.species == j]])
     counts = np.bincount(f.species, minlength=len(p.species))
     np.testing.assert_array_equal(f.placement.count_before - f.placement.removed, counts)
     assert f.placement.removed.sum() > 0               # the rules did something here
@@ -109,8 +112,17 @@ def test_placement_keeps_the_distance_and_crown_rules(run, request):
     assert (f.x_m >= d.x_min_m).all() and (f.x_m <= d.x_max_m).all()
     s = r.summary
     assert [sp["count"] for sp in s["species"]] == counts.tolist()
-    assert [sp["removed_by_min_distance"] for sp in s["species"]] == f.placement.removed.tolist()
-    assert s["removed_by_min_distance"] == int(f.placement.removed.sum())
+    assert [sp["removed_by_thinning"] for sp in s["species"]] == f.placement.removed.tolist()
+    # requested against obtained, per species: the scene's ∫λ counts the final stand here
+    ha = d.area_m2 / 1e4
+    for j, sp in enumerate(s["species"]):
+        assert sp["count_mode"] == "stand" and sp["requested_count"] == pytest.approx(
+            expected_count(p.species[j].intensity, d), rel=1e-12)
+        assert sp["density_per_ha"] == pytest.approx(sp["count"] / ha)
+        assert sp["requested_density_per_ha"] == pytest.approx(sp["requested_count"] / ha)
+        assert sp["count"] == sp["target_count"] or not sp["count_reached"]
+        assert sp["candidates_drawn"] == sp["count"] + sp["removed_by_thinning"]
+    assert s["removed_by_thinning"] == int(f.placement.removed.sum())
 
 
 def test_without_the_crown_rule_crowns_overlap_as_before(full_run):
@@ -121,7 +133,8 @@ def test_without_the_crown_rule_crowns_overlap_as_before(full_run):
                          np.random.default_rng(np.random.SeedSequence(f0.seed, spawn_key=(0,))))
     np.testing.assert_array_equal(f0.x_m, direct.x_m)
     np.testing.assert_array_equal(f0.species, direct.species)
-    assert len(f0) > len(full_run[0].forest)
+    assert f0.placement.count_mode == ("poisson",) * 4    # auto: no crown rule, the paper's count
+    assert full_run[0].forest.placement.count_mode == ("stand",) * 4
     assert crown_overlap_share(f0.x_m, f0.y_m, f0.crown_radius_m) >= 0.3
 
 
@@ -163,7 +176,7 @@ def test_trees_csv_matches_the_geometry(run, request):
         assert int(row["n_leaves"]) == len(f.tree_leaf_table(i)) == len(np.unique(lv.leaf_id))
         # the seed grows the placed geometry: the tree's own, or its prototype's
         seed = (f.prototype_seed[f.prototype[i]]
-                if f.instancing else tree_seed(f.seed, f.placement.candidate[i]))
+                if f.instancing else tree_seed(f.seed, f.species[i], f.placement.candidate[i]))
         assert int(row["seed"]) == seed
         assert int(row["prototype"]) == f.prototype[i]
         assert float(row["scale"]) == pytest.approx(f.scale[i], abs=1e-8)
@@ -184,7 +197,7 @@ def test_each_tree_is_rebuilt_from_its_own_seed(full_run):
         params = f.params.species[f.species[i]].tree
         again = random_tree(params, int(f.tree_seed[i]), tree_id=i)
         mine = f.trees[i]
-        assert int(f.tree_seed[i]) == tree_seed(f.seed, f.placement.candidate[i])
+        assert int(f.tree_seed[i]) == tree_seed(f.seed, f.species[i], f.placement.candidate[i])
         assert again.branches.p1.tobytes() == mine.branches.p1.tobytes()
         assert again.leaves.vertices.tobytes() == mine.leaves.vertices.tobytes()
         assert mine.leaf_table.tree_id.tolist() == [i] * mine.n_leaves
@@ -219,9 +232,12 @@ def test_instances_are_their_prototypes_placed(inst_run):
     f = inst_run[0].forest
     p = f.params
     assert p.prototypes_per_species == "auto" and p.trees_per_prototype == 2
-    # K = ceil(Poisson points / 2) per species were grown; the unused ones dropped
-    grown = int(sum(-(-n // 2) for n in f.placement.count_before))
-    assert f.info["n_prototypes_grown"] == grown >= len(f.prototypes)
+    # candidate i of a species places its prototype i // 2; prototypes grown for candidates
+    # no kept tree came from are dropped
+    assert f.info["n_prototypes_grown"] >= len(f.prototypes)
+    for i in range(len(f)):
+        assert f.prototype_seed[f.prototype[i]] == prototype_seed(f.seed, f.species[i],
+                                                                  f.placement.candidate[i] // 2)
     uses = np.bincount(f.prototype, minlength=len(f.prototypes))
     assert uses.min() >= 1 and uses.max() <= 2
     np.testing.assert_array_equal(f.prototype_species[f.prototype], f.species)
@@ -473,11 +489,37 @@ def scene(forest="", preset="deciduous-apex", bump=GOOD_BUMP, tree=""):
     (scene(forest="prototypes_per_species = 0"), "forest.prototypes_per_species", "0"),
     (scene(forest="trees_per_prototype = 0"), "forest.trees_per_prototype", "0"),
     (scene(forest='scale_mode = "leaves"'), "forest.scale_mode", "'leaves'"),
+    (scene(tree='count = "final"'), "species[0].count", "'final'"),
+    (scene(tree="leaf_length_tree_cv = 0.5"), "species[0].leaf_length_tree_cv", "0.5"),
+    (scene(tree="n_daughters_tree_cv = -0.1"), "species[0].n_daughters_tree_cv", "-0.1"),
+    (scene(forest="max_candidate_factor = 0.5"), "forest.max_candidate_factor", "0.5"),
 ])
 def test_bad_scene_values_name_key_and_value(text, key, value):
     with pytest.raises(ConfigError, match=re.escape(f"key '{key}', value ") + value) as exc:
         make_forest(load_scene(text=text))
     assert exc.value.key == key and exc.value.file == "<scene>"
+
+
+def test_species_count_mode_and_tree_spreads_come_from_the_scene():
+    p = forest_params_from_scene(load_scene(text=scene(tree='count = "poisson"\nleaves_per_branch_tree_cv = 0.2')))
+    t = p.species[0].tree
+    assert p.species[0].count == "poisson" and t.leaves_per_branch_tree_cv == 0.2
+    assert (t.leaf_length_tree_cv, t.n_daughters_tree_cv) == (0.10, 0.05)     # the preset's
+    assert forest_params_from_scene(load_scene(text=scene())).species[0].count == "auto"
+
+
+def test_adding_a_species_does_not_change_the_trees_of_the_others():
+    """Each candidate's tree grows from its own SeedSequence (1, species, candidate)."""
+    sp = [ForestSpecies(n, species_preset("small-tree"),
+                        SpeciesIntensity(n, [Bump(0.02, 10, 10, 40, 40)]), count="poisson")
+          for n in ("a", "b")]
+    one = make_forest(ForestParams(Domain(0, 20, 0, 20), sp[:1], 0.0, False, crown_factor=0.0), seed=3)
+    two = make_forest(ForestParams(Domain(0, 20, 0, 20), sp, 0.0, False, crown_factor=0.0), seed=3)
+    a = two.species == 0
+    assert len(one) == int(a.sum()) > 0 and (two.species == 1).any()
+    np.testing.assert_array_equal(one.tree_seed, two.tree_seed[a])
+    for i, k in enumerate(np.flatnonzero(a)):
+        assert one.trees[i].leaves.vertices.tobytes() == two.trees[k].leaves.vertices.tobytes()
 
 
 def test_a_forest_needs_species():

@@ -211,3 +211,75 @@ def test_bad_parameters_name_key_and_value(make, key, value):
     v = exc.value.value
     assert v == value or (isinstance(v, float) and math.isnan(v) and math.isnan(value))
     assert key in str(exc.value)
+
+
+# --- what the intensity counts: the Poisson points (the paper's reading) or the final stand ---
+
+def crowns(x, y, j, idx):
+    """Crown radii by species (oak 3.5 m, pine 2.5 m) for the crown rule."""
+    return np.full(len(idx), (3.5, 2.5)[j])
+
+
+@pytest.fixture(scope="module")
+def crowned():
+    """The crown-aware thinning (k = 0.65) over many seeds, in both count modes."""
+    return {mode: [place_trees(SPECIES, DOMAIN, 2.0, np.random.default_rng(20_000 + s),
+                               crown_radius=crowns, crown_factor=0.65, count=mode)
+                   for s in range(N_SEEDS)] for mode in ("poisson", "stand")}
+
+
+def test_stand_count_is_the_requested_poisson_count_after_crown_thinning(crowned):
+    mu = expected_count(SPECIES, DOMAIN)
+    stand = np.array([p.count_after for p in crowned["stand"]])
+    for j in range(2):
+        ok, msg = poisson_count_check(stand[:, j], mu[j])
+        assert ok, f"stand {SPECIES[j].name}: {msg}"
+    assert all(p.reached.all() and p.count_mode == ("stand", "stand") for p in crowned["stand"])
+    np.testing.assert_array_equal(stand, np.array([p.target for p in crowned["stand"]]))
+    # more candidates than the Poisson process: C is solved upwards by the factor T > 1
+    factor = np.array([p.candidate_factor for p in crowned["stand"]])
+    assert (factor.mean(0) > 1.1).all()
+    # the paper's reading: the Poisson count is drawn, the final stand falls short of it
+    poisson = crowned["poisson"]
+    drawn = np.array([p.count_before for p in poisson])
+    for j in range(2):
+        ok, msg = poisson_count_check(drawn[:, j], mu[j])
+        assert ok, f"poisson {SPECIES[j].name}: {msg}"
+    kept = np.array([p.count_after for p in poisson])
+    assert (kept.mean(0) < 0.9 * mu).all()
+    # the crown rule holds in both modes
+    for p in crowned["stand"][:20] + poisson[:20]:
+        r = np.array([3.5, 2.5])[p.species]
+        i, j = np.triu_indices(len(p), 1)
+        d = np.hypot(p.x_m[i] - p.x_m[j], p.y_m[i] - p.y_m[j])
+        assert (d > 2.0).all() and (d >= 0.65 * (r[i] + r[j])).all()
+
+
+def test_both_count_modes_are_the_poisson_process_without_thinning():
+    a = place_trees(SPECIES, DOMAIN, 0.0, np.random.default_rng(3), count="poisson")
+    b = place_trees(SPECIES, DOMAIN, 0.0, np.random.default_rng(3), count="stand")
+    assert a.count_mode == ("poisson",) * 2 and a.removed.sum() == b.removed.sum() == 0
+    # auto: "stand" with a crown rule, "poisson" without
+    assert place_trees(SPECIES, DOMAIN, 0.0, np.random.default_rng(3)).count_mode == ("poisson",) * 2
+    assert place_trees(SPECIES, DOMAIN, 0.0, np.random.default_rng(3), crown_radius=crowns,
+                       crown_factor=0.5).count_mode == ("stand",) * 2
+    # the stand keeps the candidates in arrival order until its target: a prefix of the stream
+    np.testing.assert_array_equal(b.candidate[b.species == 0], np.arange(b.count_after[0]))
+
+
+def test_a_stand_the_crowns_cannot_hold_is_reported_short():
+    dense = SpeciesIntensity("dense", [], 0.05)            # 320 trees on 100 × 80 m of 4 m crowns
+    p = place_trees([dense], DOMAIN, 0.0, np.random.default_rng(1), count="stand",
+                    crown_radius=lambda x, y, j, i: np.full(len(i), 4.0), crown_factor=1.0,
+                    max_candidate_factor=3.0)
+    assert not p.reached[0] and p.count_after[0] < p.target[0]
+    assert p.candidate_factor[0] == 3.0 and p.count_before[0] > 2 * p.target[0]
+
+
+def test_bad_count_mode_is_refused_naming_the_species():
+    with pytest.raises(ConfigError) as e:
+        place_trees(SPECIES, DOMAIN, 0.0, np.random.default_rng(0), count=["stand", "final"])
+    assert e.value.key == "species[1].count" and e.value.value == "final"
+    with pytest.raises(ConfigError) as e:
+        place_trees(SPECIES, DOMAIN, 0.0, np.random.default_rng(0), max_candidate_factor=0.5)
+    assert e.value.key == "max_candidate_factor"

@@ -2,6 +2,7 @@
 geometry, seeds are independent and reproducible, leaves are consistent, bad laws are refused."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -11,6 +12,7 @@ from scipy import stats
 from simlidar_mi.errors import ConfigError
 from simlidar_mi.plants.laws import Bernoulli, Discrete, TruncNormal
 from simlidar_mi.plants.random_tree import random_tree
+from simlidar_mi.plants.tree_growth import TREE_MEANS, tree_factor_law
 from simlidar_mi.plants.tree_params import (SPECIES_PRESETS, RandomTreeParams, leaf_polygon_area_factor,
                                             species_preset, tree_params_from_dict)
 
@@ -38,7 +40,9 @@ TEST_PARAMS = RandomTreeParams(
     leaf_angle_deg=TruncNormal(45.0, 20.0, 0.0, 60.0),
     leaf_roll_deg=TruncNormal(5.0, 30.0, -40.0, 60.0),
     monopodial_orders=1, max_order=3, bare_trunk_levels=1, min_length_m=0.0,
-    leaf_levels=1, leaf_min_order=3)
+    leaf_levels=1, leaf_min_order=3,
+    # every tree on the species' means here; the per-tree means are tested on their own
+    leaf_length_tree_cv=0.0, n_daughters_tree_cv=0.0, leaves_per_branch_tree_cv=0.0)
 GLOBAL_LAWS = ("trunk_length_m", "trunk_radius_m", "growth_level", "length_ratio", "radius_ratio",
                "lateral_length_ratio", "lateral_radius_ratio")
 LOCAL_LAWS = ("lateral_branching", "twist_deg", "n_daughters", "trunk_n_daughters",
@@ -331,3 +335,78 @@ def test_wood_scaled_keeps_leaf_sizes_and_insertions():
 def test_bad_branching_mode_is_refused():
     with pytest.raises(ConfigError, match=r"key 'sp.tree.lateral_branching_per', value 'leaf'"):
         tree_params_from_dict({"lateral_branching_per": "leaf"}, key_prefix="sp.tree.")
+
+
+# --- per-tree means (seed 004 §II-B: "mean leaf sizes; mean for the number of daughter
+# branches and the number of leaves" vary per tree) -----------------------------------------
+
+SPREAD = {"leaf_length_tree_cv": 0.15, "n_daughters_tree_cv": 0.10, "leaves_per_branch_tree_cv": 0.20}
+
+
+@pytest.fixture(scope="module")
+def spread_trees():
+    P = dataclasses.replace(TEST_PARAMS, **SPREAD)
+    return P, [random_tree(P, seed=s, tree_id=s, keep_draws=True) for s in range(N_TREES)]
+
+
+def test_each_tree_draws_its_own_means_around_the_species_law(spread_trees, trees):
+    P, ts = spread_trees
+    for name in TREE_MEANS:
+        f = np.array([t.draws.globals[f"{name}_tree_factor"] for t in ts])
+        law = tree_factor_law(SPREAD[f"{name}_tree_cv"])
+        assert law.moments()[0] == pytest.approx(1.0, abs=1e-12)   # symmetric cut: species mean kept
+        check_sample(f, law, f"{name} factor")
+    # leaf length: every leaf is the tree's factor times a draw of the species law, so the
+    # within-tree draws centre on the tree's mean f·μ
+    mu, sd = TEST_PARAMS.leaf_length_m.moments()
+    f = np.array([t.draws.globals["leaf_length_tree_factor"] for t in ts])
+    for t, ft in zip(ts, f):
+        raw = t.draws.locals["leaf_length_m"]
+        assert t.leaf_table.length_m.tobytes() == (ft * raw).tobytes()
+    check_sample(np.concatenate([t.leaf_table.length_m / ft for t, ft in zip(ts, f)]),
+                 TEST_PARAMS.leaf_length_m, "leaf length / tree factor")
+    # between trees: SD of the per-tree mean leaf length = sqrt(μ²·Var f + E[σ²/n]), against
+    # only sqrt(E[σ²/n]) when every tree takes the species' mean (the trees of TEST_PARAMS)
+    def between(sample, factors):
+        keep = [k for k, t in enumerate(sample) if t.n_leaves >= 2]
+        means = np.array([sample[k].leaf_table.length_m.mean() for k in keep])
+        noise = np.mean([(factors[k] * sd) ** 2 / sample[k].n_leaves for k in keep])
+        return means.std(ddof=1), noise
+    got, noise = between(ts, f)
+    want = math.sqrt(mu ** 2 * f.var(ddof=1) + noise)
+    assert got == pytest.approx(want, rel=0.15)     # SD of 400 trees: relative SE ≈ 4 %
+    got0, noise0 = between(trees, np.ones(len(trees)))
+    assert got0 == pytest.approx(math.sqrt(noise0), rel=0.2) and got > 2 * got0
+    # leaves per branch: floor(f·k + U), mean f·k per branch
+    f = np.array([t.draws.globals["leaves_per_branch_tree_factor"] for t in ts])
+    drawn = np.array([t.draws.locals["leaves_per_branch"].sum() for t in ts])
+    nb = np.array([len(t.draws.locals["leaves_per_branch"]) for t in ts])
+    n = np.array([t.n_leaves for t in ts])
+    assert (n >= np.floor(f * drawn) - nb).all() and (n <= f * drawn + nb).all()
+    assert abs((n - f * drawn).sum()) < 4 * math.sqrt(0.25 * nb.sum())
+    # daughters: a tree whose factor is high grows more branches than its growth level's mean
+    f = np.array([t.draws.globals["n_daughters_tree_factor"] for t in ts])
+    G = np.array([t.draws.globals["growth_level"] for t in ts])
+    nbr = np.log([len(t.branches) for t in ts])
+    z = np.concatenate([(nbr[G == g] - nbr[G == g].mean()) for g in np.unique(G)])
+    fz = np.concatenate([f[G == g] for g in np.unique(G)])
+    assert stats.spearmanr(fz, z)[0] > 0.2
+
+
+def test_tree_means_keep_bytes_and_independence(spread_trees):
+    P, ts = spread_trees
+    again = random_tree(P, seed=5, tree_id=5, keep_draws=True)
+    assert again.leaves.vertices.tobytes() == ts[5].leaves.vertices.tobytes()
+    assert again.branches.p1.tobytes() == ts[5].branches.p1.tobytes()
+    # a spread of 0 draws no factor: the tree is the species-law tree, bit for bit
+    flat = dataclasses.replace(P, **{k: 0.0 for k in SPREAD})
+    base = random_tree(TEST_PARAMS, seed=5)
+    assert random_tree(flat, seed=5).leaves.vertices.tobytes() == base.leaves.vertices.tobytes()
+
+
+@pytest.mark.parametrize("name, value", [("leaf_length_tree_cv", 0.31), ("n_daughters_tree_cv", -0.1),
+                                         ("leaves_per_branch_tree_cv", float("nan"))])
+def test_bad_tree_spread_is_refused(name, value):
+    with pytest.raises(ConfigError) as e:
+        tree_params_from_dict({name: value}, TEST_PARAMS, "species[0].tree.")
+    assert e.value.key == f"species[0].tree.{name}"

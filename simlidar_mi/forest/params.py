@@ -1,12 +1,12 @@
 """Forest parameters and seeds: species, ForestParams from a scene file, per-tree and prototype seeds.
 
 Seeds: from the scene seed ``S``, the placement uses ``SeedSequence(S, spawn_key=(0,))``;
-Poisson point (candidate) ``c`` gets the integer ``seed_c`` made from
-``SeedSequence(S, spawn_key=(1, c))`` (it grows the tree without instancing, and draws
+candidate ``i`` (arrival index) of species ``j`` gets the integer seed made from
+``SeedSequence(S, spawn_key=(1, j, i))`` (it grows the tree without instancing, and draws
 its yaw, and its scale with ``scale_mode = "whole-tree"``, with instancing);
 prototype ``k`` of species ``j`` grows from ``spawn_key=(2, j, k)`` and draws its wood
-scale from ``spawn_key=(3, j, k)``; the balanced assignment of candidates to
-prototypes uses ``spawn_key=(4,)``. Integer seeds are 53-bit. The ``seed`` column of
+scale from ``spawn_key=(3, j, k)``; candidate ``i`` places prototype ``i // trees_per_prototype``
+(``"auto"``) or ``i mod K``. Integer seeds are 53-bit. The ``seed`` column of
 ``trees.csv`` is the seed of the placed geometry (the tree's own, or its prototype's):
 ``place_tree(random_tree(params, seed), x, y, yaw_deg, scale)`` rebuilds that tree
 (:func:`simlidar_mi.forest.stand.place_tree`). Changing one tree's seed changes no
@@ -22,8 +22,8 @@ import numpy as np
 
 from ..config import SceneConfig
 from ..errors import ConfigError
-from ..plants.tree_params import SPECIES_PRESETS, RandomTreeParams, species_preset, tree_params_from_dict
-from .placement import Bump, Domain, SpeciesIntensity
+from ..plants.tree_params import SPECIES_PRESETS, TREE_CV, RandomTreeParams, species_preset, tree_params_from_dict
+from .placement import COUNT_MODES, MAX_CANDIDATE_FACTOR, Bump, Domain, SpeciesIntensity
 
 __all__ = ["ForestSpecies", "ForestParams", "forest_params_from_scene", "tree_seed", "prototype_seed",
            "prototype_scale", "CROWN_FACTOR"]
@@ -62,8 +62,12 @@ class ForestSpecies:
     tree: RandomTreeParams
     intensity: SpeciesIntensity
     preset: str | None = None
+    count: str = "auto"
 
     def __post_init__(self) -> None:
+        if self.count not in ("auto", *COUNT_MODES):
+            raise ConfigError("must be 'auto', 'poisson' or 'stand'", key=f"{self.name}.count",
+                              value=self.count)
         if not isinstance(self.tree, RandomTreeParams):
             raise ConfigError("must be a RandomTreeParams", key=f"{self.name}.tree", value=self.tree)
         if not isinstance(self.intensity, SpeciesIntensity):
@@ -84,9 +88,9 @@ class ForestParams:
     species : at least one, distinct names.
     min_distance_m : minimum distance between any two trees (0: no thinning).
     instancing : prototypes + per-tree transforms (true) or one draw per tree (false).
-    prototypes_per_species : K, or ``"auto"``: ``ceil(Poisson points of the species /
-        trees_per_prototype)``, so no prototype is placed more than
-        ``trees_per_prototype`` times.
+    prototypes_per_species : K (candidate i of a species places prototype ``i mod K``), or
+        ``"auto"``: candidate i places prototype ``i // trees_per_prototype``, so no
+        prototype is placed more than ``trees_per_prototype`` times.
     scale_range : ``(min, max)`` of the uniform scale of instanced trees (``(1, 1)``:
         none; every placed tree is then a tree the species' laws drew).
     max_trees : refuse placements with more trees.
@@ -96,6 +100,8 @@ class ForestParams:
         (each tree draws a scale applied to the whole instance, leaves included: the
         earlier behaviour).
     crown_factor : k of the crown rule ``d_ij ≥ k·(r_i + r_j)`` (0: the minimum distance only).
+    max_candidate_factor : a ``count = "stand"`` species draws candidates at most up to this
+        multiple of its intensity (:func:`~simlidar_mi.forest.placement.place_trees`).
     """
 
     domain: Domain
@@ -108,6 +114,7 @@ class ForestParams:
     trees_per_prototype: int = 5
     scale_mode: str = "wood"
     crown_factor: float = CROWN_FACTOR
+    max_candidate_factor: float = MAX_CANDIDATE_FACTOR
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "domain", Domain.of(self.domain))
@@ -144,6 +151,11 @@ class ForestParams:
                 or not (math.isfinite(c) and c >= 0):
             raise ConfigError("must be a finite number ≥ 0", key="forest.crown_factor", value=c)
         object.__setattr__(self, "crown_factor", float(c))
+        m = self.max_candidate_factor
+        if isinstance(m, bool) or not isinstance(m, (int, float, np.floating)) \
+                or not (math.isfinite(m) and 1 <= m <= 1000):
+            raise ConfigError("must be a number in [1, 1000]", key="forest.max_candidate_factor", value=m)
+        object.__setattr__(self, "max_candidate_factor", float(m))
         lo, hi = (float(v) for v in self.scale_range)
         if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
             raise ConfigError("must be [min, max] with 0 < min ≤ max", key="forest.scale_range",
@@ -205,7 +217,9 @@ def forest_params_from_scene(cfg: SceneConfig) -> ForestParams:
             raise ConfigError(f"unknown preset; valid: {', '.join(SPECIES_PRESETS)}", file=src,
                               key=f"{key}.preset", value=sp["preset"])
         try:
-            tree = tree_params_from_dict({"name": name, **(sp.get("tree") or {})},
+            # the per-tree spreads are [[species]] keys (None: the preset's)
+            spread = {k: sp[k] for k in TREE_CV if sp.get(k) is not None}
+            tree = tree_params_from_dict({"name": name, **(sp.get("tree") or {}), **spread},
                                          species_preset(sp["preset"]), f"{key}.tree.")
         except ConfigError as exc:
             raise ConfigError(_bare(exc), file=src, key=exc.key, value=exc.value) from None
@@ -215,13 +229,14 @@ def forest_params_from_scene(cfg: SceneConfig) -> ForestParams:
                               key=f"{key}.bumps", value=sp.get("bumps"))
         species.append(ForestSpecies(name, tree, SpeciesIntensity(name, bumps,
                                                                   sp.get("background_per_m2") or 0.0),
-                                     sp["preset"]))
+                                     sp["preset"], sp.get("count") or "auto"))
     if not species:
         raise ConfigError("a [forest] needs at least one [[species]] table", file=src, key="species")
     try:
         return ForestParams(Domain(*f["domain_m"]), tuple(species), f["min_distance_m"], f["instancing"],
                             f["prototypes_per_species"], tuple(f["scale_range"]), f["max_trees"],
-                            f["trees_per_prototype"], f["scale_mode"], f["crown_factor"])
+                            f["trees_per_prototype"], f["scale_mode"], f["crown_factor"],
+                            f["max_candidate_factor"])
     except ConfigError as exc:
         raise ConfigError(_bare(exc), file=src, key=exc.key, value=exc.value) from None
 
@@ -234,9 +249,10 @@ def _seed53(seed: int, spawn_key: tuple[int, ...]) -> int:
     return int(ss.generate_state(1, np.uint64)[0] >> np.uint64(11))
 
 
-def tree_seed(forest_seed: int, tree_id: int) -> int:
-    """The 53-bit integer seed of tree ``tree_id`` of a forest with seed ``forest_seed``."""
-    return _seed53(forest_seed, (1, int(tree_id)))
+def tree_seed(forest_seed: int, species_index: int, candidate: int) -> int:
+    """The 53-bit integer seed of candidate ``candidate`` (arrival index) of species
+    ``species_index`` in a forest with seed ``forest_seed``."""
+    return _seed53(forest_seed, (1, int(species_index), int(candidate)))
 
 
 def prototype_seed(forest_seed: int, species_index: int, k: int) -> int:

@@ -1,235 +1,45 @@
-"""Tree positions from inhomogeneous Poisson processes, one per species (seed 004, §III).
+"""Tree positions from inhomogeneous Poisson processes, one per species (seed 004, §III;
+the intensities are in :mod:`simlidar_mi.forest.intensity`).
 
 Each species has an intensity (trees per m²) that is a sum of squared-exponential
 bumps plus an optional constant background,
 
     λ(x, y) = background + Σ_k C_k · exp(−[(x − x0_k)²/h_k + (y − y0_k)²/l_k]),
 
-on a rectangle D. Points are drawn by thinning (Lewis & Shedler 1979): draw
-N ~ Poisson(λ*·|D|) uniform points with λ* ≥ max_D λ and keep each with
-probability λ(s)/λ*. The kept points of all species are then thinned so trees
-do not overlap too much (the paper: "one is removed if two trees are too close"):
-a minimum distance and, given each point's crown radius ``r``, the crown rule
-``d_ij ≥ k·(r_i + r_j)``; that second step is *not* a Poisson process any more,
-so counts are reported before and after it.
+on a rectangle D. Points are drawn by thinning (Lewis & Shedler 1979): uniform
+proposals on D kept with probability λ(s)/λ*, λ* ≥ max_D λ. Each species' points arrive
+as a Poisson process in time of rate ∫_D λ; those that arrive by t = 1 are the
+inhomogeneous Poisson process of intensity λ. The points of all species are then
+thinned in arrival order so trees do not overlap too much (the paper: "one is removed
+if two trees are too close"): a minimum distance and, given each point's crown radius
+``r``, the crown rule ``d_ij ≥ k·(r_i + r_j)``. That step is *not* a Poisson process
+any more, so a species' ∫_D λ can mean two counts (``count``, :func:`place_trees`):
+the Poisson points before the thinning (``"poisson"``, the paper's reading), or the
+trees of the final stand (``"stand"``, ours: candidates are drawn until the stand holds
+a Poisson(∫_D λ) target, i.e. C is solved after the thinning).
 
-Randomness comes from the caller's ``numpy.random.Generator``: one child stream
-is spawned for the distance thinning and one per species, so appending a species
-leaves the candidate points of the earlier ones unchanged.
+Randomness comes from the caller's ``numpy.random.Generator``: one child stream is
+spawned for the stand targets and one per species, so appending a species leaves the
+candidate points of the earlier ones unchanged.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Sequence, overload
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.special import erf, erfc
 
 from .._validate import real
 from ..errors import ConfigError
+from .intensity import Bump, Domain, SpeciesIntensity, expected_count, intensity_grid  # noqa: F401 (re-exported)
 
 __all__ = [
     "Bump", "Domain", "Placement", "SpeciesIntensity", "expected_count", "intensity_grid",
-    "place_trees", "sample_ipp", "thin_min_distance", "crown_overlap_share",
+    "place_trees", "sample_ipp", "thin_min_distance", "crown_overlap_share", "candidate_points",
+    "COUNT_MODES", "MAX_CANDIDATE_FACTOR",
 ]
-
-
-@dataclass(frozen=True)
-class Domain:
-    """Axis-aligned rectangle ``[x_min_m, x_max_m] × [y_min_m, y_max_m]`` in metres."""
-
-    x_min_m: float
-    x_max_m: float
-    y_min_m: float
-    y_max_m: float
-
-    def __post_init__(self) -> None:
-        for name in ("x_min_m", "x_max_m", "y_min_m", "y_max_m"):
-            object.__setattr__(self, name, real(f"domain.{name}", getattr(self, name)))
-        if not self.x_max_m > self.x_min_m:
-            raise ConfigError(f"must exceed x_min_m = {self.x_min_m} (empty domain)",
-                              key="domain.x_max_m", value=self.x_max_m)
-        if not self.y_max_m > self.y_min_m:
-            raise ConfigError(f"must exceed y_min_m = {self.y_min_m} (empty domain)",
-                              key="domain.y_max_m", value=self.y_max_m)
-
-    @classmethod
-    def of(cls, domain: "Domain | Sequence[float]") -> "Domain":
-        """Accept a Domain or a tuple ``(x_min_m, x_max_m, y_min_m, y_max_m)``."""
-        if isinstance(domain, Domain):
-            return domain
-        try:
-            values = tuple(domain)
-        except TypeError:
-            raise ConfigError("must be (x_min_m, x_max_m, y_min_m, y_max_m)",
-                              key="domain", value=domain) from None
-        if len(values) != 4:
-            raise ConfigError("must be (x_min_m, x_max_m, y_min_m, y_max_m)",
-                              key="domain", value=domain)
-        return cls(*values)
-
-    @property
-    def area_m2(self) -> float:
-        return (self.x_max_m - self.x_min_m) * (self.y_max_m - self.y_min_m)
-
-
-@dataclass(frozen=True)
-class Bump:
-    """One squared-exponential term ``C·exp(−[(x−x0)²/h + (y−y0)²/l])`` (seed 004).
-
-    Parameters
-    ----------
-    C_per_m2 : peak intensity in trees per m² (≥ 0).
-    x0_m, y0_m : centre in metres (may lie outside the domain).
-    h_m2, l_m2 : spreads along x and y in m² (> 0); the bump falls to 1/e at
-        ``|x − x0| = sqrt(h)``. Note there is no factor 2: h = 2σ².
-    """
-
-    C_per_m2: float
-    x0_m: float
-    y0_m: float
-    h_m2: float
-    l_m2: float
-
-    def __post_init__(self) -> None:
-        for name in ("C_per_m2", "x0_m", "y0_m", "h_m2", "l_m2"):
-            object.__setattr__(self, name, real(f"Bump.{name}", getattr(self, name)))
-        if self.C_per_m2 < 0:
-            raise ConfigError("peak intensity must be >= 0 trees/m²", key="Bump.C_per_m2",
-                              value=self.C_per_m2)
-        for name in ("h_m2", "l_m2"):
-            if getattr(self, name) <= 0:
-                raise ConfigError("spread must be > 0 m²", key=f"Bump.{name}",
-                                  value=getattr(self, name))
-
-    def __call__(self, x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
-        return self.C_per_m2 * np.exp(-((np.asarray(x_m) - self.x0_m) ** 2 / self.h_m2
-                                        + (np.asarray(y_m) - self.y0_m) ** 2 / self.l_m2))
-
-    def max_over(self, domain: Domain) -> float:
-        """Largest value on the domain: at the point of D nearest the centre."""
-        dx = min(max(self.x0_m, domain.x_min_m), domain.x_max_m) - self.x0_m
-        dy = min(max(self.y0_m, domain.y_min_m), domain.y_max_m) - self.y0_m
-        return self.C_per_m2 * math.exp(-(dx * dx / self.h_m2 + dy * dy / self.l_m2))
-
-    def integral(self, domain: Domain) -> float:
-        """∫_D of the bump, in trees, closed form with erf (separable Gaussian)."""
-        ix = math.sqrt(math.pi * self.h_m2) / 2 * _erf_diff(
-            (domain.x_min_m - self.x0_m) / math.sqrt(self.h_m2),
-            (domain.x_max_m - self.x0_m) / math.sqrt(self.h_m2))
-        iy = math.sqrt(math.pi * self.l_m2) / 2 * _erf_diff(
-            (domain.y_min_m - self.y0_m) / math.sqrt(self.l_m2),
-            (domain.y_max_m - self.y0_m) / math.sqrt(self.l_m2))
-        return self.C_per_m2 * ix * iy
-
-
-def _erf_diff(a: float, b: float) -> float:
-    """erf(b) − erf(a) for a ≤ b without cancellation when both lie in one tail."""
-    if a > 0:
-        return float(erfc(a) - erfc(b))
-    if b < 0:
-        return float(erfc(-b) - erfc(-a))
-    return float(erf(b) - erf(a))
-
-
-@dataclass(frozen=True)
-class SpeciesIntensity:
-    """Intensity of one species: a sum of bumps plus a constant background.
-
-    Parameters
-    ----------
-    name : species label.
-    bumps : the squared-exponential terms (a list is converted to a tuple).
-    background_per_m2 : constant intensity added everywhere, trees per m² (≥ 0).
-    """
-
-    name: str
-    bumps: tuple[Bump, ...] = ()
-    background_per_m2: float = 0.0
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not self.name:
-            raise ConfigError("species needs a non-empty name", key="species.name",
-                              value=self.name)
-        bumps = tuple(self.bumps)
-        for i, b in enumerate(bumps):
-            if not isinstance(b, Bump):
-                raise ConfigError("must be a Bump", key=f"{self.name}.bumps[{i}]", value=b)
-        object.__setattr__(self, "bumps", bumps)
-        bg = real(f"{self.name}.background_per_m2", self.background_per_m2)
-        if bg < 0:
-            raise ConfigError("must be >= 0 trees/m²", key=f"{self.name}.background_per_m2",
-                              value=bg)
-        object.__setattr__(self, "background_per_m2", bg)
-
-    def intensity(self, x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
-        """λ at the given points, trees per m² (broadcasting)."""
-        x_m, y_m = np.asarray(x_m, np.float64), np.asarray(y_m, np.float64)
-        lam = np.full(np.broadcast_shapes(x_m.shape, y_m.shape), self.background_per_m2)
-        for b in self.bumps:
-            lam += b(x_m, y_m)
-        return lam
-
-    def upper_bound(self, domain: Domain | Sequence[float]) -> float:
-        """λ* = background + Σ_k max_D(bump_k) ≥ max_D λ, trees per m².
-
-        Each term is the bump's exact maximum over D (C_k when its centre lies
-        in D, so λ* = background + Σ C_k then). A sum of maxima bounds the
-        maximum of the sum, which is all thinning needs; it is tight for one
-        bump centred in D and wastes candidates only where bumps overlap little.
-        """
-        d = Domain.of(domain)
-        return self.background_per_m2 + sum(b.max_over(d) for b in self.bumps)
-
-
-@overload
-def expected_count(species: SpeciesIntensity, domain: Domain | Sequence[float]) -> float: ...
-@overload
-def expected_count(species: Sequence[SpeciesIntensity],
-                   domain: Domain | Sequence[float]) -> np.ndarray: ...
-
-
-def expected_count(species, domain):
-    """∫_D λ ds: the mean number of trees before the minimum-distance step.
-
-    Parameters
-    ----------
-    species : SpeciesIntensity or sequence of them.
-    domain : Domain or ``(x_min_m, x_max_m, y_min_m, y_max_m)``; any
-        sub-rectangle works, e.g. a histogram bin.
-
-    Returns
-    -------
-    float for one species, else an array with one value per species.
-    """
-    d = Domain.of(domain)
-    if isinstance(species, SpeciesIntensity):
-        return species.background_per_m2 * d.area_m2 + sum(b.integral(d) for b in species.bumps)
-    return np.array([expected_count(s, d) for s in species], dtype=np.float64)
-
-
-def intensity_grid(species: Sequence[SpeciesIntensity], domain: Domain | Sequence[float],
-                   nx: int, ny: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """λ of every species on a regular grid, for contour plots.
-
-    Returns
-    -------
-    x_m : (nx,) grid abscissae, from x_min_m to x_max_m inclusive.
-    y_m : (ny,) grid ordinates.
-    lam_per_m2 : (n_species, ny, nx) intensities (row index = y, as matplotlib expects).
-    """
-    d = Domain.of(domain)
-    if int(nx) < 2 or int(ny) < 2:
-        raise ConfigError("grid needs at least 2 points per axis", key="nx, ny",
-                          value=(nx, ny))
-    x = np.linspace(d.x_min_m, d.x_max_m, int(nx))
-    y = np.linspace(d.y_min_m, d.y_max_m, int(ny))
-    xx, yy = np.meshgrid(x, y)
-    lam = np.stack([s.intensity(xx, yy) for s in species]) if len(species) else \
-        np.zeros((0, int(ny), int(nx)))
-    return x, y, lam
 
 
 def sample_ipp(species: SpeciesIntensity, domain: Domain | Sequence[float],
@@ -265,6 +75,17 @@ def sample_ipp(species: SpeciesIntensity, domain: Domain | Sequence[float],
     return x[keep], y[keep]
 
 
+def _rules(min_distance_m: float, crown_factor: float) -> tuple[float, float]:
+    """The checked ``(min_distance_m, crown_factor)`` of the thinning."""
+    d_min = real("min_distance_m", min_distance_m)
+    if d_min < 0:
+        raise ConfigError("must be >= 0 m", key="min_distance_m", value=min_distance_m)
+    k = real("crown_factor", crown_factor)
+    if k < 0:
+        raise ConfigError("must be >= 0", key="crown_factor", value=crown_factor)
+    return d_min, k
+
+
 def thin_min_distance(x_m: np.ndarray, y_m: np.ndarray, min_distance_m: float,
                       rng: np.random.Generator, crown_radius_m: np.ndarray | None = None,
                       crown_factor: float = 0.0) -> np.ndarray:
@@ -278,12 +99,7 @@ def thin_min_distance(x_m: np.ndarray, y_m: np.ndarray, min_distance_m: float,
     conflicts with a kept one, and no species is favoured. ``min_distance_m = 0``
     and ``k = 0`` keep everything.
     """
-    d_min = real("min_distance_m", min_distance_m)
-    if d_min < 0:
-        raise ConfigError("must be >= 0 m", key="min_distance_m", value=min_distance_m)
-    k = real("crown_factor", crown_factor)
-    if k < 0:
-        raise ConfigError("must be >= 0", key="crown_factor", value=crown_factor)
+    d_min, k = _rules(min_distance_m, crown_factor)
     x_m, y_m = np.asarray(x_m, np.float64), np.asarray(y_m, np.float64)
     n = len(x_m)
     r = np.zeros(n) if crown_radius_m is None else np.asarray(crown_radius_m, np.float64)
@@ -324,24 +140,128 @@ def crown_overlap_share(x_m: np.ndarray, y_m: np.ndarray, crown_radius_m: np.nda
     return float((d[:, 1] < np.asarray(crown_radius_m, np.float64)).mean())
 
 
+#: What a species' intensity counts: the Poisson points before the thinning (the paper's
+#: reading, seed 004 §III) or the trees of the final stand (C solved after the thinning).
+COUNT_MODES = ("poisson", "stand")
+#: Default bound of the candidates a "stand" species may draw, in units of its expected
+#: Poisson count ∫_D λ: beyond it the crown rule leaves no room and the shortfall is reported.
+MAX_CANDIDATE_FACTOR = 20.0
+_BATCH = 32    # crown radii asked for at a time (trees grow together in batches)
+_BLOCK = 256   # points a stream draws at a time: fixed, so the bytes do not depend on demand
+
+
+class _Stream:
+    """One species' candidates in arrival order: a Poisson process in time t ≥ 0 of rate
+    E = ∫_D λ, each point placed i.i.d. with density λ(s)/E on D (Lewis–Shedler rejection
+    from λ*). The points with t ≤ 1 are exactly the inhomogeneous Poisson process of
+    intensity λ; those with t ≤ T are that of T·λ (C scaled by T). Times and positions come
+    from two child generators in fixed blocks, so point i never depends on how many were asked for.
+    """
+
+    def __init__(self, species: SpeciesIntensity, d: Domain, rng: np.random.Generator,
+                 max_candidates: int) -> None:
+        self.s, self.d = species, d
+        self.E = float(expected_count(species, d))
+        self.lam_max = species.upper_bound(d)
+        self.rng_t, self.rng_xy = rng.spawn(2)
+        self.max_candidates = max_candidates
+        self.t = np.zeros(0)
+        self.x = np.zeros(0)
+        self.y = np.zeros(0)
+        self._px, self._py = np.zeros(0), np.zeros(0)   # accepted positions not yet timed
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def extend(self) -> None:
+        """Draw the next block of points (times and positions)."""
+        if len(self.t) + _BLOCK > self.max_candidates:
+            raise ConfigError(f"needs more than {self.max_candidates} candidate points; lower "
+                              "the intensity or the domain", key=f"{self.s.name}.bumps",
+                              value=self.lam_max)
+        last = self.t[-1] if len(self.t) else 0.0
+        self.t = np.concatenate([self.t, last + np.cumsum(self.rng_t.exponential(1.0 / self.E, _BLOCK))])
+        d = self.d
+        while len(self._px) < _BLOCK:
+            px = self.rng_xy.uniform(d.x_min_m, d.x_max_m, _BLOCK)
+            py = self.rng_xy.uniform(d.y_min_m, d.y_max_m, _BLOCK)
+            u = self.rng_xy.uniform(0.0, 1.0, _BLOCK)
+            # keep with probability λ(s)/λ*; the code published with seed 004 keeps with
+            # probability λ(s) itself, which gives intensity λ*·λ(s) instead of λ(s)
+            keep = u * self.lam_max < self.s.intensity(px, py)
+            self._px = np.concatenate([self._px, px[keep]])
+            self._py = np.concatenate([self._py, py[keep]])
+        self.x = np.concatenate([self.x, self._px[:_BLOCK]])
+        self.y = np.concatenate([self.y, self._py[:_BLOCK]])
+        self._px, self._py = self._px[_BLOCK:], self._py[_BLOCK:]
+
+    def time(self, i: int) -> float:
+        while i >= len(self.t):
+            self.extend()
+        return float(self.t[i])
+
+
+class _Kept:
+    """The kept trees on a grid of cells, for the conflict test of one new point."""
+
+    def __init__(self, cell_m: float) -> None:
+        self.cell = cell_m
+        self.cells: dict[tuple[int, int], list[int]] = {}
+        self.x: list[float] = []
+        self.y: list[float] = []
+        self.r: list[float] = []
+        self.r_max = 0.0
+
+    def conflicts(self, x: float, y: float, r: float, d_min: float, k: float) -> bool:
+        reach = max(d_min, k * (r + self.r_max))
+        if not self.x or reach <= 0:
+            return False
+        c, m = self.cell, int(math.ceil(reach / self.cell))
+        cx, cy = int(math.floor(x / c)), int(math.floor(y / c))
+        idx = [j for a in range(cx - m, cx + m + 1) for b in range(cy - m, cy + m + 1)
+               for j in self.cells.get((a, b), ())]
+        if not idx:
+            return False
+        xs, ys, rs = (np.take(np.asarray(v), idx) for v in (self.x, self.y, self.r))
+        d = np.hypot(xs - x, ys - y)
+        return bool(((d <= d_min) | (d < k * (r + rs))).any())
+
+    def add(self, x: float, y: float, r: float) -> None:
+        c = self.cell
+        self.cells.setdefault((int(math.floor(x / c)), int(math.floor(y / c))), []).append(len(self.x))
+        self.x.append(x)
+        self.y.append(y)
+        self.r.append(r)
+        self.r_max = max(self.r_max, r)
+
+
 @dataclass(frozen=True)
 class Placement:
-    """Tree positions of all species after both thinning steps.
+    """Tree positions of all species after the thinning.
 
     Attributes
     ----------
-    x_m, y_m : (n,) float64 positions in metres.
+    x_m, y_m : (n,) float64 positions in metres (species in input order, then arrival order).
     species : (n,) int32 index into ``species_names``.
     species_names : names in input order.
-    count_before : (n_species,) trees per species from the Poisson process,
-        before the minimum-distance step (each Poisson with mean ∫_D λ).
-    removed : (n_species,) trees per species removed by the minimum-distance step.
+    count_before : (n_species,) candidates (Poisson points) each species drew: its
+        Poisson count (mean ∫_D λ) in ``"poisson"`` mode, as many as the stand needed
+        in ``"stand"`` mode.
+    removed : (n_species,) candidates per species the thinning removed.
     lambda_max_per_m2 : (n_species,) the thinning bounds λ* used.
     min_distance_m : the distance rule applied.
-    candidate : (n,) int64 index of each tree among the Poisson points of all species
-        (species in input order), the identity its seed is made from.
+    candidate : (n,) int64 arrival index of each tree among its species' candidates:
+        with ``species`` the identity its seed is made from.
     crown_radius_m : (n,) the crown radii the crown rule used (zeros without one).
     crown_factor : the ``k`` of the crown rule ``d_ij ≥ k·(r_i + r_j)`` (0: none).
+    count_mode : (n_species,) ``"poisson"`` or ``"stand"``: what ∫_D λ counts.
+    requested : (n_species,) ∫_D λ, the mean count the scene asks for.
+    target : (n_species,) the stand count a ``"stand"`` species aimed at (a draw of
+        Poisson(∫_D λ)); −1 for ``"poisson"`` species.
+    candidate_factor : (n_species,) T, the multiple of λ the candidates were drawn at
+        (the arrival time reached; 1 in ``"poisson"`` mode).
+    reached : (n_species,) False where a ``"stand"`` species stopped at the candidate
+        bound with fewer trees than its target.
     """
 
     x_m: np.ndarray
@@ -356,6 +276,11 @@ class Placement:
     candidate: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
     crown_radius_m: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
     crown_factor: float = 0.0
+    count_mode: tuple[str, ...] = ()
+    requested: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
+    target: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
+    candidate_factor: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
+    reached: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
 
     def __len__(self) -> int:
         return len(self.x_m)
@@ -366,24 +291,70 @@ class Placement:
         return self.count_before - self.removed
 
 
+def _count_modes(count, n: int, crown_factor: float) -> tuple[str, ...]:
+    """Per-species count modes; ``None``/``"auto"`` → "stand" with a crown rule, else "poisson"."""
+    auto = "stand" if crown_factor > 0 else "poisson"
+    if count is None or isinstance(count, str):
+        count = [count] * n
+    count = list(count)
+    if len(count) != n:
+        raise ConfigError(f"needs one count mode per species ({n})", key="count", value=count)
+    out = []
+    for j, c in enumerate(count):
+        c = auto if c in (None, "auto") else c
+        if c not in COUNT_MODES:
+            raise ConfigError("must be 'auto', 'poisson' or 'stand'", key=f"species[{j}].count", value=c)
+        out.append(c)
+    return tuple(out)
+
+
 def place_trees(species: Sequence[SpeciesIntensity], domain: Domain | Sequence[float],
                 min_distance_m: float, rng: np.random.Generator, *,
-                crown_radius: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None,
-                crown_factor: float = 0.0) -> Placement:
-    """Simulate a forest: one Poisson process per species, then distance thinning.
+                crown_radius: Callable[[np.ndarray, np.ndarray, int, np.ndarray], np.ndarray] | None = None,
+                crown_factor: float = 0.0, count: str | Sequence[str] | None = None,
+                max_candidate_factor: float = MAX_CANDIDATE_FACTOR,
+                max_candidates: int = 20_000_000) -> Placement:
+    """Simulate a forest: one Poisson process per species, thinned in arrival order.
+
+    Every species' candidates arrive as a Poisson process in time (:class:`_Stream`: rate
+    ∫_D λ, positions with density ∝ λ). All species' candidates are visited in order of
+    arrival time (a uniformly random order, favouring no species) and a candidate is kept
+    unless a kept tree ``j`` conflicts with it: ``d_ij ≤ min_distance_m`` or
+    ``d_ij < k·(r_i + r_j)`` (``k = crown_factor``, ``r`` the crown radii). This is
+    random sequential adsorption: a later candidate never changes an earlier decision.
+
+    What ∫_D λ counts, per species (``count``):
+
+    ``"poisson"`` (the paper's reading, seed 004 §III: C is chosen "to achieve certain
+        expected number of trees", then trees that "overlap too much" are thinned)
+        the candidates arriving by t = 1: exactly the inhomogeneous Poisson process of
+        intensity λ; the thinning then removes some.
+    ``"stand"`` (ours)
+        the species draws a target N ~ Poisson(∫_D λ) first, then takes candidates until
+        N of them are kept: the final stand's count has the Poisson law the scene's λ gives,
+        mean ∫_D λ, and its positions follow λ's shape as far as the thinning lets them.
+        Stopping at arrival time T is drawing with intensity T·λ: C is solved after the
+        thinning, per realisation. If T reaches ``max_candidate_factor`` first (the crowns
+        leave no room), the species stops short and ``reached`` is False.
+
+    ``None`` or ``"auto"``: ``"stand"`` when ``crown_factor > 0``, else ``"poisson"``.
+    With ``min_distance_m = 0`` and ``k = 0`` both modes are the Poisson process.
 
     Parameters
     ----------
     species : intensities, one per species.
     domain : Domain or ``(x_min_m, x_max_m, y_min_m, y_max_m)``.
-    min_distance_m : no two trees (of any species) end up closer than this; 0 disables.
-    rng : random source. Child streams are spawned from it (one for the distance
-        thinning order, then one per species), so the same seed gives the same
-        placement and appending a species does not move the others' candidates.
-    crown_radius : ``f(x_m, y_m, species) → r_m``, called once with every Poisson point
-        (candidate order) before the thinning; with ``crown_factor = k > 0`` kept trees
-        also satisfy ``d_ij ≥ k·(r_i + r_j)`` (:func:`thin_min_distance`).
+    min_distance_m : no two trees (of any species) end up this close or closer; 0 disables.
+    rng : random source. One child stream is spawned per species (and the stand targets
+        from a first one), so the same seed gives the same placement and appending a
+        species does not move the others' candidates.
+    crown_radius : ``f(x_m, y_m, j, index) → r_m``, the crown radii of candidates
+        ``index`` (arrival indices) of species ``j``, called in batches as candidates are
+        needed; with ``crown_factor = k > 0`` kept trees satisfy ``d_ij ≥ k·(r_i + r_j)``.
     crown_factor : k (≥ 0; 0 = the plain minimum distance).
+    count : one mode for all species or one per species.
+    max_candidate_factor : bound of T for ``"stand"`` species (≥ 1).
+    max_candidates : refuse a species that needs more candidates (memory guard).
 
     Returns
     -------
@@ -401,30 +372,109 @@ def place_trees(species: Sequence[SpeciesIntensity], domain: Domain | Sequence[f
     for i, s in enumerate(species):
         if not isinstance(s, SpeciesIntensity):
             raise ConfigError("must be a SpeciesIntensity", key=f"species[{i}]", value=s)
-    d_min = real("min_distance_m", min_distance_m)
-    if d_min < 0:
-        raise ConfigError("must be >= 0 m", key="min_distance_m", value=min_distance_m)
+    d_min, k = _rules(min_distance_m, crown_factor)
+    t_max = real("max_candidate_factor", max_candidate_factor)
+    if t_max < 1:
+        raise ConfigError("must be >= 1", key="max_candidate_factor", value=max_candidate_factor)
     if not isinstance(rng, np.random.Generator):
         raise ConfigError("must be a numpy.random.Generator", key="rng", value=rng)
-    order_rng, *species_rngs = rng.spawn(1 + len(species))
-    xs, ys, ids = [], [], []
-    for i, (s, r) in enumerate(zip(species, species_rngs)):
-        x, y = sample_ipp(s, d, r)
-        xs.append(x)
-        ys.append(y)
-        ids.append(np.full(len(x), i, dtype=np.int32))
-    x = np.concatenate(xs) if xs else np.zeros(0)
-    y = np.concatenate(ys) if ys else np.zeros(0)
-    sp = np.concatenate(ids) if ids else np.zeros(0, np.int32)
-    before = np.bincount(sp, minlength=len(species)).astype(np.int64)
-    k = real("crown_factor", crown_factor)
-    r = np.zeros(len(x)) if crown_radius is None else np.asarray(crown_radius(x, y, sp), np.float64)
-    keep = thin_min_distance(x, y, d_min, order_rng, r, k)
-    after = np.bincount(sp[keep], minlength=len(species)).astype(np.int64)
+    nsp = len(species)
+    modes = _count_modes(count, nsp, k)
+    target_rng, *species_rngs = rng.spawn(1 + nsp)
+    streams = [_Stream(s, d, r, max_candidates) for s, r in zip(species, species_rngs)]
+    for s, st in zip(species, streams):
+        if st.E > max_candidates:
+            raise ConfigError(f"expects {st.E:.3g} trees (more than {max_candidates}); lower the "
+                              "intensity or the domain", key=f"{s.name}.bumps", value=st.lam_max)
+    # the targets of every species are drawn (one Poisson each), so modes do not move streams
+    target = np.array([int(target_rng.poisson(st.E)) if st.E > 0 else 0 for st in streams], np.int64)
+    target = np.where(np.array([m == "stand" for m in modes], bool), target, -1)
+    stop_t = np.array([1.0 if m == "poisson" else t_max for m in modes])
+    radii: list[dict[int, float]] = [{} for _ in range(nsp)]
+
+    def radius(j: int, i: int) -> float:
+        """Candidate i's crown radius, asked for with the next candidates of its species that
+        no kept tree excludes yet (a batch grows faster; excluded ones are never grown)."""
+        if crown_radius is None:
+            return 0.0
+        if i not in radii[j]:
+            st, idx = streams[j], [i]
+            m = i + 1
+            while len(idx) < _BATCH and m < i + 8 * _BATCH:
+                if (st.time(m) > 1.0 and modes[j] == "poisson") or (
+                        target[j] >= 0 and len(idx) >= target[j] - kept_n[j]):
+                    break
+                if m not in radii[j] and not kept.conflicts(float(st.x[m]), float(st.y[m]), 0.0, d_min, k):
+                    idx.append(m)
+                m += 1
+            idx = np.array(idx, np.int64)
+            r = np.asarray(crown_radius(st.x[idx], st.y[idx], j, idx), np.float64)
+            if r.shape != idx.shape or not (np.isfinite(r).all() and (r >= 0).all()):
+                raise ConfigError(f"must be {len(idx)} finite radii ≥ 0", key="crown_radius_m",
+                                  value=r.shape)
+            radii[j].update(zip(idx.tolist(), r.tolist()))
+        return radii[j][i]
+
+    kept = _Kept(max(d_min, 4.0))
+    kept_n = np.zeros(nsp, np.int64)
+    drawn = np.zeros(nsp, np.int64)
+    out_sp: list[int] = []
+    out_i: list[int] = []
+    out_r: list[float] = []
+    active = [j for j in range(nsp) if streams[j].E > 0 and target[j] != 0]
+    # the next arrival of each active species; visit them in time order
+    nxt = {j: streams[j].time(0) for j in active}
+    while nxt:
+        j = min(nxt, key=nxt.__getitem__)
+        t, i = nxt[j], int(drawn[j])
+        if t > stop_t[j]:
+            del nxt[j]
+            continue
+        drawn[j] += 1
+        st = streams[j]
+        x, y = float(st.x[i]), float(st.y[i])
+        # a candidate inside a kept tree's exclusion zone is refused whatever its own crown,
+        # so its tree is never grown; otherwise its radius decides
+        if not kept.conflicts(x, y, 0.0, d_min, k) and not kept.conflicts(x, y, r := radius(j, i), d_min, k):
+            kept.add(x, y, r)
+            kept_n[j] += 1
+            out_sp.append(j)
+            out_i.append(i)
+            out_r.append(r)
+        if target[j] >= 0 and kept_n[j] >= target[j]:
+            del nxt[j]
+            continue
+        nxt[j] = st.time(i + 1)
+    factor = np.array([1.0 if modes[j] == "poisson" else
+                       (float(streams[j].t[drawn[j] - 1]) if drawn[j] and kept_n[j] >= target[j]
+                        else t_max if target[j] > 0 else 0.0) for j in range(nsp)])
+    sp = np.array(out_sp, np.int32)
+    ci = np.array(out_i, np.int64)
+    order = np.lexsort((ci, sp))   # species in input order, then arrival order
+    sp, ci, rr = sp[order], ci[order], np.array(out_r, np.float64)[order]
+    xs = np.array([streams[j].x[i] for j, i in zip(sp, ci)], np.float64)
+    ys = np.array([streams[j].y[i] for j, i in zip(sp, ci)], np.float64)
     return Placement(
-        x_m=x[keep], y_m=y[keep], species=sp[keep],
-        species_names=tuple(s.name for s in species),
-        count_before=before, removed=before - after,
+        x_m=xs, y_m=ys, species=sp, species_names=tuple(s.name for s in species),
+        count_before=drawn, removed=drawn - kept_n,
         lambda_max_per_m2=np.array([s.upper_bound(d) for s in species], dtype=np.float64),
-        min_distance_m=d_min, domain=d, candidate=np.flatnonzero(keep).astype(np.int64),
-        crown_radius_m=r[keep], crown_factor=k)
+        min_distance_m=d_min, domain=d, candidate=ci, crown_radius_m=rr, crown_factor=k,
+        count_mode=modes, requested=np.array([st.E for st in streams], np.float64), target=target,
+        candidate_factor=factor, reached=np.array([target[j] < 0 or kept_n[j] >= target[j]
+                                                   for j in range(nsp)], bool))
+
+
+def candidate_points(species: Sequence[SpeciesIntensity], domain: Domain | Sequence[float],
+                     rng: np.random.Generator, counts: Sequence[int]
+                     ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The first ``counts[j]`` candidates ``(x_m, y_m, arrival time)`` of every species that
+    :func:`place_trees` draws from the same ``rng`` (for audits and tests)."""
+    d = Domain.of(domain)
+    _, *species_rngs = rng.spawn(1 + len(species))
+    out = []
+    for s, r, n in zip(species, species_rngs, counts):
+        st = _Stream(s, d, r, 20_000_000)
+        if int(n):
+            st.time(int(n) - 1)
+        out.append((st.x[:int(n)], st.y[:int(n)], st.t[:int(n)]))
+    return out

@@ -2,15 +2,16 @@
 
 A forest is one inhomogeneous Poisson process per species on a rectangle
 (:func:`simlidar_mi.forest.placement.place_trees`: squared-exponential bumps,
-Lewis–Shedler thinning, then a minimum-distance thinning whose removals are
-reported), and one random tree (:mod:`simlidar_mi.plants.random_tree`) per
+Lewis–Shedler thinning, then a distance and crown thinning in arrival order whose
+removals are reported; each species' ∫λ counts its Poisson points or its final
+stand, ``[[species]] count``), and one random tree (:mod:`simlidar_mi.plants.random_tree`) per
 position. Two modes:
 
 ``instancing = true``
-    Each species gets ``K = prototypes_per_species`` prototype trees (``"auto"``:
-    one per ``trees_per_prototype`` Poisson points), each drawn from its own seed.
-    The species' Poisson points are dealt to its prototypes in a random order,
-    round-robin, so no prototype serves more than ``ceil(points / K)`` trees; each
+    Each species gets prototype trees, each drawn from its own seed: candidate ``i``
+    (arrival order, which is random in space) places prototype ``i // trees_per_prototype``
+    (``prototypes_per_species = "auto"``: no prototype serves more than that many trees)
+    or ``i mod K`` (a fixed ``K``); each
     tree draws a yaw (uniform 0–360°) from *its* seed. Geometry is built once per
     prototype and placed as instances: the way a 300 m × 300 m forest fits in memory.
     ``scale_range`` other than ``[1, 1]`` scales, with ``scale_mode = "wood"``
@@ -22,9 +23,9 @@ position. Two modes:
 ``instancing = false``
     Every tree is its own random draw (yaw 0, scale 1).
 
-Crowns: every Poisson point's tree is known before the thinning, so the thinning
-keeps ``d_ij ≥ crown_factor·(r_i + r_j)`` besides the minimum distance
-(:func:`simlidar_mi.forest.placement.thin_min_distance`).
+Crowns: a candidate's tree (or prototype) is grown when the thinning reaches it and
+no kept tree already excludes it, so the thinning keeps ``d_ij ≥ crown_factor·(r_i + r_j)``
+besides the minimum distance (:func:`simlidar_mi.forest.placement.place_trees`).
 
 Parameters and seeds are in :mod:`simlidar_mi.forest.params`, the files of
 ``simlidar-mi forest`` in :mod:`simlidar_mi.forest.run`.
@@ -45,14 +46,14 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from .._progress import bar
+from .._progress import bar, make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
 from ..plants.random_tree import RandomTree, iter_random_trees, random_tree
 from ..plants.tree_leaves import LeafTable
 from .params import ForestParams, forest_params_from_scene, prototype_scale, prototype_seed, tree_seed
-from .placement import Placement, crown_overlap_share, expected_count, place_trees
+from .placement import Placement, crown_overlap_share, place_trees
 
 __all__ = ["Forest", "make_forest", "place_tree"]
 
@@ -301,15 +302,22 @@ class Forest:
     def summary(self) -> dict[str, Any]:
         """Counts per species and totals (JSON-ready)."""
         p = self.placement
-        exp = expected_count([s.intensity for s in self.params.species], self.params.domain)
+        ha = self.params.domain.area_m2 / 1e4
         per = []
         for j, s in enumerate(self.params.species):
             m = self.species == j
+            req = float(p.requested[j])
             per.append({"name": s.name, "preset": s.preset,
-                        "expected_before_thinning": float(exp[j]),
-                        "count_before_thinning": int(p.count_before[j]),
-                        "removed_by_min_distance": int(p.removed[j]),
-                        "count": int(m.sum()),
+                        # what the scene's ∫λ counts: Poisson points or trees of the final stand
+                        "count_mode": p.count_mode[j],
+                        "requested_count": req, "requested_density_per_ha": req / ha,
+                        "count": int(m.sum()), "density_per_ha": float(m.sum()) / ha,
+                        "count_over_requested": float(m.sum()) / req if req > 0 else None,
+                        "target_count": int(p.target[j]) if p.target[j] >= 0 else None,
+                        "count_reached": bool(p.reached[j]),
+                        "candidates_drawn": int(p.count_before[j]),
+                        "candidate_factor": float(p.candidate_factor[j]),
+                        "removed_by_thinning": int(p.removed[j]),
                         "n_leaves": int(self.n_leaves[m].sum()),
                         "mean_height_m": float(self.height_m[m].mean()) if m.any() else None,
                         "mean_crown_radius_m": float(self.crown_radius_m[m].mean()) if m.any() else None,
@@ -321,7 +329,8 @@ class Forest:
                 "min_distance_m": self.params.min_distance_m,
                 "crown_factor": self.params.crown_factor,
                 # removed by the thinning step: minimum distance and crown rule together
-                "removed_by_min_distance": int(p.removed.sum()),
+                "removed_by_thinning": int(p.removed.sum()),
+                "max_candidate_factor": self.params.max_candidate_factor,
                 # share of trees with their nearest neighbour's trunk inside their own crown
                 "crown_overlap_share": crown_overlap_share(self.x_m, self.y_m, self.crown_radius_m),
                 "n_prototypes": len(self.prototypes),
@@ -399,11 +408,12 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
                 *, progress: bool = False) -> Forest:
     """Place and grow a forest.
 
-    Order: (1) the Poisson points (candidates) of every species; (2) each candidate's
-    tree — grown from its own seed without instancing, else a prototype given to it by
-    a balanced random assignment (the prototypes of the species are grown first) — so
-    its crown radius is known; (3) the thinning (minimum distance and crown rule, in a
-    random order); (4) instancing: prototypes no kept tree uses are dropped.
+    Order: the candidates of every species arrive in a random order; each one a kept
+    tree does not already exclude gets its tree (grown from its own seed without
+    instancing, else its prototype ``i // trees_per_prototype``), so its crown radius is
+    known, and is kept or removed by the minimum distance and crown rule; a species stops
+    at t = 1 (``count = "poisson"``) or when its stand is complete (``"stand"``).
+    Instancing: prototypes no kept tree uses are dropped.
 
     Parameters
     ----------
@@ -430,92 +440,116 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     params, seed = _resolve(config_or_params, seed)
     seconds: dict[str, float] = {}
     t_grow = 0.0
-    nsp = len(params.species)
     lo, hi = params.scale_range
     whole = params.scale_mode == "whole-tree"
-    st: dict[str, Any] = {}
+    tpp = params.trees_per_prototype
+    fixed_k = None if params.prototypes_per_species == "auto" else int(params.prototypes_per_species)
+    # only crown radii are kept while thinning (the grown candidates of a 300 m stand are
+    # 2886 prototypes, 7.8 GB); the kept trees and used prototypes are grown again after it,
+    # from the same seeds, so they are the same bytes
+    tree_r: dict[tuple[int, int], float] = {}      # (species, candidate) → crown radius (no instancing)
+    proto_r: dict[tuple[int, int], float] = {}     # (species, k) → prototype crown radius, wood scaled
+    proto_scale: dict[tuple[int, int], float] = {}
+    n_grown = [0]
+    # one progress stage for all the batches the thinning asks for
+    stage = make_progress(progress).stage("trees" if not params.instancing else "prototypes",
+                                          unit="tree")
 
-    def grow_candidates(x, y, sp) -> np.ndarray:
-        """Every candidate's tree (or prototype and transform) → its crown radius."""
+    def proto_of(i: np.ndarray) -> np.ndarray:
+        """Prototype k of a species' candidates (arrival index i): blocks of trees_per_prototype
+        ("auto": no prototype serves more), or i mod K; arrival order is already random."""
+        return i // tpp if fixed_k is None else i % fixed_k
+
+    def grow_trees(j: int, idx) -> list[RandomTree]:
+        """Candidates ``idx`` of species ``j``, each grown from its own seed."""
+        seeds = np.array([tree_seed(seed, j, int(i)) for i in idx], np.int64)
+        out = _grow(params, np.full(len(idx), j), seeds, np.zeros(len(idx), np.int64), False, "trees")
+        stage.update(len(idx))
+        return out
+
+    def grow_protos(j: int, ks) -> list[RandomTree]:
+        """Prototypes ``ks`` of species ``j``, wood scaled (their scale noted)."""
+        sc = [1.0 if whole else prototype_scale(seed, j, k, (lo, hi)) for k in ks]
+        grown = _grow(params, np.full(len(ks), j), np.array([prototype_seed(seed, j, k) for k in ks],
+                                                              np.int64), np.zeros(len(ks), np.int64),
+                      False, "prototypes")
+        proto_scale.update({(j, k): s_ for k, s_ in zip(ks, sc)})
+        stage.update(len(ks))
+        return [t.wood_scaled(s_) for t, s_ in zip(grown, sc)]
+
+    def crown(x, y, j: int, idx: np.ndarray) -> np.ndarray:
+        """The crown radii of candidates ``idx`` of species ``j``, growing what they need."""
         nonlocal t_grow
         t0 = time.perf_counter()
-        nc = len(x)
-        if nc > params.max_trees * 4 + 1000:   # growing candidates costs memory; refuse early
-            raise ConfigError(f"the Poisson processes drew {nc} trees, far more than forest.max_trees",
-                              key="forest.max_trees", value=params.max_trees)
-        seeds = np.array([tree_seed(seed, c) for c in range(nc)], np.int64)
-        st["seeds"] = seeds
+        n_grown[0] += len(idx)
+        if n_grown[0] > params.max_trees * 4 + 1000:   # growing candidates costs memory; refuse early
+            raise ConfigError(f"the Poisson processes drew {n_grown[0]} trees, far more than "
+                              "forest.max_trees", key="forest.max_trees", value=params.max_trees)
         if not params.instancing:
-            trees = _grow(params, sp, seeds, np.zeros(nc, np.int64), progress, "trees")
-            st["trees"] = trees
+            tree_r.update({(j, int(i)): t.crown_radius_m for i, t in zip(idx, grow_trees(j, idx))})
             t_grow += time.perf_counter() - t0
-            return np.array([t.crown_radius_m for t in trees])
-        n_sp = np.bincount(sp, minlength=nsp)
-        if params.prototypes_per_species == "auto":
-            K = -(-n_sp // params.trees_per_prototype)          # ceil
-        else:
-            K = np.full(nsp, int(params.prototypes_per_species))
-        proto_sp = np.repeat(np.arange(nsp, dtype=np.int32), K)
-        proto_k = np.concatenate([np.arange(k) for k in K]).astype(np.int64) if len(K) else np.zeros(0, np.int64)
-        proto_seed = np.array([prototype_seed(seed, j, k) for j, k in zip(proto_sp, proto_k)], np.int64)
-        proto_scale = np.array([1.0 if whole else prototype_scale(seed, j, k, (lo, hi))
-                                for j, k in zip(proto_sp, proto_k)])
-        protos = [t.wood_scaled(sc) for t, sc in
-                  zip(_grow(params, proto_sp, proto_seed, np.arange(len(proto_sp)), progress,
-                            "prototypes"), proto_scale)]
-        # balanced assignment: a random order of the species' candidates dealt round-robin
-        first = np.concatenate([[0], np.cumsum(K)[:-1]]).astype(np.int64)
-        prototype = np.empty(nc, np.int64)
-        arng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(4,)))
-        for j in range(nsp):
-            idx = np.flatnonzero(sp == j)
-            prototype[idx[arng.permutation(len(idx))]] = first[j] + np.arange(len(idx)) % max(K[j], 1)
-        yaw, scale = np.empty(nc), np.empty(nc)
-        for c in range(nc):  # each tree's transform comes from its own seed
-            r = np.random.default_rng(int(seeds[c]))
-            yaw[c] = r.uniform(0.0, 360.0)
-            scale[c] = r.uniform(lo, hi) if whole else proto_scale[prototype[c]]
-        st.update(protos=protos, proto_sp=proto_sp, proto_seed=proto_seed, proto_k=proto_k,
-                  prototype=prototype, yaw=yaw, scale=scale)
+            return np.array([tree_r[(j, int(i))] for i in idx])
+        ks = sorted({int(k) for k in proto_of(idx)} - {k for (jj, k) in proto_r if jj == j})
+        proto_r.update({(j, k): t.crown_radius_m for k, t in zip(ks, grow_protos(j, ks))})
+        r = np.array([proto_r[(j, int(k))] for k in proto_of(idx)])
+        if whole:   # each tree's scale comes from its own seed (after its yaw)
+            r = r * np.array([_yaw_scale(tree_seed(seed, j, int(i)), lo, hi)[1] for i in idx])
         t_grow += time.perf_counter() - t0
-        pc = np.array([t.crown_radius_m for t in protos])
-        return pc[prototype] * (scale if whole else 1.0) if nc else np.zeros(0)
+        return r
 
     t0 = time.perf_counter()
     use_crowns = params.crown_factor > 0 or params.instancing
     placement = place_trees([s.intensity for s in params.species], params.domain,
                             params.min_distance_m,
                             np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,))),
-                            crown_radius=grow_candidates if use_crowns else None,
-                            crown_factor=params.crown_factor)
+                            crown_radius=crown if use_crowns else None,
+                            crown_factor=params.crown_factor,
+                            count=[s.count for s in params.species],
+                            max_candidate_factor=params.max_candidate_factor)
     n = len(placement)
     if n > params.max_trees:
         raise ConfigError(f"the placement holds {n} trees, more than forest.max_trees",
                           key="forest.max_trees", value=params.max_trees)
-    cand = placement.candidate
-    seeds = (st["seeds"][cand] if "seeds" in st
-             else np.array([tree_seed(seed, int(c)) for c in cand], np.int64))
+    sp, cand = placement.species, placement.candidate
+    seeds = np.array([tree_seed(seed, int(j), int(c)) for j, c in zip(sp, cand)], np.int64)
     seconds["place"] = time.perf_counter() - t0 - t_grow
 
     t0 = time.perf_counter()
     info: dict[str, Any] = {"n_candidates": int(placement.count_before.sum())}
     if params.instancing:
-        used, prototype = np.unique(st["prototype"][cand], return_inverse=True)
-        protos = tuple(_with_tree_id(st["protos"][int(p)], k) for k, p in enumerate(used))
-        proto_sp, proto_seed = st["proto_sp"][used], st["proto_seed"][used]
-        info["n_prototypes_grown"] = len(st["protos"])
-        prototype = prototype.astype(np.int32).reshape(-1)
-        yaw, scale = st["yaw"][cand], st["scale"][cand]
-        trees = None
+        keys = [(int(j), int(k)) for j, k in zip(sp, proto_of(cand))]
+        used = sorted(set(keys))
+        where = {key: m for m, key in enumerate(used)}
+        prototype = np.array([where[key] for key in keys], np.int32)
+        grown = {}
+        for j in sorted({j for j, _ in used}):
+            ks = [k for jj, k in used if jj == j]
+            grown.update({(j, k): t for k, t in zip(ks, grow_protos(j, ks))})
+        protos_used = tuple(_with_tree_id(grown[key], m) for m, key in enumerate(used))
+        proto_sp = np.array([j for j, _ in used], np.int32)
+        proto_seed = np.array([prototype_seed(seed, j, k) for j, k in used], np.int64)
+        info["n_prototypes_grown"] = len(proto_r)
+        ys = [_yaw_scale(int(s_), lo, hi) for s_ in seeds]
+        yaw = np.array([a for a, _ in ys], np.float64)
+        scale = np.array([b if whole else proto_scale[key] for (_, b), key in zip(ys, keys)], np.float64)
+        placed = None
     else:
-        proto_sp, proto_seed, protos = np.zeros(0, np.int32), np.zeros(0, np.int64), ()
-        if "trees" in st:
-            trees = tuple(_with_tree_id(st["trees"][int(c)], i) for i, c in enumerate(cand))
-        else:
-            trees = tuple(_grow(params, placement.species, seeds, np.arange(n), progress, "trees"))
-        info["n_trees_grown"] = len(st.get("trees", trees))
+        proto_sp, proto_seed, protos_used = np.zeros(0, np.int32), np.zeros(0, np.int64), ()
+        grown = {}
+        for j in np.unique(sp):
+            idx = cand[sp == j]
+            grown.update({(int(j), int(i)): t for i, t in zip(idx, grow_trees(int(j), idx))})
+        placed = tuple(_with_tree_id(grown[(int(j), int(c))], i) for i, (j, c) in enumerate(zip(sp, cand)))
+        info["n_trees_grown"] = len(tree_r) or n
         prototype = np.full(n, -1, np.int32)
         yaw, scale = np.zeros(n), np.ones(n)
+    stage.close()
     seconds["grow"] = t_grow + time.perf_counter() - t0
-    return Forest(params, seed, placement, seeds, prototype, yaw, scale, protos, proto_sp,
-                  proto_seed, trees, seconds=seconds, info=info)
+    return Forest(params, seed, placement, seeds, prototype, yaw, scale, protos_used, proto_sp,
+                  proto_seed, placed, seconds=seconds, info=info)
+
+
+def _yaw_scale(seed: int, lo: float, hi: float) -> tuple[float, float]:
+    """A tree's yaw (uniform 0–360°) and whole-tree scale, from its own seed."""
+    r = np.random.default_rng(seed)
+    return float(r.uniform(0.0, 360.0)), float(r.uniform(lo, hi))

@@ -47,7 +47,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
 from .laws import _whole
-from .tree_growth import _bend, _grow_wood, _len, _start, _Tree  # noqa: F401  (_bend, _len: tests)
+from .tree_growth import _bend, _grow_wood, _len, _start, _Tree, scaled_count  # noqa: F401  (_bend, _len: tests)
 from .tree_leaves import LeafTable, _make_leaves
 from .tree_params import _LAWS, RandomTreeParams
 
@@ -243,13 +243,14 @@ def _finish(P: RandomTreeParams, t: _Tree, wood: tuple, int_seed: int | None) ->
     # leaves (L3): on terminal branches, the last leaf_levels generations, high orders
     bearing = (n_kids == 0) | (depth >= G - P.leaf_levels) | (o >= P.leaf_min_order)
     bi = np.flatnonzero(bearing)
-    counts = draw("leaves_per_branch", P.leaves_per_branch, len(bi)).astype(np.int64)
+    counts = scaled_count(t, "leaves_per_branch",
+                          draw("leaves_per_branch", P.leaves_per_branch, len(bi)).astype(np.int64))
     owner = np.repeat(bi, counts)
     nleaf = len(owner)
     tpos = rng.random(nleaf)
     phi = rng.uniform(0.0, 2 * np.pi, nleaf)
     lang = np.radians(draw("leaf_angle_deg", P.leaf_angle_deg, nleaf))
-    ll = draw("leaf_length_m", P.leaf_length_m, nleaf)
+    ll = t.g["leaf_length_tree_factor"] * draw("leaf_length_m", P.leaf_length_m, nleaf)
     lw = ll * draw("leaf_width_ratio", P.leaf_width_ratio, nleaf)
     roll = np.radians(draw("leaf_roll_deg", P.leaf_roll_deg, nleaf))
     leaves, table, xy2 = _make_leaves(P, p0, p1, r, Hb, Ub, owner, tpos, phi, lang, ll, lw, roll, tid)

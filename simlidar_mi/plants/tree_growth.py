@@ -10,6 +10,7 @@ others has the bytes it has grown alone.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -17,6 +18,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from .tree_leaves import _Z, _cross, _rotate, _unit
+from .laws import TruncNormal
 from .tree_params import RandomTreeParams
 
 
@@ -82,7 +84,33 @@ def _start(P: RandomTreeParams, rng: np.random.Generator, tid: int, keep_draws: 
     if P.lateral_branching_per == "tree":
         # L1 once per tree: one uniform, after the globals (per-branch mode draws none here)
         t.tree_flag = bool(t.draw("lateral_branching", P.lateral_branching, 1)[0])
+    # the tree's own means (seed 004 §II-B varies "mean leaf sizes; mean for the number of
+    # daughter branches and the number of leaves" per tree): one factor each, one uniform
+    # each, and none when the spread is 0 (so such trees keep their bytes)
+    for name in TREE_MEANS:
+        cv = getattr(P, f"{name}_tree_cv")
+        g[f"{name}_tree_factor"] = float(tree_factor_law(cv).sample(rng)) if cv > 0 else 1.0
     return t
+
+
+#: The laws whose mean each tree draws for itself (``<name>_tree_cv`` in RandomTreeParams).
+TREE_MEANS = ("leaf_length", "n_daughters", "leaves_per_branch")
+
+
+@functools.lru_cache(maxsize=64)
+def tree_factor_law(cv: float) -> TruncNormal:
+    """A tree's factor on a law's mean: N(1, cv²) cut to [1 − 3cv, 1 + 3cv] (mean 1 exactly:
+    the cut is symmetric), so the species' mean is the law's and trees spread about it by cv."""
+    return TruncNormal(1.0, cv, 1.0 - 3.0 * cv, 1.0 + 3.0 * cv)
+
+
+def scaled_count(t: "_Tree", name: str, counts: np.ndarray) -> np.ndarray:
+    """Counts drawn from a species law, moved to the tree's mean: ``floor(f·n + U)``, U uniform
+    (mean f·n exactly: randomised rounding). Draws nothing when the tree's factor is 1."""
+    f = t.g[f"{name}_tree_factor"]
+    if f == 1.0 or not len(counts):
+        return counts
+    return np.floor(f * counts + t.rng.random(len(counts))).astype(np.int64)
 
 
 def _segments(ids: np.ndarray, n: int) -> np.ndarray:
@@ -158,6 +186,7 @@ def _grow_wood(P: RandomTreeParams, trees: list[_Tree]) -> list[tuple[np.ndarray
                     mi[~it] = t.draw("n_daughters", P.n_daughters, int((~it).sum()))
             else:
                 m[sl] = t.draw("n_daughters", P.n_daughters, k)
+            m[sl] = scaled_count(t, "n_daughters", m[sl])
         can_lateral = (order[gi] < P.max_order) & ~(is_trunk & (depth < P.bare_trunk_levels))
         m = np.where(can_lateral, m, 0)
         leader = order[gi] <= P.monopodial_orders

@@ -21,6 +21,13 @@ local (draws per branch or per leaf, §II-C L1–L4)
     on the trunk); ``leaf_length_m`` (truncated normal) and ``leaf_width_ratio``
     (width = ratio × length, the ratio drawn per leaf); ``leaves_per_branch``
     (discrete); ``leaf_angle_deg`` and ``leaf_roll_deg`` (truncated normal).
+per-tree means (one draw per tree, then per-branch or per-leaf draws around them)
+    the paper varies "mean leaf sizes; mean for the number of daughter branches and the
+    number of leaves" for each tree (seed 004 §II-B). Each tree draws a factor
+    ``f ~ N(1, cv²)`` cut to ``1 ± 3cv`` per quantity (``leaf_length_tree_cv``,
+    ``n_daughters_tree_cv``, ``leaves_per_branch_tree_cv``): its leaves draw
+    ``f × leaf_length_m``, its counts ``floor(f·n + U)`` from the species law's ``n``. The
+    spreads (0.10, 0.05, 0.10) are ours: the paper gives no numbers.
 """
 from __future__ import annotations
 
@@ -64,6 +71,9 @@ _LAWS: dict[str, tuple] = {
 # Laws whose draws must be strictly positive (lengths, radii, ratios).
 _POSITIVE = {"trunk_length_m", "trunk_radius_m", "length_ratio", "radius_ratio",
              "lateral_length_ratio", "lateral_radius_ratio", "leaf_length_m", "leaf_width_ratio"}
+#: Between-tree coefficients of variation of a tree's own mean leaf length, number of
+#: daughters and leaves per branch ([[species]] keys of a forest; 0: every tree the species' law).
+TREE_CV = ("leaf_length_tree_cv", "n_daughters_tree_cv", "leaves_per_branch_tree_cv")
 _OPTIONAL = {"lateral_length_ratio", "lateral_radius_ratio", "trunk_n_daughters",
              "trunk_branch_angle_deg"}
 
@@ -138,6 +148,10 @@ class RandomTreeParams:
     leaf_shape: str = "rhombus"
     leaf_sides: int = 6
     max_branches: int = 200_000
+    # per-tree means (seed 004 §II-B): between-tree coefficients of variation, ours
+    leaf_length_tree_cv: float = 0.10
+    n_daughters_tree_cv: float = 0.05
+    leaves_per_branch_tree_cv: float = 0.10
 
     def __post_init__(self) -> None:
         self.validate("")
@@ -201,6 +215,12 @@ class RandomTreeParams:
                               value=self.leaf_shape)
         set_(self, "leaf_sides", _whole(self.leaf_sides, f"{prefix}leaf_sides", 4, 64))
         set_(self, "max_branches", _whole(self.max_branches, f"{prefix}max_branches", 1))
+        for name in TREE_CV:
+            v = _finite(getattr(self, name), f"{prefix}{name}")
+            if not 0 <= v <= 0.3:
+                raise ConfigError("must lie in [0, 0.3] (a tree's factor is cut to 1 ± 3cv > 0)",
+                                  key=f"{prefix}{name}", value=v)
+            set_(self, name, v)
 
     @property
     def triangles_per_leaf(self) -> int:

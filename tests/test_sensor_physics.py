@@ -274,7 +274,7 @@ def test_range_noise_statistics_and_chunking():
     same seed → same bytes whatever the chunk size, another seed → other ranges."""
     sigma0, per_m = 0.02, 0.001
     grid = "[-2.0, 2.0, 0.0125]"   # 320 × 321 beams
-    base = static(f"[-2.0, 2.0, 0.0125]", grid) + plate(10.0)
+    base = static("[-2.0, 2.0, 0.0125]", grid) + plate(10.0)
     exact, _ = run(base + "[sensor]\nintensity = true\n")
     law = f'[sensor]\nnoise_model = "range"\nrange_noise_m = {sigma0}\nrange_noise_per_m = {per_m}\n'
     noisy, _ = run(base + law, seed=7)

@@ -37,7 +37,7 @@ import numpy as np
 from .._progress import make_progress
 from ..errors import ConfigError, SimlidarWarning
 from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
-from .estimators import (BUILTIN, ESTIMATE_VARIABLES, G_SPHERICAL, MIN_BEAMS, ORACLE_G, ORACLE_SUFFIX, estimate_all,
+from .estimators import (BUILTIN, ESTIMATE_VARIABLES, G_SPHERICAL, MIN_BEAMS, ORACLE_G, estimate_all,
                          with_G)
 from .grid import DIMS, VoxelGrid, grid_dataset, grid_values, write_grid
 from .scoring import call_plugin, check_command, layer_profile, load_plugin, run_command, score

@@ -1,4 +1,4 @@
-"""The fast mesh arrays and measures (issue #8, BENCHMARKS §8f) give the bits of their
+"""The fast mesh arrays and measures (issue #8, BENCHMARKS §8g) give the bits of their
 straightforward formulations: float32 prism vertices written block by block, the hashed
 grouping of segment ends (and its exact fallback on a hash collision), the one-sample-at-a-
 time swept share, the in-place impacted areas, the uint8 class counts and the sliced

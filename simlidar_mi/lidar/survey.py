@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .._fork import Forked, use_fork
-from .._mitsuba import check_variant, mitsuba
-from .._progress import make_progress
+from .._runtime.fork import Forked, use_fork
+from .._runtime.mitsuba import check_variant, mitsuba
+from .._runtime.progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError, SimlidarWarning
 from ..geometry import Branches, Leaves, Primitive
@@ -362,7 +362,7 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     :mod:`simlidar_mi.lidar.stream_sensor`; the same bytes): ``run.result`` is then a
     :class:`~simlidar_mi.lidar.stream.StreamedScan` (shape, counts, areas; no beams).
     """
-    from .._dask import check_scheduler, cluster_client  # noqa: PLC0415
+    from .._runtime.cluster import check_scheduler, cluster_client  # noqa: PLC0415
     from .scan import scan  # noqa: PLC0415
     check_scheduler(scheduler)  # an empty address is refused before any work
     if not isinstance(cfg, SceneConfig):
@@ -441,7 +441,7 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
             from ..io.exr import write_scan_exr  # noqa: PLC0415
             with staged_dir(out_dir, SCAN_OUTPUTS) as stage, contextlib.ExitStack() as jobs:
                 las_job = None
-                if write_las and not streamed:  # the longest file: on the second core (simlidar_mi._fork)
+                if write_las and not streamed:  # the longest file: on the second core (simlidar_mi._runtime.fork)
                     from ..io.las import write_scan_las  # noqa: PLC0415
                     las_job = Forked("writing points.las", functools.partial(write_scan_las, crs=cfg["scene"]["crs"]),
                                      results if len(results) > 1 else results[0], stage / "points.las")
@@ -568,8 +568,8 @@ def _overlap_generation(cfg: SceneConfig, scheduler: str | None) -> bool:
     """Generate in a forked child while this process imports Mitsuba: only when Mitsuba is not
     imported yet (a command's fresh process; both steps hold the GIL, so a thread would not
     overlap them) and the scan stays in this process (no cluster)."""
-    from .._dask import may_use_cluster  # noqa: PLC0415
-    from .._mitsuba import variant_ready  # noqa: PLC0415
+    from .._runtime.cluster import may_use_cluster  # noqa: PLC0415
+    from .._runtime.mitsuba import variant_ready  # noqa: PLC0415
     return use_fork(None) and not variant_ready(cfg["scene"]["variant"]) and not may_use_cluster(scheduler)
 
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._mitsuba import mitsuba
+from .._runtime.mitsuba import mitsuba
 from ..errors import ConfigError, SimlidarWarning
 from ..geometry import CLASS_CODES, Branches, Leaves, Primitive
 from ..io.mesh_export import parse_obj

@@ -228,13 +228,15 @@ class GapTable:
     ring_theta_mean_deg: np.ndarray  # (R,) solid-angle-weighted mean θ
 
     def rows(self, **extra) -> list[dict]:
-        """Long-format rows: one per (ring, sector) and one per ring over all sectors (0–360°)."""
+        """Long-format rows: one per (ring, sector) and one per ring over all sectors (sector
+        ``"all"``, 0–360°)."""
         out = []
         for i in range(len(self.ring_lo_deg)):
             cells = [(j, self.sector_lo_deg[j], self.sector_hi_deg[j]) for j in range(len(self.sector_lo_deg))]
             for j, lo, hi in cells + [(None, 0.0, 360.0)]:
                 one = j is not None
-                out.append({**extra, "ring_lo_deg": self.ring_lo_deg[i], "ring_hi_deg": self.ring_hi_deg[i],
+                out.append({**extra, "ring": i, "sector": j if one else "all",
+                            "ring_lo_deg": self.ring_lo_deg[i], "ring_hi_deg": self.ring_hi_deg[i],
                             "sector_lo_deg": lo, "sector_hi_deg": hi,
                             "theta_mean_deg": self.ring_theta_mean_deg[i],
                             "gap": self.gap[i, j] if one else self.ring_gap[i],
@@ -244,7 +246,7 @@ class GapTable:
         return out
 
 
-TABLE_COLUMNS = ("ring_lo_deg", "ring_hi_deg", "sector_lo_deg", "sector_hi_deg", "theta_mean_deg",
+TABLE_COLUMNS = ("ring", "sector", "ring_lo_deg", "ring_hi_deg", "sector_lo_deg", "sector_hi_deg", "theta_mean_deg",
                  "gap", "gap_pixels", "n_pixels", "solid_angle_sr")
 
 

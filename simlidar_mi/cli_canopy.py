@@ -1,0 +1,67 @@
+"""Command line: the canopy-camera sub-commands (``gapfraction``, ``fisheye``).
+
+Kept beside cli.py so that neither grows past the module size limit; cli.py calls
+:func:`register` with its ``command`` decorator and shared argument helpers (passed in, so this
+module never imports cli.py: no import cycle).
+"""
+from __future__ import annotations
+
+import argparse
+
+
+def register(command, scene_args, overrides) -> None:
+    """Register this module's sub-commands through cli.py's ``command`` decorator."""
+
+    def _gapfraction_args(p: argparse.ArgumentParser) -> None:
+        scene_args(p)
+        p.add_argument("--out", required=True, metavar="DIR",
+                       help="output folder: gap_fraction.csv, gap_fraction.json, a mask PNG and a "
+                            "coverage EXR per image")
+        p.add_argument("--no-images", action="store_true", help="write only the CSV and JSON")
+
+    @command("gapfraction", "Gap-fraction images (orthographic/perspective, 0/15/30°) of a "
+             "random_leaves or strawberry scene: P0 table, masks, coverage EXRs", _gapfraction_args)
+    def _gapfraction_run(args: argparse.Namespace) -> int:
+        from .canopy.gapfraction import run_gapfraction
+
+        run = run_gapfraction(args.scene, args.out, overrides(args), write_images=not args.no_images,
+                              progress=True)
+        n = len(run.replicate_images)
+        print(f"p0: mean over {n} replicate plot{'s' if n > 1 else ''}; p0_sd: its seed-to-seed SD "
+              f"(the SD between plots / √{n})")
+        print(f"{'camera':<12}  {'zenith':>6}  {'step':>4}  {'p0':>7}  {'p0_sd':>7}  {'lai':>6}  "
+              f"{'spp':>4}  {'size':>10}  {'seconds':>7}")
+        for s in run.summary:
+            print(f"{s.camera:<12}  {s.zenith_deg:>6g}  {s.step:>4}  {s.p0:7.4f}  {s.p0_sd:7.4f}  "
+                  f"{s.lai:6.3f}  {s.spp:>4}  {f'{s.width}x{s.height}':>10}  {s.seconds:7.3f}")
+        print(f"wrote {run.files['csv']} and {len(run.files) - 3} image files")
+        return 0
+
+    def _fisheye_args(p: argparse.ArgumentParser) -> None:
+        scene_args(p)
+        p.add_argument("--out", required=True, metavar="DIR",
+                       help="output folder: fisheye_gap.csv, fisheye_positions.csv, and per camera "
+                            "position a coverage EXR and a binary PNG")
+        p.add_argument("--no-images", action="store_true", help="write only the CSV tables")
+
+    @command("fisheye", "Virtual hemispherical photographs (fisheye, [fisheye] keys) at a grid or "
+             "transect of positions: ring/sector gap-fraction table, coverage EXRs, binary PNGs",
+             _fisheye_args)
+    def _fisheye_run(args: argparse.Namespace) -> int:
+        from .canopy.fisheye_run import run_fisheye
+        from .config import load_scene
+        from .lidar.survey import build
+        from .truth.run import truth_geometry
+
+        cfg = load_scene(args.scene, overrides(args))
+        geometry, _ = truth_geometry(cfg)  # plants and primitives; a gap-fraction scene's canopy
+        run = run_fisheye(cfg, build(cfg, geometry, patterns=[]), geometry.bounds_m(), args.out,
+                          write_images=not args.no_images, progress=True)
+        lo, hi = run.tables[0].ring_lo_deg, run.tables[0].ring_hi_deg
+        print("ring gap fraction (solid-angle weighted) per position")
+        print(f"{'pos':>3}  {'x_m':>7}  {'y_m':>7}  {'z_m':>5}  " + "  ".join(f"{a:g}-{b:g}°".rjust(7) for a, b in zip(lo, hi)))
+        for k, (img, tab) in enumerate(zip(run.images, run.tables)):
+            x, y, z = img.camera.position_m
+            print(f"{k:>3}  {x:7.2f}  {y:7.2f}  {z:5.2f}  " + "  ".join(f"{g:7.4f}" for g in tab.ring_gap))
+        print(f"{len(run.images)} images, {run.seconds:.2f} s; wrote {run.files['csv']}")
+        return 0

@@ -12,12 +12,14 @@ import argparse
 def register(command, scene_args, overrides) -> None:
     """Register this module's sub-commands through cli.py's ``command`` decorator."""
 
-    def _gapfraction_args(p: argparse.ArgumentParser) -> None:
+    def image_args(p: argparse.ArgumentParser, out_help: str, tables: str) -> None:
         scene_args(p)
-        p.add_argument("--out", required=True, metavar="DIR",
-                       help="output folder: gap_fraction.csv, gap_fraction.json, a mask PNG and a "
-                            "coverage EXR per image")
-        p.add_argument("--no-images", action="store_true", help="write only the CSV and JSON")
+        p.add_argument("--out", required=True, metavar="DIR", help=out_help)
+        p.add_argument("--no-images", action="store_true", help=f"write only the {tables}")
+
+    def _gapfraction_args(p: argparse.ArgumentParser) -> None:
+        image_args(p, "output folder: gap_fraction.csv, gap_fraction.json, a mask PNG and a "
+                      "coverage EXR per image", "CSV and JSON")
 
     @command("gapfraction", "Gap-fraction images (orthographic/perspective, 0/15/30°) of a "
              "random_leaves or strawberry scene: P0 table, masks, coverage EXRs", _gapfraction_args)
@@ -38,11 +40,8 @@ def register(command, scene_args, overrides) -> None:
         return 0
 
     def _fisheye_args(p: argparse.ArgumentParser) -> None:
-        scene_args(p)
-        p.add_argument("--out", required=True, metavar="DIR",
-                       help="output folder: fisheye_gap.csv, fisheye_positions.csv, and per camera "
-                            "position a coverage EXR and a binary PNG")
-        p.add_argument("--no-images", action="store_true", help="write only the CSV tables")
+        image_args(p, "output folder: fisheye_gap.csv, fisheye_positions.csv, and per camera "
+                      "position a coverage EXR and a binary PNG", "CSV tables")
 
     @command("fisheye", "Virtual hemispherical photographs (fisheye, [fisheye] keys) at a grid or "
              "transect of positions: ring/sector gap-fraction table, coverage EXRs, binary PNGs",

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from simlidar_mi.canopy.fisheye import gap_table, make_fisheye, render_fisheye, ring_bounds
+from simlidar_mi.canopy.fisheye import gap_runs, gap_table, make_fisheye, render_fisheye, ring_bounds
 from simlidar_mi.canopy.fisheye_lens import LENSES, PROJECTIONS, lens
 from simlidar_mi.errors import ConfigError
 from simlidar_mi.geometry import Branches, Leaves, Primitive
@@ -184,3 +184,11 @@ def test_gap_table_weights():
     # open cap θ < 45° over the hemisphere: solid-angle share 1 − cos 45°; pixel share (equidistant) 1/4
     assert t.ring_gap[0] == pytest.approx(1 - math.cos(math.pi / 4), abs=0.01)
     assert t.ring_gap_pixels[0] == pytest.approx(0.25, abs=0.01)
+
+
+def test_gap_runs_around_a_ring():
+    cam = make_fisheye([0, 0, 1.0], resolution=200)
+    a = cam.pixel_angles()
+    cov = np.where((a.azimuth_deg >= 30.0) & (a.azimuth_deg < 120.0), 1.0, 0.0)  # one 90° plant sector
+    runs = gap_runs(cov, cam, 45.0)
+    assert len(runs) == 1 and runs[0] == pytest.approx(np.radians(270.0), abs=0.02)

@@ -38,7 +38,7 @@ from ..errors import ConfigError
 from .fisheye_lens import Lens, lens as make_lens
 
 __all__ = ["FORMATS", "LOOKING", "DEFAULT_RINGS_DEG", "FisheyeCamera", "PixelAngles", "GapTable",
-           "FisheyeImage", "make_fisheye", "gap_table", "render_fisheye", "ring_bounds"]
+           "FisheyeImage", "make_fisheye", "gap_table", "gap_runs", "render_fisheye", "ring_bounds"]
 
 FORMATS = ("circular", "fullframe")
 LOOKING = ("up", "down")
@@ -336,3 +336,26 @@ def render_fisheye(built, camera: FisheyeCamera, *, spp: int = 4, seed: int = 0,
     cov = np.where(angles.inside, cov, np.nan).astype(np.float32)
     return FisheyeImage(cov, camera, angles, int(spp), seconds, int(seed), bool(jitter))
 
+
+
+def gap_runs(coverage: np.ndarray, camera: FisheyeCamera, theta_deg: float, *, n: int = 3600,
+             threshold: float = 0.5) -> np.ndarray:
+    """Azimuthal lengths (radians of φ) of the gap runs around the circle θ = ``theta_deg``.
+
+    The circle is sampled at ``n`` evenly spaced azimuths, each reading the pixel it falls in
+    (gap where coverage < ``threshold``); runs wrap around 360°.  φ and the image angle differ by
+    a rotation (and, looking up, a reflection) about the axis, so lengths are the same in either;
+    multiply by sin θ for arc lengths on the unit sphere (Chen–Cihlar gap sizes)."""
+    rho = float(camera.lens.rho(math.radians(theta_deg)))
+    if not 0.0 < rho <= 1.0:
+        raise ConfigError("θ must lie inside the image circle", key="theta_deg", value=theta_deg)
+    psi = (np.arange(n) + 0.5) * (2 * math.pi / n)
+    r = rho * camera.radius_px
+    col = np.clip(np.floor(0.5 * camera.width + r * np.cos(psi)).astype(int), 0, camera.width - 1)
+    row = np.clip(np.floor(0.5 * camera.height - r * np.sin(psi)).astype(int), 0, camera.height - 1)
+    gap = np.asarray(coverage)[row, col] < threshold
+    if gap.all():
+        return np.array([2 * math.pi])
+    gap = np.roll(gap, -int(np.argmin(gap)))  # start on plant: no run is cut by the wrap
+    edges = np.diff(np.r_[0, gap.astype(np.int8), 0])
+    return (np.nonzero(edges == -1)[0] - np.nonzero(edges == 1)[0]) * (2 * math.pi / n)

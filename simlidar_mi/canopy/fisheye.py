@@ -38,7 +38,7 @@ from ..errors import ConfigError
 from .fisheye_lens import Lens, lens as make_lens
 
 __all__ = ["FORMATS", "LOOKING", "DEFAULT_RINGS_DEG", "FisheyeCamera", "PixelAngles", "GapTable",
-           "FisheyeImage", "make_fisheye", "gap_table", "gap_runs", "render_fisheye", "ring_bounds"]
+           "FisheyeImage", "TableSums", "make_fisheye", "gap_table", "gap_runs", "render_fisheye", "ring_bounds"]
 
 FORMATS = ("circular", "fullframe")
 LOOKING = ("up", "down")
@@ -83,10 +83,16 @@ class FisheyeCamera:
     tilt_deg: float = 0.0
     tilt_azimuth_deg: float = 0.0
     heading_deg: float = 90.0
+    # A photo's own circle (x, y of its centre from the top-left corner, and R), pixels; None:
+    # centred, R from the format (rendered images always are).
+    centre_px: tuple[float, float] | None = None
+    circle_radius_px: float | None = None
 
     @property
     def radius_px(self) -> float:
         """Image-circle radius R in pixels (ρ = 1)."""
+        if self.circle_radius_px is not None:
+            return float(self.circle_radius_px)
         if self.format == "circular":
             return 0.5 * min(self.width, self.height)
         return 0.5 * math.hypot(self.width, self.height)
@@ -109,8 +115,8 @@ class FisheyeCamera:
     def image_xy(self, col, row) -> tuple[np.ndarray, np.ndarray]:
         """Image-plane offsets (x right, y up) in pixels of continuous pixel coordinates
         (``col``, ``row``; (0, 0) is the top-left corner, pixel centres at +0.5)."""
-        return (np.asarray(col, np.float64) - 0.5 * self.width,
-                0.5 * self.height - np.asarray(row, np.float64))
+        cx, cy = self.centre_px if self.centre_px is not None else (0.5 * self.width, 0.5 * self.height)
+        return np.asarray(col, np.float64) - cx, cy - np.asarray(row, np.float64)
 
     def camera_directions(self, col, row) -> tuple[np.ndarray, np.ndarray]:
         """Camera-frame unit directions (..., 3) and ρ of pixel coordinates, float64 (ρ clamped to 1)."""
@@ -128,9 +134,9 @@ class FisheyeCamera:
         d, _ = self.camera_directions(col, row)
         return d @ self.frame().T
 
-    def pixel_angles(self) -> "PixelAngles":
-        """θ, φ and solid angle of every pixel centre (float64)."""
-        rows, cols = np.mgrid[0:self.height, 0:self.width]
+    def pixel_angles(self, row0: int = 0, row1: int | None = None) -> "PixelAngles":
+        """θ, φ and solid angle of every pixel centre of rows ``row0:row1`` (float64)."""
+        rows, cols = np.mgrid[row0:self.height if row1 is None else row1, 0:self.width]
         d, rho = self.camera_directions(cols + 0.5, rows + 0.5)
         inside = rho <= 1.0
         theta = self.lens.theta(np.where(inside, rho, np.nan))
@@ -150,7 +156,8 @@ class FisheyeCamera:
                 "position_m": [float(v) for v in self.position_m], "format": self.format,
                 "looking": self.looking, "tilt_deg": self.tilt_deg,
                 "tilt_azimuth_deg": self.tilt_azimuth_deg, "heading_deg": self.heading_deg,
-                "radius_px": self.radius_px}
+                "radius_px": self.radius_px,
+                "centre_px": None if self.centre_px is None else [float(v) for v in self.centre_px]}
 
 
 def _number(value, key: str, lo: float, hi: float) -> float:
@@ -253,37 +260,52 @@ TABLE_COLUMNS = ("ring", "sector", "ring_lo_deg", "ring_hi_deg", "sector_lo_deg"
 def gap_table(coverage: np.ndarray, angles: PixelAngles, rings_deg=DEFAULT_RINGS_DEG,
               n_sectors: int = 8, *, sector_offset_deg: float = 0.0) -> GapTable:
     """Ring × sector gap fractions of a coverage image (1 = plant, 0 = gap; NaN ignored)."""
-    bounds = ring_bounds(rings_deg)
-    if not (isinstance(n_sectors, numbers.Integral) and n_sectors >= 1):
-        raise ConfigError("must be an integer ≥ 1", key="fisheye.n_sectors", value=n_sectors)
-    cov = np.asarray(coverage, np.float64)
-    th, ph, w = angles.theta_deg, angles.azimuth_deg, angles.solid_angle_sr
-    ok = angles.inside & np.isfinite(cov)
-    R, S = len(bounds), int(n_sectors)
-    width = 360.0 / S
-    sector = np.minimum(((ph - sector_offset_deg) % 360.0) // width, S - 1)
-    shape = (R, S)
-    n = np.zeros(shape, np.int64)
-    wsum, wgap, gsum, wth = (np.zeros(shape) for _ in range(4))
-    top = bounds[:, 1].max()
-    for i, (lo, hi) in enumerate(bounds):
-        sel = ok & (th >= lo) & ((th < hi) | ((hi == top) & (th <= hi)))
-        s = sector[sel].astype(np.int64)
-        g = 1.0 - cov[sel]
-        n[i] = np.bincount(s, minlength=S)
-        wsum[i] = np.bincount(s, w[sel], minlength=S)
-        wgap[i] = np.bincount(s, w[sel] * g, minlength=S)
-        gsum[i] = np.bincount(s, g, minlength=S)
-        wth[i] = np.bincount(s, w[sel] * th[sel], minlength=S)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        gap = wgap / wsum
-        gap_pixels = gsum / n
-        ring_gap = wgap.sum(1) / wsum.sum(1)
-        ring_gap_pixels = gsum.sum(1) / n.sum(1)
-        theta_mean = wth.sum(1) / wsum.sum(1)
-    lo = (sector_offset_deg + width * np.arange(S)) % 360.0  # hi may pass 360: a sector across +x
-    return GapTable(bounds[:, 0].copy(), bounds[:, 1].copy(), lo, lo + width,
-                    gap, gap_pixels, n, wsum, ring_gap, ring_gap_pixels, theta_mean)
+    acc = TableSums(rings_deg, n_sectors, sector_offset_deg)
+    acc.add(coverage, angles)
+    return acc.table()
+
+
+class TableSums:
+    """Sums behind a :class:`GapTable`, added block by block (a large photo in strips)."""
+
+    def __init__(self, rings_deg=DEFAULT_RINGS_DEG, n_sectors: int = 8, sector_offset_deg: float = 0.0):
+        self.bounds = ring_bounds(rings_deg)
+        if not (isinstance(n_sectors, numbers.Integral) and n_sectors >= 1):
+            raise ConfigError("must be an integer ≥ 1", key="fisheye.n_sectors", value=n_sectors)
+        self.S, self.offset = int(n_sectors), float(sector_offset_deg)
+        shape = (len(self.bounds), self.S)
+        self.n = np.zeros(shape, np.int64)
+        self.wsum, self.wgap, self.gsum, self.wth = (np.zeros(shape) for _ in range(4))
+
+    def add(self, coverage: np.ndarray, angles: PixelAngles) -> None:
+        cov = np.asarray(coverage, np.float64)
+        th, ph, w = angles.theta_deg, angles.azimuth_deg, angles.solid_angle_sr
+        ok = angles.inside & np.isfinite(cov)
+        S, width = self.S, 360.0 / self.S
+        sector = np.minimum(((ph - self.offset) % 360.0) // width, S - 1)
+        top = self.bounds[:, 1].max()
+        for i, (lo, hi) in enumerate(self.bounds):
+            sel = ok & (th >= lo) & ((th < hi) | ((hi == top) & (th <= hi)))
+            s = sector[sel].astype(np.int64)
+            g = 1.0 - cov[sel]
+            self.n[i] += np.bincount(s, minlength=S)
+            self.wsum[i] += np.bincount(s, w[sel], minlength=S)
+            self.wgap[i] += np.bincount(s, w[sel] * g, minlength=S)
+            self.gsum[i] += np.bincount(s, g, minlength=S)
+            self.wth[i] += np.bincount(s, w[sel] * th[sel], minlength=S)
+
+    def table(self) -> GapTable:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            gap = self.wgap / self.wsum
+            gap_pixels = self.gsum / self.n
+            ring_gap = self.wgap.sum(1) / self.wsum.sum(1)
+            ring_gap_pixels = self.gsum.sum(1) / self.n.sum(1)
+            theta_mean = self.wth.sum(1) / self.wsum.sum(1)
+        width = 360.0 / self.S
+        lo = (self.offset + width * np.arange(self.S)) % 360.0  # hi may pass 360: a sector across +x
+        return GapTable(self.bounds[:, 0].copy(), self.bounds[:, 1].copy(), lo, lo + width,
+                        gap, gap_pixels, self.n.copy(), self.wsum.copy(), ring_gap, ring_gap_pixels,
+                        theta_mean)
 
 
 @dataclass
@@ -314,6 +336,9 @@ def render_fisheye(built, camera: FisheyeCamera, *, spp: int = 4, seed: int = 0,
                    variant: str | None = None, integrator=None) -> FisheyeImage:
     """Render ``camera``'s coverage image of ``built`` (a :class:`~simlidar_mi.scene.build.BuiltScene`)."""
     from .._runtime.mitsuba import mitsuba  # noqa: PLC0415
+    if camera.centre_px is not None or camera.circle_radius_px is not None:
+        raise ConfigError("a rendered fisheye image is centred, its circle set by its format",
+                          key="fisheye.format", value=camera.format)
     if not (isinstance(spp, numbers.Integral) and not isinstance(spp, bool) and spp >= 1):
         raise ConfigError("samples per pixel must be an integer ≥ 1", key="fisheye.spp", value=spp)
     mi = mitsuba(variant)
@@ -351,8 +376,9 @@ def gap_runs(coverage: np.ndarray, camera: FisheyeCamera, theta_deg: float, *, n
         raise ConfigError("θ must lie inside the image circle", key="theta_deg", value=theta_deg)
     psi = (np.arange(n) + 0.5) * (2 * math.pi / n)
     r = rho * camera.radius_px
-    col = np.clip(np.floor(0.5 * camera.width + r * np.cos(psi)).astype(int), 0, camera.width - 1)
-    row = np.clip(np.floor(0.5 * camera.height - r * np.sin(psi)).astype(int), 0, camera.height - 1)
+    cx, cy = camera.centre_px if camera.centre_px is not None else (0.5 * camera.width, 0.5 * camera.height)
+    col = np.clip(np.floor(cx + r * np.cos(psi)).astype(int), 0, camera.width - 1)
+    row = np.clip(np.floor(cy - r * np.sin(psi)).astype(int), 0, camera.height - 1)
     gap = np.asarray(coverage)[row, col] < threshold
     if gap.all():
         return np.array([2 * math.pi])

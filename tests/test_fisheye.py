@@ -192,3 +192,14 @@ def test_gap_runs_around_a_ring():
     cov = np.where((a.azimuth_deg >= 30.0) & (a.azimuth_deg < 120.0), 1.0, 0.0)  # one 90° plant sector
     runs = gap_runs(cov, cam, 45.0)
     assert len(runs) == 1 and runs[0] == pytest.approx(np.radians(270.0), abs=0.02)
+
+
+@pytest.mark.parametrize("looking, sign", [("up", 1.0), ("down", -1.0)])
+def test_tilt_leans_the_axis_toward_its_azimuth(looking, sign):
+    cam = make_fisheye([0, 0, 1.0], resolution=64, looking=looking, tilt_deg=30.0, tilt_azimuth_deg=90.0)
+    axis = cam.directions(32.0, 32.0)
+    np.testing.assert_allclose(axis, [0.0, 0.5, sign * math.sqrt(3) / 2], atol=1e-15)
+    a = cam.pixel_angles()
+    assert np.nanmin(a.theta_deg) == pytest.approx(90 * math.hypot(0.5, 0.5) / 32)  # from the tilted axis
+    # φ axes tilt with the camera (⟂ the axis): +x stays +x (the lean is toward +y), +y turns with it
+    np.testing.assert_allclose(cam.azimuth_axes(), [[1, 0, 0], [0, math.sqrt(3) / 2, -0.5 * sign]], atol=1e-15)

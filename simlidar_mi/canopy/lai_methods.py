@@ -35,7 +35,8 @@ Chen & Cihlar (1995) gap-size distribution (gap removal)
     From the gap lengths λ along transects of total length T: the measured accumulated
     gap fraction ``F_m(λ) = Σ_{λ_j ≥ λ} λ_j / T``; a random canopy of projected LAI ``L_p``
     and projected element width ``W_p`` has ``F(λ) = (1 + L_p λ/W_p)·exp(−L_p(1 + λ/W_p))``.
-    Gaps too large for a random canopy (``F(λ) < cutoff``) are removed, ``L_p`` is updated
+    Gaps too large for a random canopy (fewer than 0.05 such gaps expected on the
+    transects, or ``F(λ) < cutoff``: :func:`chen_cihlar`) are removed, ``L_p`` is updated
     from the reduced ``F_mr(0)`` and the removal repeated until ``L_p`` settles; then
     ``Ω_CC = [ln F_m(0) / ln F_mr(0)]·[(1 − F_mr(0)) / (1 − F_m(0))]`` (both F over the
     whole length T). ``W_p`` is an input (the truth knows the leaves) or is estimated from
@@ -76,7 +77,8 @@ __all__ = [
     "ZERO_GAP_RULES", "PAI_SAT", "HINGE_ZENITH_DEG", "ring_centres_deg", "ring_weights",
     "floor_gap_fraction", "ring_gap_fraction", "miller_lai", "hinge_lai", "LangXiang",
     "lang_xiang", "gap_lengths", "accumulated_gap_fraction", "random_gap_fraction",
-    "probe_probability", "ChenCihlar", "chen_cihlar", "true_lai", "nilson_clumping",
+    "probe_probability", "ChenCihlar", "chen_cihlar", "REMOVAL_RULES",
+    "projected_element_width", "true_lai", "nilson_clumping",
 ]
 
 ZERO_GAP_RULES = ("pixel", "pai_sat", "raise")
@@ -330,8 +332,12 @@ class ChenCihlar:
     converged: bool = True
 
 
+REMOVAL_RULES = ("expected_count", "fraction")
+
+
 def chen_cihlar(lengths, total_length: float, *, element_width=None, probe_points: int = 5,
-                cutoff: float = 1e-3, max_iterations: int = 50, rtol: float = 1e-4) -> ChenCihlar:
+                removal: str = "expected_count", cutoff: float | None = None,
+                max_iterations: int = 50, rtol: float = 1e-4) -> ChenCihlar:
     """Chen & Cihlar (1995) clumping index from gap lengths along transects.
 
     Parameters
@@ -341,8 +347,13 @@ def chen_cihlar(lengths, total_length: float, *, element_width=None, probe_point
     element_width : W_p, the projected width of a foliage element, same unit; None
         estimates it from the probe probability of the ``probe_points`` shortest probes
         (1 … probe_points units; use pixel units then).
-    cutoff : gaps where the random canopy's F(λ) < cutoff are removed (our choice, as in
-        LeafAreaIndex.jl; Chen & Cihlar compare the distributions graphically).
+    removal, cutoff : which gaps are "too large for a random canopy" (Chen & Cihlar compare
+        the distributions graphically, so this is our choice). ``'expected_count'``
+        (default, cutoff 0.05): a gap λ goes when a random canopy of the current L_p, W_p
+        would hold fewer than ``cutoff`` gaps ≥ λ on the whole length T,
+        ``T·(L_p/W_p)·exp(−L_p(1 + λ/W_p)) < cutoff`` — a test at the transects' own length.
+        ``'fraction'`` (cutoff 1e-3, as LeafAreaIndex.jl): a gap goes when ``F(λ) < cutoff``;
+        on short transects of an open canopy it keeps every gap.
     """
     lam = np.asarray(lengths, float).ravel()
     t = float(total_length)
@@ -369,11 +380,19 @@ def chen_cihlar(lengths, total_length: float, *, element_width=None, probe_point
         wp = float(element_width)
     if not (math.isfinite(wp) and wp > 0):
         raise ConfigError("must be > 0", key="element_width", value=wp)
+    if removal not in REMOVAL_RULES:
+        raise ConfigError(f"must be one of {REMOVAL_RULES}", key="removal", value=removal)
+    cut = (0.05 if removal == "expected_count" else 1e-3) if cutoff is None else float(cutoff)
+    if not cut > 0:
+        raise ConfigError("must be > 0", key="cutoff", value=cutoff)
     kept = lam
     it = 0
     done = False
     for it in range(1, int(max_iterations) + 1):
-        kept = lam[random_gap_fraction(lam, lp, wp) >= cutoff]
+        if removal == "expected_count":
+            kept = lam[t * (lp / wp) * np.exp(-lp * (1.0 + lam / wp)) >= cut]
+        else:
+            kept = lam[random_gap_fraction(lam, lp, wp) >= cut]
         fmr0 = float(kept.sum() / t)
         if fmr0 <= 0:
             return ChenCihlar(float("nan"), fm0, 0.0, float("inf"), wp, len(lam), it, False)
@@ -386,6 +405,30 @@ def chen_cihlar(lengths, total_length: float, *, element_width=None, probe_point
     omega = (math.log(fm0) / math.log(fmr0)) * (1.0 - fmr0) / (1.0 - fm0)
     return ChenCihlar(float(omega), fm0, fmr0, float(lp), float(wp), int(len(lam) - len(kept)), it,
                       bool(done))
+
+
+def projected_element_width(leaf_triangles, sun_zenith_deg: float, sun_azimuth_deg: float,
+                            transect_azimuth_deg: float) -> float:
+    """Mean chord ``W_p`` of leaves' sun shadows along a ground transect (same unit as the vertices).
+
+    ``leaf_triangles`` is ``(n_leaves, k, 3, 3)``: each leaf's triangles. Every leaf is
+    projected along the sun direction onto the ground; for shapes dropped at random, the
+    mean chord a line cuts through them is ``Σ area / Σ breadth`` (Cauchy–Crofton), the
+    breadth taken across the transect. This is the W_p the truth gives Chen–Cihlar.
+    """
+    v = np.asarray(leaf_triangles, float)
+    if v.ndim != 4 or v.shape[-2:] != (3, 3):
+        raise ConfigError("must be (n_leaves, triangles_per_leaf, 3, 3)", key="leaf_triangles",
+                          value=v.shape)
+    th, ph = math.radians(sun_zenith_deg), math.radians(sun_azimuth_deg)
+    sun = np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)])
+    xy = v[..., :2] - v[..., 2:3] * (sun[:2] / sun[2])  # shadow on z = 0
+    e1, e2 = xy[..., 1, :] - xy[..., 0, :], xy[..., 2, :] - xy[..., 0, :]
+    area = 0.5 * np.abs(e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]).sum(axis=1)
+    ta = math.radians(transect_azimuth_deg)
+    across = xy.reshape(len(v), -1, 2) @ np.array([-math.sin(ta), math.cos(ta)])
+    breadth = across.max(axis=1) - across.min(axis=1)
+    return float(area.sum() / breadth.sum())
 
 
 # -------------------------------------------------------------------- true LAI

@@ -407,28 +407,38 @@ def chen_cihlar(lengths, total_length: float, *, element_width=None, probe_point
                       bool(done))
 
 
-def projected_element_width(leaf_triangles, sun_zenith_deg: float, sun_azimuth_deg: float,
-                            transect_azimuth_deg: float) -> float:
+def projected_element_width(triangles, sun_zenith_deg: float, sun_azimuth_deg: float,
+                            transect_azimuth_deg: float, groups=None) -> float:
     """Mean chord ``W_p`` of leaves' sun shadows along a ground transect (same unit as the vertices).
 
-    ``leaf_triangles`` is ``(n_leaves, k, 3, 3)``: each leaf's triangles. Every leaf is
-    projected along the sun direction onto the ground; for shapes dropped at random, the
-    mean chord a line cuts through them is ``Σ area / Σ breadth`` (Cauchy–Crofton), the
-    breadth taken across the transect. This is the W_p the truth gives Chen–Cihlar.
+    ``triangles`` is ``(n_leaves, k, 3, 3)`` (each leaf's k triangles), or ``(m, 3, 3)`` with
+    ``groups`` (m,) naming each triangle's leaf. Every leaf is projected along the sun
+    direction onto the ground; for shapes dropped at random, the mean chord a line cuts
+    through them is ``Σ area / Σ breadth`` (Cauchy–Crofton), the breadth taken across the
+    transect. This is the W_p the truth gives Chen–Cihlar.
     """
-    v = np.asarray(leaf_triangles, float)
-    if v.ndim != 4 or v.shape[-2:] != (3, 3):
-        raise ConfigError("must be (n_leaves, triangles_per_leaf, 3, 3)", key="leaf_triangles",
-                          value=v.shape)
+    v = np.asarray(triangles, float)
+    if v.ndim == 4 and v.shape[-2:] == (3, 3) and groups is None:
+        groups = np.repeat(np.arange(len(v)), v.shape[1])
+        v = v.reshape(-1, 3, 3)
+    if v.ndim != 3 or v.shape[-2:] != (3, 3) or groups is None or len(groups) != len(v):
+        raise ConfigError("must be (n_leaves, k, 3, 3), or (m, 3, 3) with one group per triangle",
+                          key="triangles", value=v.shape)
+    if not len(v):
+        return float("nan")
     th, ph = math.radians(sun_zenith_deg), math.radians(sun_azimuth_deg)
     sun = np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)])
     xy = v[..., :2] - v[..., 2:3] * (sun[:2] / sun[2])  # shadow on z = 0
-    e1, e2 = xy[..., 1, :] - xy[..., 0, :], xy[..., 2, :] - xy[..., 0, :]
-    area = 0.5 * np.abs(e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]).sum(axis=1)
+    e1, e2 = xy[:, 1] - xy[:, 0], xy[:, 2] - xy[:, 0]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
     ta = math.radians(transect_azimuth_deg)
-    across = xy.reshape(len(v), -1, 2) @ np.array([-math.sin(ta), math.cos(ta)])
-    breadth = across.max(axis=1) - across.min(axis=1)
-    return float(area.sum() / breadth.sum())
+    across = xy @ np.array([-math.sin(ta), math.cos(ta)])          # (m, 3)
+    _, g = np.unique(np.asarray(groups), return_inverse=True)
+    hi = np.full(g.max() + 1, -np.inf)
+    lo = np.full(g.max() + 1, np.inf)
+    np.maximum.at(hi, g, across.max(axis=1))
+    np.minimum.at(lo, g, across.min(axis=1))
+    return float(area.sum() / (hi - lo).sum())
 
 
 # -------------------------------------------------------------------- true LAI

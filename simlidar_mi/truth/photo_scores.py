@@ -267,6 +267,7 @@ def _plot(run: PhotoRun, stage: Path, title: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.8))
+    fig.suptitle(title)
     for m in ("miller", "miller_lx", "hinge_57", "lai2200"):
         sel = [r for r in run.positions if r["method"] == m]
         ax.scatter([r["LAI_fp"] for r in sel], [r["estimate"] for r in sel], s=14, label=m)
@@ -281,7 +282,6 @@ def _plot(run: PhotoRun, stage: Path, title: str) -> None:
     ax2.plot(c, [r["P_poisson_truth"] for r in rings], "x", label="exp(−G·L/cos θ), truth G and L")
     ax2.set(xlabel="ring zenith (°)", ylabel="gap fraction", title="rings")
     ax2.legend(fontsize=8)
-    fig.suptitle(title)
     fig.tight_layout()
     with atomic_file(stage / "photo_scores.png") as tmp:
         fig.savefig(tmp, format="png")

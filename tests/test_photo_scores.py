@@ -16,6 +16,9 @@ def test_footprint_of_uniform_layers_is_the_lai():
     for theta in (30.0, 60.0):
         assert ps.footprint_index(grid, area, np.array([0.0, 0.0, 0.0]), theta) == pytest.approx(
             0.2, rel=0.03)
+    # The 57.5° method's annulus of a uniform canopy reads the same LAI.
+    assert ps.footprint_index(grid, area, np.array([0.0, 0.0, 0.0]), 60.0,
+                              theta_min_deg=55.0) == pytest.approx(0.2, rel=0.05)
     # Only the layers above the sensor count.
     assert ps.footprint_index(grid, area, np.array([0.0, 0.0, 0.5]), 60.0) == pytest.approx(
         0.1, rel=0.05)

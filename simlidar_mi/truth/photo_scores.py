@@ -23,9 +23,10 @@ Truth (``target`` column: ``LAI`` or ``PAI``)
 --------------------------------------------
 Footprint of a position for a method whose outermost ring ends at θ_max: in every layer k of
 the truth grid above the sensor, the disc of radius ``R_k = (z_k − z_s)·tan θ_max`` around the
-position (voxel centres inside count); ``LAI_fp = Σ_k leaf area in the disc_k / (π R_k²)``,
+position; ``LAI_fp = Σ_k leaf area in the disc_k / (π R_k²)``,
 the leaf area per unit ground area of the cone the sensor sees (a homogeneous canopy gives
-its LAI). Columns count by their share of the disc (8 × 8 sample points a voxel);
+its LAI). The 57.5° method's footprint is the annulus its 55–60° ring sees. Columns count
+by their share of the disc (8 × 8 sample points a voxel);
 beyond the grid there is no plant. PAI the same with plant area (leaf + wood/2). Periodic plots (``[random_leaves]``)
 are homogeneous by construction: their footprint truth is the plot's LAI above the sensor
 (voxel layers whose centre is higher). Plot scale: the
@@ -97,12 +98,13 @@ def positions_grid(bounds_xy, n_x: int, n_y: int, margin_m: float, z_m: float) -
 
 
 def footprint_index(grid: VoxelGrid, area: np.ndarray, position_m, theta_max_deg: float,
-                    supersample: int = 8) -> float:
+                    supersample: int = 8, theta_min_deg: float = 0.0) -> float:
     """``Σ_k area in disc_k / area of disc_k`` over the layers above the sensor (module docstring).
 
     Each column's share of the disc is measured on ``supersample²`` points per voxel; a disc
     under two voxels across is normalised by its sampled area (so it still reads the column it
-    lies in), a larger one by π R² (the part beyond the grid is bare ground).
+    lies in), a larger one by π R² (the part beyond the grid is bare ground). With
+    ``theta_min_deg`` > 0 the footprint is the annulus between the two view zeniths.
     """
     cx, cy, cz = grid.corner_m
     v = grid.voxel_m
@@ -110,6 +112,7 @@ def footprint_index(grid: VoxelGrid, area: np.ndarray, position_m, theta_max_deg
     zc = cz + (np.arange(nz) + 0.5) * v
     px, py, pz = (float(c) for c in position_m)
     t = math.tan(math.radians(theta_max_deg))
+    t_in = math.tan(math.radians(theta_min_deg))
     sub = (np.arange(supersample) + 0.5) / supersample
     total = 0.0
     for k in np.flatnonzero(zc > pz):
@@ -122,15 +125,19 @@ def footprint_index(grid: VoxelGrid, area: np.ndarray, position_m, theta_max_deg
             continue
         xs = cx + (np.arange(i0, i1)[:, None] + sub[None, :]).ravel() * v
         ys = cy + (np.arange(j0, j1)[:, None] + sub[None, :]).ravel() * v
-        inside = (xs[:, None] - px) ** 2 + (ys[None, :] - py) ** 2 <= rk * rk
+        r2 = (xs[:, None] - px) ** 2 + (ys[None, :] - py) ** 2
+        r_in = (zc[k] - pz) * t_in
+        inside = (r2 <= rk * rk) & (r2 >= r_in * r_in)
         w = inside.reshape(i1 - i0, supersample, j1 - j0, supersample).mean(axis=(1, 3))
+        if not w.any() and theta_min_deg > 0:
+            continue
         if not w.any():  # a disc between the sample points: the column under the sensor
             w = np.zeros_like(w)
             w[min(max(int((px - cx) // v) - i0, 0), i1 - i0 - 1),
               min(max(int((py - cy) // v) - j0, 0), j1 - j0 - 1)] = 1.0
         # A disc of a few voxels is normalised by its sampled area, a larger one by π R², so
         # that the part of it beyond the grid (no plants there) counts as bare ground.
-        disc = math.pi * rk * rk if rk >= 2 * v else float(w.sum()) * v * v
+        disc = math.pi * (rk * rk - r_in * r_in) if rk - r_in >= 2 * v else float(w.sum()) * v * v
         total += float((area[i0:i1, j0:j1, k] * w).sum()) / disc
     return total
 
@@ -160,7 +167,8 @@ def score_positions(built, positions_m: np.ndarray, settings: dict, *, truth_lai
                     seed: int = 0, progress=None) -> PhotoRun:
     """Run every method at ``positions_m`` on ``built`` and score them.
 
-    ``truth_lai(position, theta_max_deg)`` and ``truth_pai(...)`` give the footprint truth;
+    ``truth_lai(position, theta_min_deg, theta_max_deg)`` and ``truth_pai(...)`` give the
+    footprint truth;
     ``plot_lai`` is the truth's plot LAI (for G·L and Nilson's Ω); ``leaf_triangles``
     (and their leaf ``leaf_groups``) give G(θ) and W_p; ``transect_x_m`` = (x0, x1) of the
     sunfleck transects (one per distinct position y).
@@ -177,8 +185,8 @@ def score_positions(built, positions_m: np.ndarray, settings: dict, *, truth_lai
     t0 = time.perf_counter()
     gaps = rs.ring_sector_gaps(built, positions_m, rings, n_sec, n_rays, seed=seed)
     sector_az = (np.arange(n_sec) + 0.5) * 360.0 / n_sec
-    theta_max = {"miller": hemi[-1][1], "miller_lx": hemi[-1][1], "hinge_57": HINGE_RING_DEG[1],
-                 "lai2200": li.RING_BOUNDS_DEG[-1][1]}
+    view = {"miller": (hemi[0][0], hemi[-1][1]), "miller_lx": (hemi[0][0], hemi[-1][1]),
+            "hinge_57": HINGE_RING_DEG, "lai2200": (0.0, li.RING_BOUNDS_DEG[-1][1])}
     readings = li.ring_transmittance(gaps[:, n_h + 1:], sector_az, view_cap_deg=s["view_cap_deg"],
                                      heading_deg=s["heading_deg"])
     rows = []
@@ -191,12 +199,12 @@ def score_positions(built, positions_m: np.ndarray, settings: dict, *, truth_lai
                "lai2200": float(li.lai2200(readings[i][None], **floor).lai)}
         for m, e in est.items():
             rows.append({"position": i, "x_m": pos[0], "y_m": pos[1], "z_m": pos[2], "method": m,
-                         "estimate": e, "LAI_fp": truth_lai(pos, theta_max[m]),
-                         "PAI_fp": truth_pai(pos, theta_max[m])})
+                         "estimate": e, "LAI_fp": truth_lai(pos, *view[m]),
+                         "PAI_fp": truth_pai(pos, *view[m])})
         if progress:
             progress(i + 1, len(positions_m))
     # Plot scale.
-    plot = {m: float(np.mean([r["estimate"] for r in rows if r["method"] == m])) for m in theta_max}
+    plot = {m: float(np.mean([r["estimate"] for r in rows if r["method"] == m])) for m in view}
     ins = li.lai2200(readings, **floor)
     plot["lai2200"], plot["lai2200_le"] = ins.lai, ins.lai_effective
     cc = None
@@ -216,7 +224,7 @@ def score_positions(built, positions_m: np.ndarray, settings: dict, *, truth_lai
             if math.isfinite(cc.omega) and cc.omega > 0 else float("nan")
     plot_truth = {}
     for m in plot:
-        key = m if m in theta_max else ("lai2200" if m.startswith("lai2200") else "miller")
+        key = m if m in view else ("lai2200" if m.startswith("lai2200") else "miller")
         sel = [r for r in rows if r["method"] == key]
         plot_truth[m] = (float(np.mean([r["LAI_fp"] for r in sel])), float(np.mean([r["PAI_fp"] for r in sel])))
     scores = []
@@ -325,21 +333,21 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
         plot_lai = float(leaf[:, :, above].sum() / canopy.plot_area_m2)
         plot_pai = float(plant[:, :, above].sum() / canopy.plot_area_m2)
 
-        def truth_lai(pos, theta):
+        def truth_lai(pos, theta_min, theta_max):
             return plot_lai
 
-        def truth_pai(pos, theta):
+        def truth_pai(pos, theta_min, theta_max):
             return plot_pai
     else:
         bounds = (lo[0], lo[1], hi[0], hi[1])
         built = build(cfg, geometry)
         plot_lai = float(truth.attrs.get("LAI", leaf.sum() / ((hi[0] - lo[0]) * (hi[1] - lo[1]))))
 
-        def truth_lai(pos, theta):
-            return footprint_index(grid, leaf, pos, theta)
+        def truth_lai(pos, theta_min, theta_max):
+            return footprint_index(grid, leaf, pos, theta_max, theta_min_deg=theta_min)
 
-        def truth_pai(pos, theta):
-            return footprint_index(grid, plant, pos, theta)
+        def truth_pai(pos, theta_min, theta_max):
+            return footprint_index(grid, plant, pos, theta_max, theta_min_deg=theta_min)
     positions = positions_grid(bounds, s["n_x"], s["n_y"], s["margin_m"], z_s)
     lv = geometry.leaves
     groups = lv.plant_id.astype(np.int64) * (1 << 32) + lv.leaf_id.astype(np.int64)

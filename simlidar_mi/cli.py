@@ -11,6 +11,7 @@ import sys
 import warnings
 from typing import Callable
 
+from .cli_canopy import register as _register_canopy
 from .errors import SimlidarError, SimlidarWarning
 from .truth.photo_cli import cli_command as _photo_command  # evaluate-photo, beside its API
 
@@ -363,33 +364,6 @@ def _forest_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _gapfraction_args(p: argparse.ArgumentParser) -> None:
-    _scene_args(p)
-    p.add_argument("--out", required=True, metavar="DIR",
-                   help="output folder: gap_fraction.csv, gap_fraction.json, a mask PNG and a "
-                        "coverage EXR per image")
-    p.add_argument("--no-images", action="store_true", help="write only the CSV and JSON")
-
-
-@command("gapfraction", "Gap-fraction images (orthographic/perspective, 0/15/30°) of a "
-         "random_leaves or strawberry scene: P0 table, masks, coverage EXRs", _gapfraction_args)
-def _gapfraction_run(args: argparse.Namespace) -> int:
-    from .canopy.gapfraction import run_gapfraction
-
-    run = run_gapfraction(args.scene, args.out, _overrides(args), write_images=not args.no_images,
-                          progress=True)
-    n = len(run.replicate_images)
-    print(f"p0: mean over {n} replicate plot{'s' if n > 1 else ''}; p0_sd: its seed-to-seed SD "
-          f"(the SD between plots / √{n})")
-    print(f"{'camera':<12}  {'zenith':>6}  {'step':>4}  {'p0':>7}  {'p0_sd':>7}  {'lai':>6}  "
-          f"{'spp':>4}  {'size':>10}  {'seconds':>7}")
-    for s in run.summary:
-        print(f"{s.camera:<12}  {s.zenith_deg:>6g}  {s.step:>4}  {s.p0:7.4f}  {s.p0_sd:7.4f}  "
-              f"{s.lai:6.3f}  {s.spp:>4}  {f'{s.width}x{s.height}':>10}  {s.seconds:7.3f}")
-    print(f"wrote {run.files['csv']} and {len(run.files) - 3} image files")
-    return 0
-
-
 def _compare_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("manifest", metavar="MANIFEST.csv",
                    help="CSV pairing photos or measured P0 with scene, camera, zenith_deg, step "
@@ -528,6 +502,9 @@ def _evaluate_run(args: argparse.Namespace) -> int:
               f"{r['rmse']:8.3f} {r['bias']:+8.3f}")
     print(f"wrote {args.out}/scores.csv and {len(run.files) - 1} more outputs")
     return 0
+
+
+_register_canopy(command, _scene_args, _overrides)  # gapfraction, fisheye (cli_canopy.py)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -47,7 +47,7 @@ def room(module: str) -> str:
     head = parts[1]
     if head in BASE:
         return "base"
-    if head == "cli":
+    if head == "cli" or head.startswith("cli_"):  # cli.py and the modules it registers commands from
         return "cli"
     assert head in RANK, f"{module}: not in a known room; add it to the layout"
     return head

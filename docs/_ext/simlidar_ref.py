@@ -54,6 +54,7 @@ NO_UNIT = {
         "p_over_a_sd", "lateral_area_ratio", "lateral_b_over_a_factor", "lateral_c_over_b_factor")},
     "vineyard.canopy.petiole_length_ratio": "1",
     "platform.scan_legs": "count", "platform.kind": "—",
+    "fisheye.coeffs": "1", "fisheye.grid_n": "count",
     "gapfraction.cameras": "—", "species.bumps": "—", "orchard.leaves.angle_distribution": "°, 1",
 }
 

@@ -9,7 +9,7 @@ from .signals import interrupts_deferred
 from ..errors import ConfigError
 
 DEFAULT_VARIANT = "llvm_ad_mono"
-_PLUGIN_MODULES = ("tractor_lidar", "range_integrator", "coverage_integrator")
+_PLUGIN_MODULES = ("tractor_lidar", "range_integrator", "coverage_integrator", "fisheye_camera")
 _state: dict = {}
 
 

@@ -1,0 +1,186 @@
+"""Virtual DHP of a scene: camera placement from ``[fisheye]``, rendering, and the output files.
+
+::
+
+    from simlidar_mi.config import load_scene
+    from simlidar_mi.lidar.survey import generate, build
+    from simlidar_mi.canopy.fisheye_run import run_fisheye
+    cfg = load_scene("scenes/orchard_leafy.toml")
+    geometry = generate(cfg)
+    run = run_fisheye(cfg, build(cfg, geometry), geometry.bounds_m(), "out/fisheye")
+
+(``simlidar-mi fisheye`` does exactly this.)  Keys and the placement protocol:
+:mod:`simlidar_mi.config.keys_fisheye`; conventions: :mod:`simlidar_mi.canopy.fisheye`.
+
+Files written (atomically, in one staged folder):
+
+- ``fisheye_<k>.exr``: float32 channels ``coverage`` (NaN outside the image circle),
+  ``theta_deg`` and ``azimuth_deg`` (pixel centres, NaN outside); header: the lens
+  (``projection``, ``lens_coeffs``, ``theta_edge_deg``), ``format``, ``radius_px``,
+  ``camera_position_m`` (float64), ``looking``, ``tilt_deg``, ``tilt_azimuth_deg``,
+  ``heading_deg``, ``spp`` and ``simlidar_fisheye`` (all of it as JSON);
+- ``fisheye_<k>.png``: the binary image (plant green, gap white, outside the circle black);
+- ``fisheye_gap.csv``: per position, ring and sector the gap fractions
+  (:data:`CSV_COLUMNS`; a ring's total over all sectors has sector ``all``, 0–360°);
+- ``fisheye_positions.csv``: per position k its x, y, z and the render time.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .._runtime.progress import make_progress
+from ..config import SceneConfig
+from ..errors import ConfigError, SimlidarError
+from ..io.atomic import staged_dir, write_csv, writes_output
+from ..io.exr import header_value, read_exr
+from .fisheye import TABLE_COLUMNS, FisheyeCamera, FisheyeImage, GapTable, make_fisheye, render_fisheye
+
+__all__ = ["CSV_COLUMNS", "FisheyeRun", "fisheye_positions", "fisheye_cameras", "run_fisheye",
+           "write_fisheye_exr", "read_fisheye_exr"]
+
+CSV_COLUMNS = ("position", "x_m", "y_m", "z_m") + TABLE_COLUMNS
+POSITION_COLUMNS = ("position", "x_m", "y_m", "z_m", "looking", "width", "height", "spp", "seconds")
+FISHEYE_OUTPUTS = (r"fisheye_gap\.csv", r"fisheye_positions\.csv", r"fisheye_\d+\.(exr|png)")
+PLANT_RGB, GAP_RGB, OUTSIDE_RGB = (0, 128, 0), (255, 255, 255), (0, 0, 0)
+DEFAULT_HEIGHT_M = 1.0  # lens above the ground looking up; above the highest plant looking down
+
+
+def fisheye_positions(cfg: SceneConfig, lo_m, hi_m) -> np.ndarray:
+    """(n, 3) camera positions (x, y, z), metres, from ``[fisheye]`` and the geometry's bounds."""
+    f = cfg["fisheye"]
+    lo, hi = np.asarray(lo_m, np.float64), np.asarray(hi_m, np.float64)
+    x0, y0, x1, y1 = f["area_m"] if f["area_m"] is not None else (lo[0], lo[1], hi[0], hi[1])
+    if f["layout"] == "grid":
+        nx, ny = f["grid_n"]
+        xs = x0 + (np.arange(nx) + 0.5) * (x1 - x0) / nx
+        ys = y0 + (np.arange(ny) + 0.5) * (y1 - y0) / ny
+        gx, gy = np.meshgrid(xs, ys)  # row-major in y: positions go along x first
+        xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    elif f["layout"] == "transect":
+        t = f["transect_m"] if f["transect_m"] is not None else (x0, 0.5 * (y0 + y1), x1, 0.5 * (y0 + y1))
+        n = f["transect_n"]
+        s = np.full(1, 0.5) if n == 1 else np.linspace(0.0, 1.0, n)
+        xy = np.stack([t[0] + s * (t[2] - t[0]), t[1] + s * (t[3] - t[1])], axis=1)
+    else:
+        if f["points_m"] is None:
+            raise ConfigError("layout 'points' needs fisheye.points_m", file=cfg.source,
+                              key="fisheye.points_m", value=None)
+        xy = np.asarray(f["points_m"], np.float64)
+    ground = float(cfg["ground"]["z_m"]) if "ground" in cfg.sections else 0.0
+    if f["height_m"] is not None:
+        z = ground + f["height_m"]
+    else:
+        # looking up: 1 m above the ground under a canopy taller than 2 m, else at the ground (a crop)
+        up = DEFAULT_HEIGHT_M if hi[2] - ground >= 2 * DEFAULT_HEIGHT_M else 0.0
+        z = ground + up if f["looking"] == "up" else float(hi[2]) + DEFAULT_HEIGHT_M
+    return np.column_stack([xy, np.full(len(xy), z)])
+
+
+def fisheye_cameras(cfg: SceneConfig, lo_m, hi_m) -> list[FisheyeCamera]:
+    """One :class:`FisheyeCamera` per position of :func:`fisheye_positions`."""
+    f = cfg["fisheye"]
+    if f["projection"] == "polynomial" and f["coeffs"] is None:
+        raise ConfigError("projection 'polynomial' needs fisheye.coeffs", file=cfg.source,
+                          key="fisheye.coeffs", value=None)
+    try:
+        return [make_fisheye(p, projection=f["projection"], coeffs=f["coeffs"], resolution=f["resolution"],
+                             format=f["format"], looking=f["looking"], tilt_deg=f["tilt_deg"],
+                             tilt_azimuth_deg=f["tilt_azimuth_deg"], heading_deg=f["heading_deg"])
+                for p in fisheye_positions(cfg, lo_m, hi_m)]
+    except ConfigError as exc:
+        raise ConfigError(exc.reason, file=cfg.source, key=exc.key, value=exc.value) from None
+
+
+@dataclass
+class FisheyeRun:
+    """Every rendered image of a scene, its gap table and the files written."""
+
+    images: list[FisheyeImage]
+    tables: list[GapTable]
+    files: dict[str, Path] = field(default_factory=dict)
+    seconds: float = 0.0
+
+    def rows(self) -> list[dict]:
+        out = []
+        for k, (img, tab) in enumerate(zip(self.images, self.tables)):
+            x, y, z = (float(v) for v in img.camera.position_m)
+            out += tab.rows(position=k, x_m=x, y_m=y, z_m=z)
+        return out
+
+
+@writes_output("out_dir")
+def run_fisheye(cfg: SceneConfig, built, bounds_m, out_dir: str | Path | None = None, *,
+                write_images: bool = True, progress=False) -> FisheyeRun:
+    """Render every ``[fisheye]`` position of ``built`` (the scene of ``cfg``) and tabulate its rings.
+
+    ``bounds_m``: (lo, hi) of the geometry (``SceneGeometry.bounds_m()``), for the default area
+    and the down-looking height.  With ``out_dir``, write the files of the module docstring."""
+    f = cfg["fisheye"]
+    cameras = fisheye_cameras(cfg, *bounds_m)
+    prog = make_progress(progress)
+    t0 = time.perf_counter()
+    images, tables = [], []
+    for cam in prog.iter(cameras, "fisheye: rendering", unit="image"):
+        img = render_fisheye(built, cam, spp=f["spp"], variant=cfg["scene"]["variant"])
+        images.append(img)
+        tables.append(img.table(f["rings_deg"], f["n_sectors"]))
+    run = FisheyeRun(images, tables, seconds=time.perf_counter() - t0)
+    if out_dir is None:
+        return run
+    from ..io.png import write_label_png  # noqa: PLC0415
+    out = Path(out_dir)
+    with staged_dir(out, FISHEYE_OUTPUTS) as stage:
+        write_csv(stage / "fisheye_gap.csv", CSV_COLUMNS, run.rows())
+        write_csv(stage / "fisheye_positions.csv", POSITION_COLUMNS, (
+            {"position": k, **dict(zip(("x_m", "y_m", "z_m"), (float(v) for v in img.camera.position_m))),
+             "looking": img.camera.looking, "width": img.camera.width, "height": img.camera.height,
+             "spp": img.spp, "seconds": img.seconds} for k, img in enumerate(images)))
+        if write_images:
+            for k, img in enumerate(images):
+                write_fisheye_exr(img, stage / f"fisheye_{k}.exr", extra={"scene": str(cfg.source or "")})
+                write_label_png(stage / f"fisheye_{k}.png", img.labels(), (GAP_RGB, PLANT_RGB, OUTSIDE_RGB))
+    run.files = {"csv": out / "fisheye_gap.csv", "positions": out / "fisheye_positions.csv"}
+    if write_images:
+        run.files.update({f"exr_{k}": out / f"fisheye_{k}.exr" for k in range(len(images))})
+        run.files.update({f"png_{k}": out / f"fisheye_{k}.png" for k in range(len(images))})
+    return run
+
+
+def write_fisheye_exr(image: FisheyeImage, path: str | Path, *, extra: dict | None = None) -> Path:
+    """Write ``image``'s coverage and pixel angles (float32) with the lens and pose in the header."""
+    import OpenEXR  # noqa: PLC0415
+    from ..io.atomic import atomic_file  # noqa: PLC0415
+    cam = image.camera
+    meta = {**cam.to_dict(), "spp": image.spp, "seed": image.seed, "jitter": image.jitter,
+            "seconds": image.seconds}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              "simlidar_fisheye": json.dumps(meta, sort_keys=True)}
+    flat = {"projection": cam.lens.name or cam.lens.projection, "lens_coeffs": list(cam.lens.coeffs) or "",
+            "theta_edge_deg": float(np.degrees(cam.lens.theta_edge_rad)), "format": cam.format,
+            "radius_px": float(cam.radius_px), "camera_position_m": cam.position_m, "looking": cam.looking,
+            "tilt_deg": cam.tilt_deg, "tilt_azimuth_deg": cam.tilt_azimuth_deg,
+            "heading_deg": cam.heading_deg, "spp": image.spp}
+    for key, value in {**flat, **(extra or {})}.items():
+        header[key] = header_value(value)
+    a = image.angles
+    channels = {"coverage": np.ascontiguousarray(image.coverage, np.float32),
+                "theta_deg": np.ascontiguousarray(a.theta_deg, np.float32),
+                "azimuth_deg": np.ascontiguousarray(a.azimuth_deg, np.float32)}
+    with atomic_file(path) as tmp:
+        with OpenEXR.File(dict(header), dict(channels)) as fh:  # it modifies the dicts: copies
+            fh.write(str(tmp))
+    return Path(path)
+
+
+def read_fisheye_exr(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
+    """Channels and header of a fisheye EXR; ``header['metadata']`` is the parsed JSON."""
+    channels, header = read_exr(path)
+    if "coverage" not in channels or "simlidar_fisheye" not in header:
+        raise SimlidarError(f"{path}: not a fisheye EXR (no 'coverage' channel or 'simlidar_fisheye' header)")
+    header["metadata"] = json.loads(header["simlidar_fisheye"])
+    return channels, header

@@ -1,0 +1,115 @@
+"""Command line: the canopy-camera sub-commands (``gapfraction``, ``fisheye``, ``fisheye-photo``).
+
+Kept beside cli.py so that neither grows past the module size limit; cli.py calls
+:func:`register` with its ``command`` decorator and shared argument helpers (passed in, so this
+module never imports cli.py: no import cycle).
+"""
+from __future__ import annotations
+
+import argparse
+
+
+def register(command, scene_args, overrides) -> None:
+    """Register this module's sub-commands through cli.py's ``command`` decorator."""
+
+    def image_args(p: argparse.ArgumentParser, out_help: str, tables: str) -> None:
+        scene_args(p)
+        p.add_argument("--out", required=True, metavar="DIR", help=out_help)
+        p.add_argument("--no-images", action="store_true", help=f"write only the {tables}")
+
+    def _gapfraction_args(p: argparse.ArgumentParser) -> None:
+        image_args(p, "output folder: gap_fraction.csv, gap_fraction.json, a mask PNG and a "
+                      "coverage EXR per image", "CSV and JSON")
+
+    @command("gapfraction", "Gap-fraction images (orthographic/perspective, 0/15/30°) of a "
+             "random_leaves or strawberry scene: P0 table, masks, coverage EXRs", _gapfraction_args)
+    def _gapfraction_run(args: argparse.Namespace) -> int:
+        from .canopy.gapfraction import run_gapfraction
+
+        run = run_gapfraction(args.scene, args.out, overrides(args), write_images=not args.no_images,
+                              progress=True)
+        n = len(run.replicate_images)
+        print(f"p0: mean over {n} replicate plot{'s' if n > 1 else ''}; p0_sd: its seed-to-seed SD "
+              f"(the SD between plots / √{n})")
+        print(f"{'camera':<12}  {'zenith':>6}  {'step':>4}  {'p0':>7}  {'p0_sd':>7}  {'lai':>6}  "
+              f"{'spp':>4}  {'size':>10}  {'seconds':>7}")
+        for s in run.summary:
+            print(f"{s.camera:<12}  {s.zenith_deg:>6g}  {s.step:>4}  {s.p0:7.4f}  {s.p0_sd:7.4f}  "
+                  f"{s.lai:6.3f}  {s.spp:>4}  {f'{s.width}x{s.height}':>10}  {s.seconds:7.3f}")
+        print(f"wrote {run.files['csv']} and {len(run.files) - 3} image files")
+        return 0
+
+    def _fisheye_args(p: argparse.ArgumentParser) -> None:
+        image_args(p, "output folder: fisheye_gap.csv, fisheye_positions.csv, and per camera "
+                      "position a coverage EXR and a binary PNG", "CSV tables")
+
+    @command("fisheye", "Virtual hemispherical photographs (fisheye, [fisheye] keys) at a grid or "
+             "transect of positions: ring/sector gap-fraction table, coverage EXRs, binary PNGs",
+             _fisheye_args)
+    def _fisheye_run(args: argparse.Namespace) -> int:
+        from .canopy.fisheye_run import run_fisheye
+        from .config import load_scene
+        from .lidar.survey import build
+        from .truth.run import truth_geometry
+
+        cfg = load_scene(args.scene, overrides(args))
+        geometry, _ = truth_geometry(cfg)  # plants and primitives; a gap-fraction scene's canopy
+        run = run_fisheye(cfg, build(cfg, geometry, patterns=[]), geometry.bounds_m(), args.out,
+                          write_images=not args.no_images, progress=True)
+        lo, hi = run.tables[0].ring_lo_deg, run.tables[0].ring_hi_deg
+        print("ring gap fraction (solid-angle weighted) per position")
+        print(f"{'pos':>3}  {'x_m':>7}  {'y_m':>7}  {'z_m':>5}  " + "  ".join(f"{a:g}-{b:g}°".rjust(7) for a, b in zip(lo, hi)))
+        for k, (img, tab) in enumerate(zip(run.images, run.tables)):
+            x, y, z = img.camera.position_m
+            print(f"{k:>3}  {x:7.2f}  {y:7.2f}  {z:5.2f}  " + "  ".join(f"{g:7.4f}" for g in tab.ring_gap))
+        print(f"{len(run.images)} images, {run.seconds:.2f} s; wrote {run.files['csv']}")
+        return 0
+
+    def _numbers(text: str) -> list[float]:
+        try:
+            return [float(v) for v in text.split(",")]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+    def _fisheye_photo_args(p: argparse.ArgumentParser) -> None:
+        p.add_argument("photos", nargs="+", metavar="PHOTO", help="fisheye photographs (JPEG, PNG, TIFF)")
+        p.add_argument("--out", required=True, metavar="DIR",
+                       help="output folder: fisheye_photo_gap.csv and a binary PNG per photo")
+        p.add_argument("--lens", default="equidistant",
+                       help="projection (equidistant, equisolid, orthographic, stereographic), a named "
+                            "lens (FC-E8, Nikkor-10.5, Sigma-4.5, Sigma-8, FC-E9, Nikkor-8) or polynomial")
+        p.add_argument("--coeffs", type=_numbers, default=None, metavar="K1,K2,...",
+                       help="polynomial lens: rho = sum k_i theta^i, theta in radians, rho relative to the circle")
+        p.add_argument("--circle", type=_numbers, default=None, metavar="XC,YC,R",
+                       help="image circle in pixels from the top-left corner (default: detected; "
+                            "full frame: the half-diagonal)")
+        p.add_argument("--format", default="circular", choices=("circular", "fullframe"),
+                       help="circular image or full-frame (diagonal spans 180 degrees)")
+        p.add_argument("--method", default="blue-otsu", choices=("blue-otsu", "canopeo"),
+                       help="blue-otsu: sky vs canopy looking up; canopeo: green plants looking down")
+        p.add_argument("--rings", type=_numbers, default=None, metavar="DEG,...",
+                       help="zenith ring edges in degrees (default 0,15,30,45,60,75,90)")
+        p.add_argument("--sectors", type=int, default=8, metavar="N", help="azimuth sectors (default 8)")
+        p.add_argument("--heading", type=float, default=90.0, metavar="DEG",
+                       help="scene azimuth at the photo's top, counter-clockwise from +x (default 90: +y)")
+        p.add_argument("--downscale", type=int, default=1, choices=(1, 2, 4, 8),
+                       help="analyse the photo at 1/N of its size")
+
+    @command("fisheye-photo", "Ring/sector gap fractions of real fisheye photographs (the table of "
+             "`fisheye`): circle, lens projection, classification", _fisheye_photo_args)
+    def _fisheye_photo_run(args: argparse.Namespace) -> int:
+        from .canopy.fisheye import DEFAULT_RINGS_DEG
+        from .canopy.photo_fisheye import run_fisheye_photos
+
+        results = run_fisheye_photos(args.photos, args.out, lens=args.lens, coeffs=args.coeffs,
+                                     circle=args.circle, format=args.format, method=args.method,
+                                     rings_deg=args.rings or DEFAULT_RINGS_DEG, n_sectors=args.sectors,
+                                     heading_deg=args.heading, downscale=args.downscale)
+        for r in results:
+            xc, yc, rad = r.circle_px
+            print(f"{r.path.name}: circle {xc:.1f},{yc:.1f},{rad:.1f} px{' (detected)' if r.detected else ''}, "
+                  f"gap {r.gap_fraction:.4f}" + (f", blue threshold {r.threshold:g}" if r.threshold is not None else ""))
+            print("  ring gap " + "  ".join(f"{a:g}-{b:g}°: {g:.4f}" for a, b, g in
+                                            zip(r.table.ring_lo_deg, r.table.ring_hi_deg, r.table.ring_gap)))
+        print(f"wrote {args.out}/fisheye_photo_gap.csv")
+        return 0

@@ -34,16 +34,11 @@ def test_canopy_G_of_the_leaf_laws(law, expect):
                                atol=0.01)
 
 
-def test_positions_grid():
-    p = ps.positions_grid((0, 0, 4, 2), 2, 1, 0.0, 0.1)
-    np.testing.assert_allclose(p, [[1, 1, 0.1], [3, 1, 0.1]])
-    with pytest.raises(Exception, match="margin"):
-        ps.positions_grid((0, 0, 1, 1), 2, 2, 0.6, 0.0)
-
-
-def test_evaluate_photo_random_leaves(tmp_path):
+@pytest.mark.parametrize("sampler", ["rays", "fisheye"])
+def test_evaluate_photo_random_leaves(tmp_path, sampler):
     run = ps.evaluate_photo("scenes/random_leaves_spherical.toml", tmp_path / "out",
-                            ["lai_methods.n_x=3", "lai_methods.n_y=3", "lai_methods.rays_per_cell=64"])
+                            ["fisheye.grid_n=[3, 3]", "fisheye.height_m=0.1", f"lai_methods.sampler={sampler!r}",
+                             "lai_methods.rays_per_cell=64", "fisheye.resolution=256"])
     for name in ("photo_scores.csv", "photo_scores.json", "photo_scores.png", "photo_positions.csv"):
         assert (tmp_path / "out" / name).is_file()
     truth = run.get("miller", "LAI", "plot")["truth_mean"]

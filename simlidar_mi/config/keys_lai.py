@@ -2,7 +2,7 @@
 (``simlidar-mi evaluate-photo``)."""
 from __future__ import annotations
 
-from .keys_base import FLOAT, INT, LIST, STR, Key, _finite, at_least, nonneg, one_of, positive, within
+from .keys_base import FLOAT, INT, LIST, STR, Key, _finite, at_least, one_of, positive, within
 
 
 def _ring_edges(v):
@@ -23,19 +23,18 @@ def _opening(v):
 
 SECTIONS = {
     "lai_methods": {
-        "n_x": Key(INT, 4, at_least(1), "camera positions along x (a regular grid over the plot)"),
-        "n_y": Key(INT, 4, at_least(1), "camera positions along y"),
-        "margin_m": Key(FLOAT, 0.0, nonneg, "band along the plot's edges left without positions, "
-                        "metres"),
-        "height_m": Key(FLOAT, 0.1, nonneg, "camera (sensor) height above the ground plane, metres"),
+        "sampler": Key(STR, "fisheye", one_of("fisheye", "rays"),
+                       "how the sky is sampled at each [fisheye] position: the fisheye camera's "
+                       "images (solid-angle-weighted ring/sector tables), or ray fans uniform in "
+                       "solid angle per cell (no lens, no pixels)"),
         "rings_deg": Key(LIST, [0, 10, 20, 30, 40, 50, 60, 70], _ring_edges,
                          "zenith ring edges of the hemispherical methods (hemispheR's default: "
                          "7 rings to 70°), degrees"),
         "n_sectors": Key(INT, 8, at_least(1), "azimuth sectors per ring (Lang–Xiang averaging)"),
-        "rays_per_cell": Key(INT, 256, at_least(1), "rays per ring × sector cell, uniform in solid angle"),
+        "rays_per_cell": Key(INT, 256, at_least(1), "rays per ring × sector cell of the 'rays' sampler"),
         "zero_gap": Key(STR, "pai_sat", one_of("pai_sat", "pixel", "raise"),
-                        "floor for a cell without gap: the saturating PAI's gap fraction, one ray's "
-                        "worth, or refuse"),
+                        "floor for a cell without gap: the saturating PAI's gap fraction, one pixel's "
+                        "(or ray's) worth, or refuse"),
         "pai_sat": Key(FLOAT, 10.0, positive, "saturating plant area index of the 'pai_sat' floor "
                        "(CAN-EYE's default)"),
         "wood_to_total": Key(FLOAT, 0.0, _below_one, "woody share α of the plant area in the true-LAI "

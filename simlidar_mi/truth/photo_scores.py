@@ -1,9 +1,10 @@
 """``simlidar-mi evaluate-photo``: the gap-fraction LAI methods on a scene, scored against its truth.
 
-Upward-looking sensors at a grid of ground positions (``[lai_methods]``) sample the sky
-through the scene's plants (:mod:`simlidar_mi.canopy.ring_sampler`: ray fans uniform in
-solid angle per zenith ring × azimuth sector, what a fisheye image's solid-angle-weighted
-table converges to), sunfleck transects run along x through the positions, and the
+Upward-looking sensors at the ``[fisheye]`` positions sample the sky through the scene's
+plants: the fisheye camera's images and their solid-angle-weighted ring × sector tables
+(:mod:`simlidar_mi.canopy.fisheye`; ``[lai_methods] sampler = "fisheye"``), or ray fans
+uniform in solid angle per cell (:mod:`simlidar_mi.canopy.ring_sampler`; ``"rays"``: no
+lens, no pixels). Sunfleck transects run along x through the positions, and the
 methods of :mod:`simlidar_mi.canopy.lai_methods` and :mod:`simlidar_mi.canopy.lai2200`
 turn them into LAI. The exact truth of the same scene (:func:`~simlidar_mi.truth.compute.compute_truth`)
 scores them.
@@ -58,7 +59,7 @@ from ..errors import ConfigError
 from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
 from .grid import VoxelGrid, grid_values
 
-__all__ = ["PhotoRun", "positions_grid", "footprint_index", "canopy_G", "score_positions",
+__all__ = ["PhotoRun", "footprint_index", "canopy_G", "ray_sampler", "fisheye_sampler", "score_positions",
            "evaluate_photo", "PHOTO_OUTPUTS", "METHODS"]
 
 PHOTO_OUTPUTS = (r"photo_scores\.(csv|json|png)", r"photo_positions\.csv")
@@ -82,19 +83,6 @@ class PhotoRun:
             if (row["method"], row["target"], row["scale"]) == (method, target, scale):
                 return row
         raise KeyError(f"no score for {method!r}, {target!r}, {scale!r}")
-
-
-def positions_grid(bounds_xy, n_x: int, n_y: int, margin_m: float, z_m: float) -> np.ndarray:
-    """``(n_x·n_y, 3)`` positions: a regular grid over the plot shrunk by ``margin_m`` (cell centres)."""
-    x0, y0, x1, y1 = (float(v) for v in bounds_xy)
-    x0, y0, x1, y1 = x0 + margin_m, y0 + margin_m, x1 - margin_m, y1 - margin_m
-    if x1 <= x0 or y1 <= y0:
-        raise ConfigError("the margin leaves no room for positions in the plot",
-                          key="lai_methods.margin_m", value=margin_m)
-    xs = x0 + (np.arange(n_x) + 0.5) * (x1 - x0) / n_x
-    ys = y0 + (np.arange(n_y) + 0.5) * (y1 - y0) / n_y
-    xy = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
-    return np.c_[xy, np.full(len(xy), float(z_m))]
 
 
 def footprint_index(grid: VoxelGrid, area: np.ndarray, position_m, theta_max_deg: float,
@@ -162,10 +150,41 @@ def _edges_to_rings(edges) -> list[tuple[float, float]]:
     return list(zip(e[:-1], e[1:]))
 
 
-def score_positions(built, positions_m: np.ndarray, settings: dict, *, truth_lai, truth_pai,
-                    plot_lai: float, leaf_triangles=None, leaf_groups=None, transect_x_m=None,
-                    seed: int = 0, progress=None) -> PhotoRun:
-    """Run every method at ``positions_m`` on ``built`` and score them.
+def ray_sampler(built, positions_m, n_sectors: int, rays_per_cell: int, seed: int = 0):
+    """``sample(rings) -> (gaps (n, R, S), n_per_cell)`` by ray fans (:func:`ring_sampler.ring_sector_gaps`)."""
+    def sample(rings):
+        return (rs.ring_sector_gaps(built, positions_m, rings, n_sectors, rays_per_cell, seed=seed),
+                np.full((len(positions_m), len(rings), n_sectors), float(rays_per_cell)))
+    return sample
+
+
+def fisheye_sampler(built, cameras, n_sectors: int, *, spp: int = 4, seed: int = 0, progress=None):
+    """``sample(rings) -> (gaps, n_pixels)`` from one rendered fisheye image per camera.
+
+    ``gaps`` are the images' solid-angle-weighted cell gap fractions (``GapTable.gap``).
+    Images are rendered once, on the first call.
+    """
+    from ..canopy.fisheye import render_fisheye  # noqa: PLC0415  (imports Mitsuba)
+    images = []
+
+    def sample(rings):
+        if not images:
+            for k, cam in enumerate(cameras):
+                images.append(render_fisheye(built, cam, spp=spp, seed=seed))
+                if progress:
+                    progress(k + 1, len(cameras))
+        tables = [img.table(rings, n_sectors) for img in images]
+        return (np.stack([t.gap for t in tables]), np.stack([t.n_pixels for t in tables]).astype(float))
+    return sample
+
+
+def score_positions(sample, built, positions_m: np.ndarray, settings: dict, *, truth_lai, truth_pai,
+                    plot_lai: float, leaf_triangles=None, leaf_groups=None, transect_x_m=None) -> PhotoRun:
+    """Run every method at ``positions_m`` and score them.
+
+    ``sample(rings)`` gives each position's gap fraction per ring and sector and the pixels
+    (or rays) in each cell (:func:`ray_sampler`, :func:`fisheye_sampler`); ``built`` casts
+    the sunfleck transects.
 
     ``truth_lai(position, theta_min_deg, theta_max_deg)`` and ``truth_pai(...)`` give the
     footprint truth;
@@ -177,35 +196,36 @@ def score_positions(built, positions_m: np.ndarray, settings: dict, *, truth_lai
     hemi = _edges_to_rings(s["rings_deg"])
     rings = hemi + [HINGE_RING_DEG] + [tuple(r) for r in li.RING_BOUNDS_DEG]
     n_h = len(hemi)
-    n_sec, n_rays = int(s["n_sectors"]), int(s["rays_per_cell"])
+    n_sec = int(s["n_sectors"])
     floor = {"zero_gap": s["zero_gap"], "pai_sat": float(s["pai_sat"])}
-    if s["zero_gap"] == "pixel":
-        floor["n_pixels"] = n_rays
     alpha = float(s["wood_to_total"])
     t0 = time.perf_counter()
-    gaps = rs.ring_sector_gaps(built, positions_m, rings, n_sec, n_rays, seed=seed)
+    gaps, npix = sample(rings)
     sector_az = (np.arange(n_sec) + 0.5) * 360.0 / n_sec
     view = {"miller": (hemi[0][0], hemi[-1][1]), "miller_lx": (hemi[0][0], hemi[-1][1]),
             "hinge_57": HINGE_RING_DEG, "lai2200": (0.0, li.RING_BOUNDS_DEG[-1][1])}
     readings = li.ring_transmittance(gaps[:, n_h + 1:], sector_az, view_cap_deg=s["view_cap_deg"],
-                                     heading_deg=s["heading_deg"])
+                                     heading_deg=s["heading_deg"], sector_weights=npix[:, n_h + 1:])
+    cap = li.cap_mask(sector_az, s["view_cap_deg"], s["heading_deg"])
+    read_px = np.where(cap, npix[:, n_h + 1:], 0.0).sum(axis=2) if cap.any() else npix[:, n_h + 1:, 0]
+    pix = (lambda a: {"n_pixels": a}) if s["zero_gap"] == "pixel" else (lambda a: {})
     rows = []
     for i, pos in enumerate(positions_m):
         g_h = gaps[i, :n_h]
-        lx = lm.lang_xiang(hemi, g_h, **floor)
-        est = {"miller": lm.miller_lai(hemi, g_h, **floor),
+        lx = lm.lang_xiang(hemi, g_h, **floor, **pix(npix[i, :n_h]))
+        est = {"miller": lm.miller_lai(hemi, g_h, sector_weights=npix[i, :n_h], **floor,
+                                       **pix(npix[i, :n_h])),
                "miller_lx": (1.0 - alpha) * lx.lai_lx,
-               "hinge_57": lm.hinge_lai(float(gaps[i, n_h].mean()), **floor),
-               "lai2200": float(li.lai2200(readings[i][None], **floor).lai)}
+               "hinge_57": lm.hinge_lai(float(lm.ring_gap_fraction(gaps[i, n_h:n_h + 1], npix[i, n_h:n_h + 1])[0]),
+                                        **floor, **pix(npix[i, n_h].sum())),
+               "lai2200": float(li.lai2200(readings[i][None], **floor, **pix(read_px[i][None])).lai)}
         for m, e in est.items():
             rows.append({"position": i, "x_m": pos[0], "y_m": pos[1], "z_m": pos[2], "method": m,
                          "estimate": e, "LAI_fp": truth_lai(pos, *view[m]),
                          "PAI_fp": truth_pai(pos, *view[m])})
-        if progress:
-            progress(i + 1, len(positions_m))
     # Plot scale.
     plot = {m: float(np.mean([r["estimate"] for r in rows if r["method"] == m])) for m in view}
-    ins = li.lai2200(readings, **floor)
+    ins = li.lai2200(readings, **floor, **pix(read_px))
     plot["lai2200"], plot["lai2200_le"] = ins.lai, ins.lai_effective
     cc = None
     if transect_x_m is not None:
@@ -238,7 +258,8 @@ def score_positions(built, positions_m: np.ndarray, settings: dict, *, truth_lai
                 scores.append(_score(m, target, "plot", [plot[m]], [plot_truth[m][target == "PAI"]]))
     # Rings: the canopy's exact G, measured P, the Poisson P of the truth, Nilson's Ω.
     centres = np.array([0.5 * (a + b) for a, b in rings])
-    p_mean = gaps.mean(axis=(0, 2))
+    with np.errstate(invalid="ignore"):
+        p_mean = np.nansum(gaps * npix, axis=(0, 2)) / npix.sum(axis=(0, 2))
     G = canopy_G(leaf_triangles, centres) if leaf_triangles is not None else np.full(len(rings), np.nan)
     cos_c = np.cos(np.radians(centres))
     ring_rows = [{"ring_lo_deg": a, "ring_hi_deg": b, "G_truth": float(G[j]), "P_measured": float(p_mean[j]),
@@ -249,7 +270,8 @@ def score_positions(built, positions_m: np.ndarray, settings: dict, *, truth_lai
                "lai2200": {"lai": ins.lai, "acf": ins.acf, "lai_effective": ins.lai_effective, "difn": ins.difn,
                            "view_cap_deg": s["view_cap_deg"], "heading_deg": s["heading_deg"]},
                "lang_xiang_plot": lm.lang_xiang(hemi, gaps[:, :n_h].transpose(1, 0, 2).reshape(n_h, -1),
-                                                **floor).omega,
+                                                **floor, **pix(npix[:, :n_h].transpose(1, 0, 2)
+                                                               .reshape(n_h, -1))).omega,
                "chen_cihlar": None if cc is None else {k: getattr(cc, k) for k in (
                    "omega", "fm0", "fmr0", "lp", "wp", "n_removed", "iterations", "converged")},
                "plot_estimates": plot, "settings": {k: s[k] for k in s},
@@ -298,9 +320,10 @@ def _plot(run: PhotoRun, stage: Path, title: str) -> None:
 
 @writes_output("out_dir")
 def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
-    """Compute ``scene``'s truth, run the LAI methods at the ``[lai_methods]`` positions and
-    write the files of the module docstring to ``out_dir``."""
+    """Compute ``scene``'s truth, run the LAI methods at the ``[fisheye]`` positions with the
+    ``[lai_methods]`` settings and write the files of the module docstring to ``out_dir``."""
     from .._runtime.progress import make_progress  # noqa: PLC0415
+    from ..canopy.fisheye_run import fisheye_cameras, fisheye_positions  # noqa: PLC0415
     from ..canopy.canopy import canopies_from_config  # noqa: PLC0415
     from ..canopy.gapfraction import build_canopy_scene  # noqa: PLC0415
     from ..canopy.windows import tile_offsets  # noqa: PLC0415
@@ -318,8 +341,12 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
                           ground_z_m=cfg["ground"]["z_m"])
     leaf = grid_values(truth, "leaf_area_m2")
     plant = grid_values(truth, "plant_area_m2")
-    z_s = cfg["ground"]["z_m"] + s["height_m"]
     lo, hi = geometry.bounds_m()
+    if cfg["fisheye"]["looking"] != "up":
+        raise ConfigError("the LAI methods read sensors looking up", file=cfg.source,
+                          key="fisheye.looking", value=cfg["fisheye"]["looking"])
+    positions = fisheye_positions(cfg, lo, hi)
+    z_s = float(positions[0, 2])
     periodic = cfg.has("random_leaves")
     if periodic:
         canopy = canopies_from_config(cfg)[0]
@@ -348,15 +375,20 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
 
         def truth_pai(pos, theta_min, theta_max):
             return footprint_index(grid, plant, pos, theta_max, theta_min_deg=theta_min)
-    positions = positions_grid(bounds, s["n_x"], s["n_y"], s["margin_m"], z_s)
+    if s["sampler"] == "fisheye":
+        sample = fisheye_sampler(built, fisheye_cameras(cfg, lo, hi), s["n_sectors"],
+                                 spp=cfg["fisheye"]["spp"], seed=cfg.seed or 0)
+    else:
+        sample = ray_sampler(built, positions, s["n_sectors"], s["rays_per_cell"], seed=cfg.seed or 0)
     lv = geometry.leaves
     groups = lv.plant_id.astype(np.int64) * (1 << 32) + lv.leaf_id.astype(np.int64)
     with staged_dir(out_dir, PHOTO_OUTPUTS) as stage:
-        run = score_positions(built, positions, s, truth_lai=truth_lai, truth_pai=truth_pai,
+        run = score_positions(sample, built, positions, s, truth_lai=truth_lai, truth_pai=truth_pai,
                               plot_lai=plot_lai, leaf_triangles=lv.vertices if len(lv) else None,
-                              leaf_groups=groups, transect_x_m=(bounds[0], bounds[2]), seed=cfg.seed or 0)
+                              leaf_groups=groups, transect_x_m=(bounds[0], bounds[2]))
         run.summary.update({"scene": cfg.source, "scene_sha256": cfg.sha256, "seed": cfg.seed,
-                            "periodic": periodic, "sensor_height_m": s["height_m"]})
+                            "periodic": periodic, "sensor_z_m": z_s,
+                            "fisheye": {k: cfg["fisheye"][k] for k in cfg["fisheye"]}})
         write_csv(stage / "photo_scores.csv", SCORE_FIELDS, run.scores)
         write_csv(stage / "photo_positions.csv", ("position", "x_m", "y_m", "z_m", "method", "estimate",
                                                   "LAI_fp", "PAI_fp"), run.positions)

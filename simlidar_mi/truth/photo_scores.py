@@ -38,6 +38,12 @@ the scene's leaf triangles; instanced trees' leaves are not included), the measu
 gap fraction, the Poisson gap fraction ``exp(−G(θ)·L/cos θ)`` of the truth's plot LAI and
 Nilson's clumping ``Ω(θ) = −ln P(θ)·cos θ/(G(θ)·L)``: the truth's clumping of the rings.
 
+Plot-scale estimates are the mean of the positions' estimates, except the LAI-2200's (the
+instrument's log average over its readings) and Chen–Cihlar's. A leaf just above a lens fills
+whole rings: their gap fraction is 0 and takes the ``zero_gap`` floor (a PAI of 10 by default),
+so sensors inside the canopy (a crop scene's lens at the ground) read high; in the field the lens
+goes below the lowest leaves.
+
 Scores per method, target and scale: n, coverage (share of positions with a finite
 estimate), bias and RMSE of estimate − truth, the means (``photo_scores.csv``/``.json``),
 one row per position and method (``photo_positions.csv``) and ``photo_scores.png``.

@@ -230,3 +230,18 @@ def test_view_caps_select_azimuths():
     t45 = li.ring_transmittance(gaps, az, view_cap_deg=45, heading_deg=100)
     np.testing.assert_allclose(t45, 0.2)  # the sector centred at 112.5° is nearest
     np.testing.assert_allclose(li.ring_transmittance(np.stack([gaps, gaps]), az), 0.35)
+
+
+def test_table_methods_on_a_poisson_table():
+    rings = np.array([[0, 15], [15, 30], [30, 45], [45, 60], [60, 75]], float)
+    p = np.repeat(poisson_p(rings, 2.0)[:, None], 8, axis=1)
+    out = lm.table_methods(rings, p, np.full(p.shape, 500))
+    assert out["miller"] == pytest.approx(2.0, rel=1e-12)
+    assert out["omega_lx"] == pytest.approx(1.0) and out["lai_lx"] == pytest.approx(2.0)
+    # The 45–60° ring holds 57.5°; its centre (52.5°) is the zenith used.
+    assert out["hinge_57"] == pytest.approx(2.0, rel=1e-12)
+    assert math.isnan(lm.table_methods(rings[:3], p[:3])["hinge_57"])
+    closed = p.copy()
+    closed[0, 0] = 0.0
+    with_pixel = lm.table_methods(rings, closed, np.full(p.shape, 500), zero_gap="pixel")
+    assert with_pixel["omega_lx"] < 1.0

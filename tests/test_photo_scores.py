@@ -58,3 +58,17 @@ def test_footprint_beyond_the_grid_is_bare():
     # A sensor at the block's corner sees it in a quarter of each large disc.
     got = ps.footprint_index(grid, area, np.array([0.0, 0.0, 0.0]), 30.0)
     assert 0.05 < got < 0.2
+
+
+@pytest.mark.parametrize("override,key", [
+    ("lai_methods.view_cap_deg=0", "lai_methods.view_cap_deg"),
+    ("lai_methods.zero_gap='none'", "lai_methods.zero_gap"),
+    ("lai_methods.wood_to_total=1.0", "lai_methods.wood_to_total"),
+    ("lai_methods.rings_deg=[0, 50, 40]", "lai_methods.rings_deg"),
+    ("fisheye.looking='down'", "fisheye.looking"),
+])
+def test_bad_lai_method_keys_are_named(tmp_path, override, key):
+    from simlidar_mi.errors import ConfigError
+    with pytest.raises(ConfigError) as err:
+        ps.evaluate_photo("scenes/random_leaves_spherical.toml", tmp_path / "out", [override])
+    assert key in str(err.value)

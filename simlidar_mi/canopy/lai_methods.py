@@ -78,7 +78,7 @@ __all__ = [
     "floor_gap_fraction", "ring_gap_fraction", "miller_lai", "hinge_lai", "LangXiang",
     "lang_xiang", "gap_lengths", "accumulated_gap_fraction", "random_gap_fraction",
     "probe_probability", "ChenCihlar", "chen_cihlar", "REMOVAL_RULES",
-    "projected_element_width", "true_lai", "nilson_clumping",
+    "projected_element_width", "table_methods", "true_lai", "nilson_clumping",
 ]
 
 ZERO_GAP_RULES = ("pixel", "pai_sat", "raise")
@@ -439,6 +439,31 @@ def projected_element_width(triangles, sun_zenith_deg: float, sun_azimuth_deg: f
     np.maximum.at(hi, g, across.max(axis=1))
     np.minimum.at(lo, g, across.min(axis=1))
     return float(area.sum() / (hi - lo).sum())
+
+
+def table_methods(zenith_bounds_deg, gap_fraction, n_pixels=None, *, zero_gap: str = "pai_sat",
+                  pai_sat: float = PAI_SAT) -> dict[str, float]:
+    """Miller's L_e, Lang–Xiang's Ω and L_LX, and the 57.5° L_e of one ring × sector table.
+
+    For a fisheye image's (or a field photo's) table: ``zenith_bounds_deg`` (R, 2), ``gap_fraction``
+    (R, S) and optionally ``n_pixels`` (R, S), which weight the sectors and give the 'pixel'
+    floor. The 57.5° value uses the ring that contains 57.5° (NaN when none does).
+    """
+    b = _bounds(zenith_bounds_deg)
+    p = _gaps(gap_fraction, len(b))
+    npx = None if n_pixels is None else np.broadcast_to(np.asarray(n_pixels, float), p.shape)
+    floor = {"zero_gap": zero_gap, "pai_sat": pai_sat}
+    pix = (lambda a: {"n_pixels": a}) if zero_gap == "pixel" else (lambda a: {})
+    lx = lang_xiang(b, p, **floor, **pix(npx))
+    out = {"miller": miller_lai(b, p, sector_weights=npx, **floor, **pix(npx)),
+           "omega_lx": lx.omega, "lai_lx": lx.lai_lx, "hinge_57": float("nan")}
+    hit = np.flatnonzero((b[:, 0] <= HINGE_ZENITH_DEG) & (HINGE_ZENITH_DEG < b[:, 1]))
+    if hit.size:
+        i = int(hit[0])
+        pr = ring_gap_fraction(p[i:i + 1], None if npx is None else npx[i:i + 1])[0]
+        out["hinge_57"] = hinge_lai(float(pr), zenith_deg=float(b[i].mean()), **floor,
+                                    **pix(None if npx is None else float(npx[i].sum())))
+    return out
 
 
 # -------------------------------------------------------------------- true LAI

@@ -65,7 +65,7 @@ from ..errors import ConfigError
 from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
 from .grid import VoxelGrid, grid_values
 
-__all__ = ["PhotoRun", "footprint_index", "canopy_G", "ray_sampler", "fisheye_sampler", "score_positions",
+__all__ = ["PhotoRun", "RadialSums", "footprint_index", "canopy_G", "ray_sampler", "fisheye_sampler", "score_positions",
            "evaluate_photo", "PHOTO_OUTPUTS", "METHODS"]
 
 PHOTO_OUTPUTS = (r"photo_scores\.(csv|json|png)", r"photo_positions\.csv")
@@ -91,14 +91,51 @@ class PhotoRun:
         raise KeyError(f"no score for {method!r}, {target!r}, {scale!r}")
 
 
+class RadialSums:
+    """Each layer's plant area binned by the distance of its column centres from a position.
+
+    Bins are a quarter voxel wide; ``sum_over`` reads a layer's area within a radius range
+    as a cumulative-sum difference, so one position serves every method's footprint.
+    """
+
+    def __init__(self, grid: VoxelGrid, area: np.ndarray, position_m):
+        cx, cy, cz = grid.corner_m
+        v = grid.voxel_m
+        nx, ny, nz = grid.shape
+        xc = cx + (np.arange(nx) + 0.5) * v
+        yc = cy + (np.arange(ny) + 0.5) * v
+        self.z = cz + (np.arange(nz) + 0.5) * v
+        self.pz = float(position_m[2])
+        self.bin_m = 0.25 * v
+        r = np.sqrt((xc[:, None] - position_m[0]) ** 2 + (yc[None, :] - position_m[1]) ** 2).ravel()
+        idx = (r / self.bin_m).astype(np.int64)
+        h = np.zeros((idx.max() + 2, nz))
+        np.add.at(h, idx, np.asarray(area, float).reshape(-1, nz))
+        self.cum = np.vstack([np.zeros((1, nz)), np.cumsum(h, axis=0)])  # cum[i]: bins < i
+
+    def sum_over(self, layers, t_in: float, t: float) -> float:
+        """``Σ_k area(r_in,k ≤ r < R_k) / (π (R_k² − r_in,k²))`` over ``layers``."""
+        dz = self.z[layers] - self.pz
+        rk, rin = dz * t, dz * t_in
+        n = self.cum.shape[0] - 1
+        hi = np.minimum(np.floor(rk / self.bin_m).astype(np.int64) + 1, n)
+        lo = np.minimum(np.floor(rin / self.bin_m).astype(np.int64), n) if t_in > 0 else np.zeros_like(hi)
+        got = self.cum[hi, layers] - self.cum[lo, layers]
+        return float(np.sum(got / (math.pi * (rk ** 2 - rin ** 2))))
+
+
 def footprint_index(grid: VoxelGrid, area: np.ndarray, position_m, theta_max_deg: float,
-                    supersample: int = 8, theta_min_deg: float = 0.0) -> float:
+                    supersample: int = 8, theta_min_deg: float = 0.0, *,
+                    radial: RadialSums | None = None) -> float:
     """``Σ_k area in disc_k / area of disc_k`` over the layers above the sensor (module docstring).
 
-    Each column's share of the disc is measured on ``supersample²`` points per voxel; a disc
-    under two voxels across is normalised by its sampled area (so it still reads the column it
-    lies in), a larger one by π R² (the part beyond the grid is bare ground). With
-    ``theta_min_deg`` > 0 the footprint is the annulus between the two view zeniths.
+    A disc under ten voxels across counts each column by its share of the disc, measured on
+    ``supersample²`` points per voxel; one under two voxels is normalised by its sampled area
+    (so it still reads the column it lies in). A larger disc counts the columns whose centre
+    it holds (in quarter-voxel distance bins, :class:`RadialSums`; error ~ voxel/radius) and
+    is normalised by π R²: the part beyond the grid is bare ground. ``radial`` reuses one
+    position's :class:`RadialSums` of the same ``area``. With ``theta_min_deg`` > 0 the footprint is the annulus between the two view
+    zeniths.
     """
     cx, cy, cz = grid.corner_m
     v = grid.voxel_m
@@ -108,8 +145,13 @@ def footprint_index(grid: VoxelGrid, area: np.ndarray, position_m, theta_max_deg
     t = math.tan(math.radians(theta_max_deg))
     t_in = math.tan(math.radians(theta_min_deg))
     sub = (np.arange(supersample) + 0.5) / supersample
+    layers = np.flatnonzero(zc > pz)
+    big = layers[(zc[layers] - pz) * (t - t_in) >= 5 * v]
     total = 0.0
-    for k in np.flatnonzero(zc > pz):
+    if big.size:
+        rad = radial if radial is not None else RadialSums(grid, area, position_m)
+        total += rad.sum_over(big, t_in, t)
+    for k in np.setdiff1d(layers, big):
         rk = (zc[k] - pz) * t
         i0 = max(0, int(math.floor((px - rk - cx) / v)))
         i1 = min(nx, int(math.floor((px + rk - cx) / v)) + 1)
@@ -376,11 +418,19 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
         built = build(cfg, geometry)
         plot_lai = float(truth.attrs.get("LAI", leaf.sum() / ((hi[0] - lo[0]) * (hi[1] - lo[1]))))
 
+        sums: dict = {}
+
+        def _fp(area, name, pos, theta_min, theta_max):
+            key = (name, tuple(pos))
+            if key not in sums:
+                sums[key] = RadialSums(grid, area, pos)
+            return footprint_index(grid, area, pos, theta_max, theta_min_deg=theta_min, radial=sums[key])
+
         def truth_lai(pos, theta_min, theta_max):
-            return footprint_index(grid, leaf, pos, theta_max, theta_min_deg=theta_min)
+            return _fp(leaf, "leaf", pos, theta_min, theta_max)
 
         def truth_pai(pos, theta_min, theta_max):
-            return footprint_index(grid, plant, pos, theta_max, theta_min_deg=theta_min)
+            return _fp(plant, "plant", pos, theta_min, theta_max)
     if s["sampler"] == "fisheye":
         sample = fisheye_sampler(built, fisheye_cameras(cfg, lo, hi), s["n_sectors"],
                                  spp=cfg["fisheye"]["spp"], seed=cfg.seed or 0)

@@ -203,3 +203,11 @@ def test_tilt_leans_the_axis_toward_its_azimuth(looking, sign):
     assert np.nanmin(a.theta_deg) == pytest.approx(90 * math.hypot(0.5, 0.5) / 32)  # from the tilted axis
     # φ axes tilt with the camera (⟂ the axis): +x stays +x (the lean is toward +y), +y turns with it
     np.testing.assert_allclose(cam.azimuth_axes(), [[1, 0, 0], [0, math.sqrt(3) / 2, -0.5 * sign]], atol=1e-15)
+
+
+def test_same_scene_same_bytes(mi):
+    disc = _leaves(_polygon(0.2, 0.1, 2.5, 0.8, 64))
+    cam = make_fisheye([0, 0, 1.0], projection="equisolid", resolution=48, tilt_deg=5.0)
+    a = render_fisheye(_built(disc), cam, spp=4)
+    b = render_fisheye(_built(disc), cam, spp=4)
+    assert a.coverage.tobytes() == b.coverage.tobytes()

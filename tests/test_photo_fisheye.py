@@ -71,8 +71,13 @@ def test_chestnut_circular_fc_e8():
     assert np.all((r.table.ring_gap >= 0) & (r.table.ring_gap <= 1))
     assert r.table.gap.shape == (6, 8) and not np.isnan(r.table.gap).any()
     assert r.labels.shape == (426, 568) and r.labels[0, 0] == 2
-    xc, yc, rad = detect_circle(CHESTNUT, downscale=4)  # dark crowns at the rim: a smaller circle
+    xc, yc, rad = detect_circle(CHESTNUT, downscale=4)
     assert abs(xc - 1136) < 40 and 600 < rad < 800
+    # the detected circle holds the whole lit disc: beyond its rim the surround is black
+    from simlidar_mi.canopy.photo import read_rgb
+    bright = read_rgb(CHESTNUT, 4).max(axis=2)
+    yy, xx = np.mgrid[0:bright.shape[0], 0:bright.shape[1]] + 0.5
+    assert bright[np.hypot(xx - xc / 4, yy - yc / 4) > rad / 4 + 3].mean() < 0.5
 
 
 @needs_photos

@@ -33,10 +33,14 @@ are homogeneous by construction: their footprint truth is the plot's LAI above t
 (voxel layers whose centre is higher). Plot scale: the
 mean footprint truth over the positions.
 
-The JSON adds, per ring, the canopy's exact G(θ) (azimuth mean of Σ a_i|n_i·Ω|/Σ a_i over
+The JSON adds the truth's woody share of the plant area (``wood_to_total_truth``, the α of
+the true-LAI correction) and, per ring, the canopy's exact G(θ) (azimuth mean of Σ a_i|n_i·Ω|/Σ a_i over
 the scene's leaf triangles; instanced trees' leaves are not included), the measured mean
 gap fraction, the Poisson gap fraction ``exp(−G(θ)·L/cos θ)`` of the truth's plot LAI and
-Nilson's clumping ``Ω(θ) = −ln P(θ)·cos θ/(G(θ)·L)``: the truth's clumping of the rings.
+Nilson's clumping ``Ω(θ) = −ln P(θ)·cos θ/(G(θ)·L)``: the truth's clumping of the rings. Wood
+blocks the sky too, so in a woody canopy that leaf-only Ω can exceed 1; ``omega_nilson_plant``
+uses the plot's PAI and the plant G (wood's half-surface at G = 0.5, as
+:mod:`simlidar_mi.truth.leaf_g`).
 
 Plot-scale estimates are the mean of the positions' estimates, except the LAI-2200's (the
 instrument's log average over its readings) and Chen–Cihlar's. A leaf just above a lens fills
@@ -227,7 +231,8 @@ def fisheye_sampler(built, cameras, n_sectors: int, *, spp: int = 4, seed: int =
 
 
 def score_positions(sample, built, positions_m: np.ndarray, settings: dict, *, truth_lai, truth_pai,
-                    plot_lai: float, leaf_triangles=None, leaf_groups=None, transect_x_m=None) -> PhotoRun:
+                    plot_lai: float, plot_pai: float | None = None, leaf_triangles=None, leaf_groups=None,
+                    transect_x_m=None) -> PhotoRun:
     """Run every method at ``positions_m`` and score them.
 
     ``sample(rings)`` gives each position's gap fraction per ring and sector and the pixels
@@ -310,11 +315,16 @@ def score_positions(sample, built, positions_m: np.ndarray, settings: dict, *, t
         p_mean = np.nansum(gaps * npix, axis=(0, 2)) / npix.sum(axis=(0, 2))
     G = canopy_G(leaf_triangles, centres) if leaf_triangles is not None else np.full(len(rings), np.nan)
     cos_c = np.cos(np.radians(centres))
+    pai = plot_lai if plot_pai is None else plot_pai
+    # Plant G: the wood's half-surface counts with G = 0.5 (random cylinders; truth.leaf_g).
+    Gp = (plot_lai * G + 0.5 * (pai - plot_lai)) / pai if pai > 0 else G
     ring_rows = [{"ring_lo_deg": a, "ring_hi_deg": b, "G_truth": float(G[j]), "P_measured": float(p_mean[j]),
                   "P_poisson_truth": float(np.exp(-G[j] * plot_lai / cos_c[j])),
-                  "omega_nilson": float(lm.nilson_clumping(centres[j], p_mean[j], G[j], plot_lai))}
+                  "omega_nilson": float(lm.nilson_clumping(centres[j], p_mean[j], G[j], plot_lai)),
+                  "G_plant_truth": float(Gp[j]),
+                  "omega_nilson_plant": float(lm.nilson_clumping(centres[j], p_mean[j], Gp[j], pai))}
                  for j, (a, b) in enumerate(rings)]
-    summary = {"plot_lai_truth": plot_lai, "rings": ring_rows,
+    summary = {"plot_lai_truth": plot_lai, "plot_pai_truth": pai, "rings": ring_rows,
                "lai2200": {"lai": ins.lai, "acf": ins.acf, "lai_effective": ins.lai_effective, "difn": ins.difn,
                            "view_cap_deg": s["view_cap_deg"], "heading_deg": s["heading_deg"]},
                "lang_xiang_plot": lm.lang_xiang(hemi, gaps[:, :n_h].transpose(1, 0, 2).reshape(n_h, -1),
@@ -417,6 +427,7 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
         bounds = (lo[0], lo[1], hi[0], hi[1])
         built = build(cfg, geometry)
         plot_lai = float(truth.attrs.get("LAI", leaf.sum() / ((hi[0] - lo[0]) * (hi[1] - lo[1]))))
+        plot_pai = float(truth.attrs.get("PAI", plant.sum() / ((hi[0] - lo[0]) * (hi[1] - lo[1]))))
 
         sums: dict = {}
 
@@ -440,10 +451,14 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
     groups = lv.plant_id.astype(np.int64) * (1 << 32) + lv.leaf_id.astype(np.int64)
     with staged_dir(out_dir, PHOTO_OUTPUTS) as stage:
         run = score_positions(sample, built, positions, s, truth_lai=truth_lai, truth_pai=truth_pai,
-                              plot_lai=plot_lai, leaf_triangles=lv.vertices if len(lv) else None,
+                              plot_lai=plot_lai, plot_pai=plot_pai,
+                              leaf_triangles=lv.vertices if len(lv) else None,
                               leaf_groups=groups, transect_x_m=(bounds[0], bounds[2]))
         run.summary.update({"scene": cfg.source, "scene_sha256": cfg.sha256, "seed": cfg.seed,
                             "periodic": periodic, "sensor_z_m": z_s,
+                            # the α a user would need: the wood's share of the plant area
+                            "wood_to_total_truth": float(1.0 - leaf.sum() / plant.sum()) if plant.sum() > 0
+                            else float("nan"),
                             "fisheye": {k: cfg["fisheye"][k] for k in cfg["fisheye"]}})
         write_csv(stage / "photo_scores.csv", SCORE_FIELDS, run.scores)
         write_csv(stage / "photo_positions.csv", ("position", "x_m", "y_m", "z_m", "method", "estimate",

@@ -13,10 +13,11 @@ from typing import Callable
 
 from .cli_canopy import register as _register_canopy
 from .errors import SimlidarError, SimlidarWarning
+from .truth.photo_cli import cli_command as _photo_command  # evaluate-photo, beside its API
 
 Command = tuple[str, str, Callable[[argparse.ArgumentParser], None],
                 Callable[[argparse.Namespace], int | None]]
-COMMANDS: list[Command] = []
+COMMANDS: list[Command] = [_photo_command(lambda p: _scene_args(p), lambda a: _overrides(a))]
 
 
 def command(name: str, help: str, add_arguments: Callable[[argparse.ArgumentParser], None]):
@@ -27,8 +28,7 @@ def command(name: str, help: str, add_arguments: Callable[[argparse.ArgumentPars
     return deco
 
 
-# --- sub-commands -----------------------------------------------------------------
-# (each block: argument builder + run function calling one API function)
+# --- sub-commands (each block: argument builder + run function calling one API function) ---
 
 
 def _scene_args(p: argparse.ArgumentParser) -> None:
@@ -449,7 +449,6 @@ def _truth_args(p: argparse.ArgumentParser) -> None:
 def _truth_run(args: argparse.Namespace) -> int:
     from .config import Override
     from .truth.run import run_truth
-
     # errors in it name the option typed, not a --set or the scene's key
     extra = [Override(f"truth.voxel_m={args.voxel!r}", f"--voxel {args.voxel!r}")] if args.voxel is not None else []
     run = run_truth(args.scene, args.out, _overrides(args) + extra, progress=True)

@@ -44,6 +44,7 @@ NO_UNIT = {
     "orchard.leaves.width_ratio_mean": "1", "orchard.leaves.width_ratio_sd": "1",
     "forest.crown_factor": "1", "forest.scale_range": "1", "forest.max_candidate_factor": "1",
     **{f"species.{k}_tree_cv": "1" for k in ("leaf_length", "n_daughters", "leaves_per_branch")},
+    "lai_methods.pai_sat": "1", "lai_methods.wood_to_total": "1",
     "gapfraction.window_fraction": "1", "gapfraction.mask_threshold": "1",
     "sensor.detection_threshold": "1", "sensor.noise_ref_snr": "1", "sensor.threshold_snr": "1",
     "strawberry.leaves_per_plant_mean": "count", "strawberry.leaves_per_plant_sd": "count",

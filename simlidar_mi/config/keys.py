@@ -390,6 +390,7 @@ def _merge(feature: dict[str, dict[str, Key]]) -> None:
         SECTIONS.setdefault(name, {}).update(keys)
 
 
+from .keys_lai import SECTIONS as _LAI  # noqa: E402
 from .keys_orchard import SECTIONS as _ORCHARD  # noqa: E402  ([orchard.leaves]; [orchard] row_spacing_m)
 from .keys_fisheye import SECTIONS as _FISHEYE  # noqa: E402
 from .keys_truth import SECTIONS as _TRUTH  # noqa: E402
@@ -399,3 +400,4 @@ _merge(_ORCHARD)
 _merge(_VINEYARD)
 _merge(_TRUTH)
 _merge(_FISHEYE)
+_merge(_LAI)

@@ -13,11 +13,10 @@ from typing import Callable
 
 from .cli_canopy import register as _register_canopy
 from .errors import SimlidarError, SimlidarWarning
-from .truth.photo_cli import cli_command as _photo_command  # evaluate-photo, beside its API
 
 Command = tuple[str, str, Callable[[argparse.ArgumentParser], None],
                 Callable[[argparse.Namespace], int | None]]
-COMMANDS: list[Command] = [_photo_command(lambda p: _scene_args(p), lambda a: _overrides(a))]
+COMMANDS: list[Command] = []
 
 
 def command(name: str, help: str, add_arguments: Callable[[argparse.ArgumentParser], None]):
@@ -504,7 +503,7 @@ def _evaluate_run(args: argparse.Namespace) -> int:
     return 0
 
 
-_register_canopy(command, _scene_args, _overrides)  # gapfraction, fisheye (cli_canopy.py)
+_register_canopy(command, _scene_args, _overrides)  # gapfraction, fisheye, evaluate-photo (cli_canopy.py)
 
 
 def build_parser() -> argparse.ArgumentParser:

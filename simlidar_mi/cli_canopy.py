@@ -1,4 +1,5 @@
-"""Command line: the canopy-camera sub-commands (``gapfraction``, ``fisheye``, ``fisheye-photo``).
+"""Command line: the canopy-camera sub-commands (``gapfraction``, ``fisheye``, ``fisheye-photo``,
+``evaluate-photo``).
 
 Kept beside cli.py so that neither grows past the module size limit; cli.py calls
 :func:`register` with its ``command`` decorator and shared argument helpers (passed in, so this
@@ -112,4 +113,25 @@ def register(command, scene_args, overrides) -> None:
             print("  ring gap " + "  ".join(f"{a:g}-{b:g}°: {g:.4f}" for a, b, g in
                                             zip(r.table.ring_lo_deg, r.table.ring_hi_deg, r.table.ring_gap)))
         print(f"wrote {args.out}/fisheye_photo_gap.csv")
+        return 0
+
+    def _evaluate_photo_args(p: argparse.ArgumentParser) -> None:
+        scene_args(p)
+        p.add_argument("--out", required=True, metavar="DIR",
+                       help="output folder: photo_scores.csv/json/png, photo_positions.csv")
+
+    @command("evaluate-photo", "Run the gap-fraction LAI methods (Miller, 57.5°, Lang–Xiang, LAI-2200, "
+             "Chen–Cihlar) at a scene's [fisheye] positions and score them against its truth",
+             _evaluate_photo_args)
+    def _evaluate_photo_run(args: argparse.Namespace) -> int:
+        from .truth.photo_scores import evaluate_photo
+
+        out = evaluate_photo(args.scene, args.out, overrides(args), progress=True)
+        print(f"{'method':<12} {'target':<6} {'scale':<9} {'n':>4} {'cover':>6} {'truth':>7} "
+              f"{'est':>7} {'bias':>7} {'RMSE':>7}   (LAI, PAI: m2/m2)")
+        for r in out.scores:
+            print(f"{r['method']:<12} {r['target']:<6} {r['scale']:<9} {r['n']:>4} "
+                  f"{100 * r['coverage']:5.1f}% {r['truth_mean']:7.3f} {r['estimate_mean']:7.3f} "
+                  f"{r['bias']:+7.3f} {r['rmse']:7.3f}")
+        print(f"wrote {args.out}/photo_scores.csv and {len(out.files) - 1} more outputs")
         return 0

@@ -1,4 +1,4 @@
-"""Example plug-in estimators for ``simlidar-mi evaluate`` (README "Evaluating LiDAR processing code").
+"""Example plug-in estimators for ``simlidar-mi evaluate`` (docs/guide/truth-evaluate.md).
 
 A callable plug-in (``--estimator examples/my_estimator.py:contact_frequency``) is a
 function ``f(scan_dir, grid)``: ``scan_dir`` holds the scan's ``scan.exr``,

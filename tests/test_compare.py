@@ -295,7 +295,7 @@ def test_shipped_strawberry_manifest(tmp_path: Path) -> None:
         assert s["paper_scatter"] == pytest.approx(paper_scatter, abs=1e-4)
         assert math.isnan(s["scatter"])  # one (mean) pair per zenith: no scatter to measure
     assert (tmp_path / "out" / "comparison.png").is_file()
-    # Both petiole readings in full, as the README prints them (same seeds, same values): the
+    # Both petiole readings in full, as docs/guide/gap-fraction.md prints them (same seeds, same values): the
     # default (φ the zenith), chosen because it fits these values, and θ the zenith.
     assert res.own_reading == "phi"
     for name, want in (("phi", (-0.041, -0.028, -0.040)), ("theta", (-0.096, -0.091, -0.102))):

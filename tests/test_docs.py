@@ -17,7 +17,7 @@ except ModuleNotFoundError:  # Python 3.10
 
 import pytest
 
-from tests.conftest import REPO
+from tests.conftest import REPO, SHARED
 
 DOCS = REPO / "docs"
 sys.path.insert(0, str(DOCS / "_ext"))
@@ -25,6 +25,17 @@ import simlidar_ref  # noqa: E402  (docs/_ext: the generator of the references)
 
 PAGES = sorted(p for p in DOCS.rglob("*.md") if "_build" not in p.parts)
 BOUND_S = 600  # stops a hung build or command; no assertion depends on time
+# Shell lines known to take minutes (2 shared cores), with the bound that stops them if hung. A
+# page holding one is run twice: without those blocks (quick), and whole, marked `slow` (deselect
+# with -m "not slow"; run by default).
+SLOW_S = {"simlidar-mi study ": 3600, "simlidar-mi synthetic-photo ": 2400,
+          "scenes/forest_4species.toml": 900, "scenes/forest_airborne.toml": 900}
+
+
+def slow_bound_s(code: str) -> int | None:
+    """The bound of the slowest known-slow line in ``code``, or None when it holds none."""
+    bounds = [s for key, s in SLOW_S.items() if re.search(re.escape(key.rstrip()) + r"(\s|$)", code)]
+    return max(bounds) if bounds else None
 
 
 # --- (a) the build ------------------------------------------------------------------------
@@ -184,11 +195,14 @@ def _sybil():
 
         def evaluate(self, example):
             ns = example.namespace
+            if "../shared/" in example.parsed and not SHARED.is_dir():
+                return None  # the real test photos beside the clone: absent on this machine
             env_file = ns["_env_file"]
             script = (f'set -e\nsource "{env_file}"\n{SHELL_PRELUDE}\n{example.parsed}\n'
                       f'export -p > "{env_file}"\n')
             proc = subprocess.run(["bash", "-c", script], cwd=ns["_clone"], env=ns["_env"],
-                                  capture_output=True, text=True, timeout=BOUND_S)
+                                  capture_output=True, text=True,
+                                  timeout=slow_bound_s(example.parsed) or BOUND_S)
             if proc.returncode != 0 or "Traceback" in proc.stderr:
                 return (f"exit {proc.returncode}\nstdout: {proc.stdout[-2000:]}\n"
                         f"stderr: {proc.stderr[-3000:]}")
@@ -230,6 +244,8 @@ def _clone(tmp_path: Path) -> tuple[Path, dict]:
     bin_.mkdir(parents=True)
     for name in ("scenes", "examples"):
         (clone / name).symlink_to(REPO / name)
+    if SHARED.is_dir():  # the shared data folder beside the clone, as ../shared
+        (tmp_path / "shared").symlink_to(SHARED)
     shims = {"simlidar-mi": f'exec "{sys.executable}" -m simlidar_mi.cli "$@"',
              "python": f'exec "{sys.executable}" "$@"'}
     for name, body in shims.items():
@@ -260,8 +276,32 @@ def _fences(text: str) -> list[tuple[str, int, int]]:
 RUN = ("python", "sh", "toml")  # the languages _sybil() runs
 
 
-@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(DOCS)))
-def test_page_code_blocks_run(page, tmp_path, monkeypatch):
+def _page_params():
+    for page in PAGES:
+        name = str(page.relative_to(DOCS))
+        if any(slow_bound_s(code) for lang, code in _blocks(page) if lang == "sh"):
+            yield pytest.param(page, False, id=f"{name}-quick")
+            yield pytest.param(page, True, id=f"{name}-whole", marks=pytest.mark.slow)
+        else:
+            yield pytest.param(page, True, id=name)
+
+
+def _blocks(page: Path) -> list[tuple[str, str]]:
+    lines = page.read_text().splitlines()
+    return [(lang, "\n".join(lines[first:last - 1])) for lang, first, last in _fences(page.read_text())]
+
+
+def test_slow_lines_are_recognised():
+    """The quick run leaves out exactly the known-slow lines (so it can tell them apart)."""
+    assert slow_bound_s("simlidar-mi study scenes/apple_orchard.toml --out out/study") == 3600
+    assert slow_bound_s("simlidar-mi forest scenes/forest_4species.toml --out x") == 900
+    assert slow_bound_s("simlidar-mi scan scenes/forest_airborne_echoes.toml --out x") is None
+    assert slow_bound_s("simlidar-mi scan scenes/calibration_cylinder.toml --out x") is None
+    assert any(p.id.endswith("-whole") for p in _page_params())
+
+
+@pytest.mark.parametrize(("page", "whole"), list(_page_params()))
+def test_page_code_blocks_run(page, whole, tmp_path, monkeypatch):
     blocks = _fences(page.read_text())
     unknown = [b for b in blocks if not b[0].startswith("{") and b[0] not in RUN]
     assert not unknown, f"{page.name}: blocks {unknown} have no runner here (add one, or use {RUN})"
@@ -275,6 +315,9 @@ def test_page_code_blocks_run(page, tmp_path, monkeypatch):
     document.namespace.update(_clone=clone, _env=env, _env_file=env_file)
     monkeypatch.chdir(clone)  # Python blocks read scenes/ and write out/ where the shell ones do
     for example in examples:
+        if not whole and isinstance(example.parsed, str) and slow_bound_s(example.parsed) \
+                and not example.document.evaluators:  # (a block a `skip` holds back: to it)
+            continue  # the quick run: the page's `-whole` run (marked slow) runs it
         example.evaluate()
 
 
@@ -288,3 +331,43 @@ def test_shell_blocks_fail_where_a_new_user_would(tmp_path):
         proc = subprocess.run(["bash", "-c", f"set -e\n{SHELL_PRELUDE}\n{line}"], cwd=clone, env=env,
                               capture_output=True, text=True, timeout=BOUND_S)
         assert (proc.returncode == 0) is ok, (line, proc.stderr)
+
+
+# --- (d) the faults page names tests that exist ------------------------------------------
+FAULTS = DOCS / "guide" / "faults.md"
+
+
+def _faults_table(text: str) -> list[tuple[str, str, str]]:
+    rows = []
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split(" | ")]
+        if len(cells) == 3 and cells[2].startswith("tests/"):
+            rows.append((cells[0], cells[1], cells[2]))
+    return rows
+
+
+def _missing_tests(rows: list[tuple[str, str, str]]) -> list[str]:
+    import ast
+    missing = []
+    for _case, _seen, ref in rows:
+        path, name = ref.split("::")
+        file = REPO / path
+        tree = ast.parse(file.read_text()) if file.is_file() else ast.Module(body=[], type_ignores=[])
+        names = {n.name for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))}
+        if name.split("[")[0] not in names:
+            missing.append(ref)
+    return missing
+
+
+def test_faults_table_names_tests_that_exist():
+    """Every row of the "Faults and bad input" page is backed by a real test."""
+    rows = _faults_table(FAULTS.read_text())
+    assert len(rows) >= 30
+    assert _missing_tests(rows) == []
+
+
+def test_faults_check_finds_a_missing_test():
+    rows = [("a case", "a line", "tests/test_docs.py::test_no_such_test"),
+            ("a case", "a line", "tests/no_such_file.py::test_x"),
+            ("a case", "a line", "tests/test_docs.py::test_faults_table_names_tests_that_exist")]
+    assert _missing_tests(rows) == ["tests/test_docs.py::test_no_such_test", "tests/no_such_file.py::test_x"]

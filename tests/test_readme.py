@@ -1,5 +1,6 @@
 """The README's examples run as written: its Python blocks, and every ``simlidar-mi`` line of
-its shell command blocks, in a scratch folder laid out like a fresh clone."""
+its shell command blocks, in a scratch folder laid out like a fresh clone; the README and the
+documentation pages together show every sub-command."""
 from __future__ import annotations
 
 import json
@@ -14,28 +15,35 @@ import pytest
 
 from simlidar_mi.cli import COMMANDS
 from tests.conftest import REPO, SHARED
+from tests.test_docs import PAGES, SLOW_S
 
 README = REPO / "README.md"
 
-# Lines known to take minutes (2 shared cores): marked `slow` (deselect with -m "not slow")
-# but run by default; the bound only stops a hung command, it asserts no timing.
-SLOW_S = {"simlidar-mi study ": 3600, "simlidar-mi synthetic-photo ": 2400,
-          "scenes/forest_4species.toml": 900, "scenes/forest_airborne.toml": 900}
+# Lines known to take minutes (SLOW_S, shared with the pages' runner) are marked `slow` (deselect
+# with -m "not slow") but run by default; the bound only stops a hung command.
 BOUND_S = 600
 
 
-def _readme_commands() -> list[str]:
-    """Each distinct ``simlidar-mi ...`` line of the README's ```sh blocks, comment removed."""
+def _commands(text: str) -> list[str]:
+    """Each distinct ``simlidar-mi ...`` line of a page's ```sh blocks (also called by its path,
+    ``.venv/bin/simlidar-mi``), comment removed, as ``simlidar-mi ...``."""
     seen: list[str] = []
-    for block in re.findall(r"```sh\n(.*?)```", README.read_text(), re.S):
+    for block in re.findall(r"```sh\n(.*?)```", text, re.S):
         for line in block.splitlines():
             cmd = re.sub(r"\s+#.*$", "", line).strip()
+            cmd = re.sub(r"^(\./)?\.venv/bin/simlidar-mi ", "simlidar-mi ", cmd)
             if cmd.startswith("simlidar-mi ") and cmd not in seen:
                 seen.append(cmd)
     return seen
 
 
-COMMAND_LINES = _readme_commands()
+def _missing_commands(texts: list[str]) -> set[str]:
+    """The sub-commands that no ```sh block of these texts shows."""
+    used = {shlex.split(c)[1] for text in texts for c in _commands(text) if len(shlex.split(c)) > 1}
+    return {name for name, *_ in COMMANDS} - used
+
+
+COMMAND_LINES = _commands(README.read_text())
 
 
 def _param(cmd: str):
@@ -52,15 +60,27 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
     (tmp_path / "scenes").symlink_to(REPO / "scenes")
     for code in blocks:
         exec(compile(code, "README.md", "exec"), {})
-    assert (tmp_path / "out" / "two_trees.exr").stat().st_size > 0
+    for name in ("scan.exr", "scan.png", "points.las", "measures.json"):
+        assert (tmp_path / "out" / "cylinder_py" / name).stat().st_size > 0
 
 
-def test_readme_command_blocks_cover_every_command():
-    """The blocks show every sub-command, and only real arguments (no [optional] notation)."""
-    used = {shlex.split(c)[1] for c in COMMAND_LINES}
-    assert used == {name for name, *_ in COMMANDS}
-    for cmd in COMMAND_LINES:
+def test_readme_and_docs_together_show_every_command():
+    """Every sub-command is shown in a command block of the README or of a guide page, with only
+    real arguments (no [optional] notation)."""
+    texts = [README.read_text()] + [p.read_text() for p in PAGES]
+    assert _missing_commands(texts) == set()
+    for cmd in [c for text in texts for c in _commands(text)]:
         assert not re.search(r"\[|\.\.\.|\bDIR\b|\bPHOTO\b", cmd), cmd
+
+
+def test_command_coverage_check_can_fail():
+    """The check above sees a sub-command missing, and counts `.venv/bin/simlidar-mi` lines."""
+    page = "```sh\nsource .venv/bin/activate\nsimlidar-mi scan a.toml --out x  # note\n```\n" \
+           "```sh\n.venv/bin/simlidar-mi sensors\n```\nsimlidar-mi study (prose, not a block)\n"
+    assert _commands(page) == ["simlidar-mi scan a.toml --out x", "simlidar-mi sensors"]
+    missing = _missing_commands([page])
+    assert "study" in missing and "evaluate" in missing
+    assert "scan" not in missing and "sensors" not in missing
 
 
 def _clone(tmp_path: Path) -> tuple[Path, dict]:
@@ -114,26 +134,3 @@ def test_photo_gap_without_results_prints_nothing_on_stdout(tmp_path):
         assert proc.stderr.strip().splitlines() == [
             "simlidar-mi photo-gap: error: field/*.jpg: no such file"]
 
-
-def _faults_table() -> list[tuple[str, str, str]]:
-    text = README.read_text()
-    section = text[text.index("## Faults and bad input"):]
-    section = section[:section.index("\n## ", 1)]
-    rows = []
-    for line in section.splitlines():
-        cells = [c.strip() for c in line.strip().strip("|").split(" | ")]
-        if len(cells) == 3 and cells[2].startswith("tests/"):
-            rows.append((cells[0], cells[1], cells[2]))
-    return rows
-
-
-def test_faults_table_names_tests_that_exist():
-    """Every row of the README's "Faults and bad input" table is backed by a real test."""
-    import ast
-    rows = _faults_table()
-    assert len(rows) >= 30
-    for case, seen, ref in rows:
-        path, name = ref.split("::")
-        tree = ast.parse((REPO / path).read_text())
-        names = {n.name for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))}
-        assert name.split("[")[0] in names, f"README faults table: {case!r} names missing test {ref}"

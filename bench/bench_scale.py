@@ -51,7 +51,7 @@ PAPER_T3_S = 210 * 60.0  # SIMLIDAR's 7×4 row on a 2 GHz Core 2 Duo (Table 3)
 
 # Quoted figures for rows that cannot be re-run from --before (BENCHMARKS.md, same machine).
 QUOTED = {
-    "t3_paper_row": (3.19, "BENCHMARKS §1 Table 3, 7×4 row 'process s' (EXR only), 2026-12-01"),
+    "t3_paper_row": (3.19, "BENCHMARKS §3 Table 3, 7×4 row 'process s' (EXR only), 2026-12-01"),
     "50m_rss": (9.0 * 1024, "issue #8: 9 GB at 50 M beams (main before streaming)"),
     "forest_files": (31.1, "BENCHMARKS §4: forest_4species all files, 2026-12-01 (loaded)"),
 }

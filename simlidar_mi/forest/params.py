@@ -30,7 +30,7 @@ __all__ = ["ForestSpecies", "ForestParams", "forest_params_from_scene", "tree_se
 
 #: Default k of the crown rule d_ij ≥ k·(r_i + r_j): the smallest of 0.05 steps that keeps
 #: the share of trees with a neighbour's trunk inside their crown ≤ 10 % on every
-#: forest in scenes/ (measured in README "Random trees and forests").
+#: forest in scenes/ (measured in docs/guide/forests.md, "crown rule").
 CROWN_FACTOR = 0.65
 
 

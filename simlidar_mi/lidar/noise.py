@@ -27,7 +27,7 @@ OS1-64 ±1.5 cm from SNR 250 (its data sheet, which also gives ±3 cm at SNR 100
 SNR 12, where this law gives 2.4 cm and 6.8 cm: the sheet falls faster than 1/√SNR).  Other
 presets' data sheets give a precision without an SNR: it is taken as the floor from the
 default reference SNR 100, and every preset's threshold SNR is the default 10 (both
-assumptions, stated in the README).
+assumptions, stated in docs/guide/sensors.md).
 
 ``"range"`` (the former law, no data-sheet basis for its incidence term):
 

@@ -292,7 +292,7 @@ def point_occupancy(grid: VoxelGrid, beams: Beams, min_points: int = 1) -> dict[
 
 #: Fewest (weighted) beams entering a voxel for a beam-based estimate; fewer → NaN. Pimont et
 #: al. (2018) find their MLE consistent from about 5 beams; below that a single grazing beam
-#: intercepted after a millimetre of path gives PAD in the hundreds (BENCHMARKS §10d).
+#: intercepted after a millimetre of path gives PAD in the hundreds.
 MIN_BEAMS = 5
 
 

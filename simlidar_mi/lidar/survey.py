@@ -15,7 +15,7 @@ import json
 import logging
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +26,7 @@ from .._runtime.progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError, SimlidarWarning
 from ..geometry import Branches, Leaves, Primitive
+from ..io.mesh_import import primitive_mesh_data
 from ..io.atomic import atomic_file, staged_dir, writes_output
 from .patterns import AIRBORNE_PULSE_RATE_HZ, AIRBORNE_SPEED_M_S, scan_patterns, scanner_positions_m  # noqa: F401
 
@@ -74,9 +75,8 @@ class SceneGeometry:
             elif prim.kind == "box":
                 lo.append(np.asarray([p["min_m"]], float))
                 hi.append(np.asarray([p["max_m"]], float))
-            elif prim.kind == "obj":
-                from ..scene.build import read_obj  # noqa: PLC0415
-                v, _ = read_obj(p["path"], self.source, j)
+            elif prim.kind in ("obj", "ply"):
+                v = primitive_mesh_data(prim, self.source, j).vertices
                 lo.append(v.min(0, keepdims=True))
                 hi.append(v.max(0, keepdims=True))
         if self.instances is not None and len(self.instances):
@@ -187,9 +187,12 @@ def generate(cfg: SceneConfig) -> SceneGeometry:
             parts.append(fb)
             leaves = Leaves.concat([leaves, forest_leaves])
     prims = []
-    for p in cfg.arrays["primitive"]:
+    for j, p in enumerate(cfg.arrays["primitive"]):
         params = {k: v for k, v in p.items() if k not in ("type", "label") and v is not None}
-        prims.append(Primitive(p["type"], params, p["label"]))
+        prim = Primitive(p["type"], params, p["label"])
+        if prim.kind in ("obj", "ply"):  # read once here; bounds, build and sensor reuse the arrays
+            prim = replace(prim, mesh=primitive_mesh_data(prim, cfg.source, j))
+        prims.append(prim)
     if cfg.has("vineyard") or cfg.has("vineyard.canopy"):  # VSP vineyard (plants/vineyard.py)
         from ..plants.vineyard import vineyard_from_config  # noqa: PLC0415
         vy = vineyard_from_config(cfg)

@@ -93,6 +93,8 @@ def read_mesh(path, kind: str, *, label: str = "wood", labels: dict | None = Non
     if f.min() < 0 or f.max() >= len(v):
         j = int(np.argmax((f < 0).any(1) | (f >= len(v)).any(1)))
         raise bad(f"a face index out of range (face {j}, 0-based, of {len(v)} vertices)")
+    if ((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])).all():
+        raise bad("every face is degenerate (a vertex used twice)")
     if code is not None and (code == code[0]).all():
         code = None if code[0] == CLASS_CODES[label] else code  # one class: the shape's own
     return Mesh(v, f.astype(np.uint32), code)
@@ -241,7 +243,7 @@ def _parse_lines(path):
     import pyarrow as pa  # noqa: PLC0415
     import pyarrow.compute as pc  # noqa: PLC0415
     lines = _lines(path)
-    tok = pc.utf8_split_whitespace(lines)
+    tok = pc.utf8_split_whitespace(pc.utf8_trim_whitespace(lines))
     ntok = pc.list_value_length(tok).to_numpy(zero_copy_only=False)
     full = np.flatnonzero(ntok > 0)
     first = np.full(len(ntok), None, object)
@@ -338,10 +340,8 @@ def read_ply_arrays(path):
     try:
         try:  # fast path: triangles read (memory-mapped when binary) as one record array
             data = plyfile.PlyData.read(path, known_list_len={"face": {"vertex_indices": 3}})
-        except plyfile.PlyElementParseError as exc:
-            if "unexpected list length" not in str(exc):
-                raise
-            data = plyfile.PlyData.read(path)  # polygons of other sizes
+        except plyfile.PlyElementParseError:
+            data = plyfile.PlyData.read(path)  # polygons of other sizes (or the error, worded for them)
     except plyfile.PlyParseError as exc:
         raise ValueError(f"not a readable PLY file ({exc})") from exc
     if "vertex" not in data or "face" not in data:

@@ -156,9 +156,14 @@ def test_label_keys_checked_at_load(tmp_path, prim, key, words):
 
 # --- read once; hits report the face's class ------------------------------------------------
 
-def test_obj_groups_give_classes_and_hits_report_them(tmp_path, monkeypatch):
+@pytest.mark.parametrize("grouped", [False, True])
+def test_obj_groups_give_classes_and_hits_report_them(tmp_path, monkeypatch, grouped):
     """A wall at x = 2: its y < 0 half in group 'Bark', its y > 0 half in 'Leaves_1'. The file
-    is read once per run (counted in a file: generation may run in a forked child)."""
+    is read once per run (counted in a file: generation may run in a forked child). Grouped:
+    as a big mesh is built, inside one shape group (the classes and ids through its tables)."""
+    if grouped:
+        from simlidar_mi.scene import build as build_mod
+        monkeypatch.setattr(build_mod, "GROUP_MIN_TRIANGLES", 1)
     obj = tmp_path / "wall.obj"
     obj.write_text("o tree\n"
                    "v 2 -1 0\nv 2 0 0\nv 2 0 1\nv 2 -1 1\nv 2 1 0\nv 2 1 1\n"

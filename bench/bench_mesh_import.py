@@ -40,6 +40,7 @@ def make(out: Path) -> None:
 def _mitsuba(path, kind):
     import mitsuba as mi
     mi.set_variant("llvm_ad_mono")
+    mi.set_log_level(mi.LogLevel.Error)  # "attribute 'part' ignored"
     s = mi.load_dict({"type": kind, "filename": str(path), "face_normals": True})
     p = mi.traverse(s)
     return np.array(p["vertex_positions"]).reshape(-1, 3), np.array(p["faces"]).reshape(-1, 3)
@@ -159,7 +160,7 @@ def readers(d: Path, only: str | None = None) -> None:
                 continue
             r = subprocess.run([sys.executable, __file__, "one", kind, name, str(path)],
                                capture_output=True, text=True)
-            cells = r.stdout.strip().split("\t") if r.returncode == 0 else [f"failed: {r.stderr.strip()[-120:]}"]
+            cells = r.stdout.strip().splitlines()[-1].split("\t") if r.returncode == 0 else [f"failed: {r.stderr.strip()[-120:]}"]
             print(f"| {path.name} ({path.stat().st_size / 1e6:.0f} MB) | {name} | " + " | ".join(cells) + " |",
                   flush=True)
 

@@ -212,8 +212,7 @@ def _fast_blocks(raw, starts, ends, rv, rf):
         return t
     try:
         tv = table(_runs(raw, starts, ends, rv), pa.float64())
-        v = tv if isinstance(tv, np.ndarray) else \
-            np.column_stack([tv.column(k).to_numpy() for k in "abc"])
+        v = tv if isinstance(tv, np.ndarray) else _columns(tv, np.float64)
         data = _runs(raw, starts, ends, rf)
         try:
             tf = table(data, pa.int64())
@@ -222,11 +221,10 @@ def _fast_blocks(raw, starts, ends, rv, rf):
             tf = tf.__class__.from_arrays(
                 [pc.cast(pc.list_element(pc.split_pattern(tf.column(k), "/", max_splits=1), 0), pa.int64())
                  for k in "abc"], names=list("abc"))
-        f = tf if isinstance(tf, np.ndarray) else \
-            np.column_stack([tf.column(k).to_numpy() for k in "abc"])
+        f = tf if isinstance(tf, np.ndarray) else _columns(tf, np.int64)
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
         return None
-    if len(v) != len(rv) or len(f) != len(rf) or (v.dtype != np.float64) or (f.dtype != np.int64):
+    if v is None or f is None or len(v) != len(rv) or len(f) != len(rf):
         return None  # a null (empty field) or a count that does not match: the general path
     if (f == 0).any():
         return None  # the general path names the line
@@ -236,6 +234,20 @@ def _fast_blocks(raw, starts, ends, rv, rf):
         before = np.searchsorted(rv, rf)[:, None] + np.zeros((1, 3), np.int64)
         f[neg] = before[neg] + f[neg] + 1
     return v, f
+
+
+def _columns(table, dtype) -> np.ndarray | None:
+    """Columns a, b, c of an Arrow table as one (n, 3) array, chunk by chunk (one copy); None
+    when a column holds nulls (an empty field) or another type."""
+    out = np.empty((table.num_rows, 3), dtype)
+    for i, k in enumerate("abc"):
+        col, row = table.column(k), 0
+        if col.null_count or col.type.to_pandas_dtype() is not dtype:
+            return None
+        for chunk in col.chunks:
+            out[row:row + len(chunk), i] = chunk.to_numpy()
+            row += len(chunk)
+    return out
 
 
 def _parse_lines(path):

@@ -1,13 +1,17 @@
 """Mesh readers on a large OBJ and PLY: time and peak memory of each candidate.
 
-    python bench/bench_mesh_import.py make DIR        # DIR/table3.obj, DIR/table3.ply (~2.37 M triangles)
-    python bench/bench_mesh_import.py readers DIR     # one fresh process per reader and file
+    python bench/bench_mesh_import.py make DIR        # DIR/table3.obj, .ply (2.37 M triangles), obj/ply_scene.toml
+    python bench/bench_mesh_import.py e2e DIR [ROOT]  # scan both scenes (all files) with this package or ROOT's
+    python bench/bench_mesh_import.py readers DIR [NAME]   # each reader 3× in fresh processes: the fastest
+    python bench/bench_mesh_import.py pipe SCENE.toml      # generate here vs in run_scan's forked child
 
 The mesh is the Table 3 orchard (scenes/simlidar_table3_7x4.toml) as the scene builder makes
 it: 12-facet prisms with caps, in real coordinates, written by our OBJ and PLY exporters.
 Each reader runs in its own process; "peak MB" is the peak resident memory minus the
 resident memory after the reader's imports (the arrays and the reader's temporaries).
 """
+import json
+import os
 import resource
 import subprocess
 import sys
@@ -34,6 +38,11 @@ def make(out: Path) -> None:
     v, f, _ = prism_arrays(kept.p0, kept.p1, r, k, caps=exposed_ends(kept.p0, kept.p1, kept.diameter))
     write_obj_stream(out / "table3.obj", [("wood", lambda: iter([(v, f)]))])
     write_ply(out / "table3.ply", v, f, 0)
+    scene = (ROOT / "scenes/simlidar_table3_7x4.toml").read_text()
+    keep = scene[scene.index("[ground]"):]  # the ground and the Table 3 sweep, the trees from the file
+    for kind in ("obj", "ply"):
+        (out / f"{kind}_scene.toml").write_text(f'[scene]\nname = "table3_from_{kind}"\nseed = 2013\n\n'
+                                                f'[[primitive]]\ntype = "{kind}"\npath = "table3.{kind}"\n\n' + keep)
     print(f"{len(v)} vertices, {len(f)} triangles -> {out}")
 
 
@@ -120,7 +129,9 @@ def _plyfile(path, kind):
     import plyfile
     d = plyfile.PlyData.read(str(path), known_list_len={"face": {"vertex_indices": 3}})
     vert = d["vertex"].data
-    return np.column_stack([vert["x"], vert["y"], vert["z"]]), d["face"].data["vertex_indices"]
+    # memory-mapped: copy out what a scene needs (float64 vertices, uint32 faces)
+    return (np.column_stack([vert["x"], vert["y"], vert["z"]]).astype(np.float64),
+            d["face"].data["vertex_indices"].astype(np.uint32))
 
 
 def _read_ply_ours_old(path, kind):
@@ -129,7 +140,7 @@ def _read_ply_ours_old(path, kind):
     return m.vertices, m.faces
 
 
-READERS = {"obj": {"python parser (main)": _python_parser, "ours (pyarrow)": _ours,
+READERS = {"obj": {"python parser (before)": _python_parser, "ours (pyarrow)": _ours,
                    "mitsuba obj": _mitsuba, "trimesh": _trimesh, "meshio": _meshio},
            "ply": {"ours (plyfile)": _ours, "plyfile": _plyfile, "read_ply (export round trip)": _read_ply_ours_old,
                    "mitsuba ply": _mitsuba, "trimesh": _trimesh, "meshio": _meshio}}
@@ -151,24 +162,78 @@ def one(kind: str, name: str, path: str) -> None:
     print(f"{dt:.3f}\t{peak:.0f}\t{len(v)}\t{len(f)}\t{float(np.asarray(v, np.float64).sum()):.6e}")
 
 
-def readers(d: Path, only: str | None = None) -> None:
+def readers(d: Path, only: str | None = None, repeat: int = 3) -> None:
+    """Each reader ``repeat`` times, each in a fresh process: the fastest run's seconds and peak."""
     print("| file | reader | seconds | peak MB | vertices | triangles | vertex sum |\n|---|---|---|---|---|---|---|")
     for kind in ("obj", "ply"):
         path = d / f"table3.{kind}"
         for name in READERS[kind]:
             if only and only not in name:
                 continue
-            r = subprocess.run([sys.executable, __file__, "one", kind, name, str(path)],
-                               capture_output=True, text=True)
-            cells = r.stdout.strip().splitlines()[-1].split("\t") if r.returncode == 0 else [f"failed: {r.stderr.strip()[-120:]}"]
+            runs = []
+            for _ in range(repeat):
+                r = subprocess.run([sys.executable, __file__, "one", kind, name, str(path)],
+                                   capture_output=True, text=True)
+                if r.returncode != 0:
+                    runs = [[f"failed: {r.stderr.strip().splitlines()[-1][-100:]}"]]
+                    break
+                runs.append(r.stdout.strip().splitlines()[-1].split("\t"))
+            cells = min(runs, key=lambda c: float(c[0]) if len(c) > 1 else 0.0)
             print(f"| {path.name} ({path.stat().st_size / 1e6:.0f} MB) | {name} | " + " | ".join(cells) + " |",
                   flush=True)
+
+
+def e2e(d: Path, checkout: str | None = None) -> None:
+    """``simlidar-mi scan`` of the OBJ and PLY scenes (all files), wall time and peak memory
+    (/usr/bin/time), with this checkout or another one's package (``checkout``: its root)."""
+    env = dict(os.environ, PYTHONPATH=checkout or str(ROOT))
+    code = "import sys; from simlidar_mi.cli import main; sys.exit(main())"
+    for kind in ("obj", "ply"):
+        out = d / f"out_{kind}" if checkout is None else d / f"out_{kind}_{Path(checkout).name}"
+        r = subprocess.run(["/usr/bin/time", "-f", "%e\t%M", sys.executable, "-c", code, "scan",
+                            f"{kind}_scene.toml", "--out", str(out)], cwd=d, env=env, capture_output=True, text=True)
+        if r.returncode != 0:
+            print(kind, "failed:", r.stderr.strip().splitlines()[-1])
+            continue
+        wall, kb = r.stderr.strip().splitlines()[-1].split("\t")
+        m = json.loads((out / "measures.json").read_text())
+        print(f"| {kind} | {checkout or 'this checkout'} | {float(wall):.1f} | {int(kb) / 1024:.0f} | "
+              + " | ".join(f"{m['seconds'][k]:.2f}" for k in ("generate", "build", "scan", "write"))
+              + f" | {m['hits']} | {open('/proc/loadavg').read().split()[0]} |", flush=True)
+
+
+def pipe(scene: Path, repeat: int = 3) -> None:
+    """The cost of carrying a mesh primitive's arrays back from run_scan's forked generation
+    (simlidar_mi/_runtime/fork.py pickles the child's result through a pipe)."""
+    import pickle
+    sys.path.insert(0, str(ROOT))
+    from simlidar_mi._runtime.fork import Forked
+    from simlidar_mi.config import load_scene
+    from simlidar_mi.lidar.survey import generate
+    cfg = load_scene(scene)
+    here, forked, size = [], [], 0
+    for _ in range(repeat):
+        t = time.perf_counter()
+        g = generate(cfg)
+        here.append(time.perf_counter() - t)
+        size = len(pickle.dumps(g, protocol=pickle.HIGHEST_PROTOCOL))
+        t = time.perf_counter()
+        job = Forked("generating", generate, cfg, parallel=True)
+        job.wait()
+        job.close()
+        forked.append(time.perf_counter() - t)
+    print(f"{scene.name}: generate here {min(here):.3f} s, in a forked child and back through the pipe "
+          f"{min(forked):.3f} s (+{min(forked) - min(here):.3f} s for {size / 1e6:.0f} MB pickled)")
 
 
 if __name__ == "__main__":
     cmd = sys.argv[1]
     if cmd == "make":
         make(Path(sys.argv[2]))
+    elif cmd == "e2e":
+        e2e(Path(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else None)
+    elif cmd == "pipe":
+        pipe(Path(sys.argv[2]))
     elif cmd == "one":
         one(*sys.argv[2:5])
     else:

@@ -346,7 +346,7 @@ def _obj_classes(names: dict, labels: dict, label: str) -> np.ndarray:
 # ----------------------------------------------------------------------------------- PLY
 
 def read_ply_arrays(path):
-    """Vertices (n, 3) float64, triangles (m, 3) int64 and the other scalar face properties
+    """Vertices (n, 3) float64, triangles (m, 3) of an integer type and the other scalar face properties
     of a PLY file (binary little/big endian or ASCII) through ``plyfile``."""
     import plyfile  # noqa: PLC0415
     try:
@@ -374,8 +374,10 @@ def read_ply_arrays(path):
         flat = np.concatenate(col).astype(np.int64) if len(col) else np.zeros(0, np.int64)
         t_face, f = _fans(flat, counts)
     else:
-        f = np.asarray(col, np.int64).reshape(len(col), -1)
+        f = np.asarray(col).reshape(len(col), -1)  # the file's integer type (checked, then uint32)
         t_face = None
+    if f.dtype.kind not in "iu":
+        raise ValueError(f"PLY vertex indices must be integers, not {f.dtype}")
     props = {n: (np.asarray(face[n]) if t_face is None else np.asarray(face[n])[t_face])
              for n in face.dtype.names if n not in lists and face.dtype[n] != object}
     return v, f, props

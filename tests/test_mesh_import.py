@@ -38,6 +38,7 @@ def _ply(path, faces, fmt="binary_little_endian", face_props=None, vertices=None
 @pytest.mark.parametrize("text", [
     QUAD + "f 1 2 3 4\n",                          # the fast block path
     QUAD + "f 1/1/1 2/1/1 3/1/1\nf 1//1 3//1 4//1\n",  # corners with texture/normal indices
+    QUAD + "f -4 -3 -2\nf 1 -2 -1\n",              # negative: back from the last vertex read
     "v  0 0 0\nv 1 0 0\r\nv 1 1 0 1.0\nv 0 1 0\n\tf 1 2 3\nf -4 -2 -1\n",  # the general path
 ])
 def test_obj_faces_are_fans_in_file_order(tmp_path, text):
@@ -47,6 +48,14 @@ def test_obj_faces_are_fans_in_file_order(tmp_path, text):
     assert m.faces.dtype == np.uint32 and m.vertices.dtype == np.float64
     assert m.faces.tolist() == [[0, 1, 2], [0, 2, 3]]
     assert m.vertices.tolist() == [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]] and m.face_class is None
+
+
+def test_obj_labels_without_names_leave_the_primitive_label(tmp_path):
+    p = tmp_path / "plain.obj"
+    p.write_text(QUAD + "f 1 2 3 4\n")
+    assert read_mesh(p, "obj", label="leaf", labels={"wood": ["Bark*"]}).face_class is None
+    p.write_text("g Bark.001\n" + QUAD + "f 1 2 3\ng other\nf 1 3 4\n")
+    assert read_mesh(p, "obj", label="leaf", labels={"wood": ["Bark*"]}).face_class.tolist() == [2, 3]
 
 
 def test_obj_keeps_float64_coordinates(tmp_path):
@@ -93,6 +102,7 @@ def test_our_forest_export_reads_back(tmp_path):
     ("v 0 0 0\nv 1 zero 0\nv 0 1 0\nf 1 2 3\n", "line 2: a vertex coordinate is not a number"),
     ("v 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "line 1: a vertex needs three coordinates"),
     ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "line 4: face index 0"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999\n", "a face index is not an integer"),
 ])
 def test_obj_errors(tmp_path, text, words):
     p = tmp_path / "bad.obj"
@@ -176,10 +186,10 @@ def test_obj_groups_give_classes_and_hits_report_them(tmp_path, monkeypatch, gro
     log = tmp_path / "reads"
     real = mesh_import.parse_obj_file
 
-    def counted(p):
+    def counted(p, **kw):
         with open(log, "a") as fh:
             fh.write("read\n")
-        return real(p)
+        return real(p, **kw)
     monkeypatch.setattr(mesh_import, "parse_obj_file", counted)
     cfg = load_scene(scene)
     assert generate(cfg).primitives[1].mesh.face_class.tolist() == [2, 2, 3, 3]

@@ -20,7 +20,6 @@ from __future__ import annotations
 import fnmatch
 import os
 import stat
-from pathlib import Path
 
 import numpy as np
 
@@ -75,8 +74,8 @@ def read_mesh(path, kind: str, *, label: str = "wood", labels: dict | None = Non
                   f"({MAX_MESH_BYTES / 2**20:g} MiB)")
     try:
         if kind == "obj":
-            v, f, names = parse_obj_file(path)
-            code = _obj_classes(names, labels, label) if labels else None
+            v, f, names = parse_obj_file(path, names=bool(labels))
+            code = _obj_classes(names, labels, label, len(f)) if labels else None
         else:
             v, f, props = read_ply_arrays(path)
             code = _ply_classes(props, labels, label_property, label, bad) if labels else None
@@ -132,10 +131,10 @@ def _lines(path):
     return table.column("l").combine_chunks() if table.num_rows else pa.array([], pa.string())
 
 
-def parse_obj_file(path):
+def parse_obj_file(path, names: bool = True):
     """Vertices (n, 3) float64, triangles (m, 3) int64 (0-based, global) and, per triangle,
     the indices of its ``o``, ``g`` and ``usemtl`` names: ``{"o": (names, per triangle, per
-    vertex), ...}`` (index −1: none given yet).
+    vertex), ...}`` (index −1: none given yet; ``names=False``: {}, not looked up).
 
     Polygons become fans, negative indices count back from the last vertex read; ``v``
     records may carry more than three numbers (w, colours).  Raises ``ValueError`` naming
@@ -144,13 +143,17 @@ def parse_obj_file(path):
     Regular files ("v x y z" and "f a b c" or "f a/t/n b/t/n c/t/n", one space apart) are
     read block by block by Arrow's CSV reader; anything else line by line through Arrow's
     string kernels (the same result, ~3× slower)."""
-    raw = np.fromfile(path, np.uint8)
+    # Mapped, not copied: the page cache is read in place (a copy of 115 MB took 1-5 s on a busy
+    # machine); newlines are found 8 MiB at a time (small temporaries).
+    raw = np.memmap(path, np.uint8, mode="r") if os.path.getsize(path) else np.zeros(0, np.uint8)
     try:
         bytes(raw[:1 << 16]).decode("utf-8")  # a binary file is refused before it is split
     except UnicodeDecodeError as exc:
         if exc.start < (1 << 16) - 4:
             raise
-    nl = np.flatnonzero(raw == 10)
+    step = 1 << 23
+    nl = np.concatenate([np.zeros(0, np.int64)] + [np.flatnonzero(raw[a:a + step] == 10) + a
+                                                   for a in range(0, len(raw), step)])
     starts = np.concatenate([[0], nl + 1]).astype(np.int64)
     if starts[-1] >= len(raw):
         starts = starts[:-1]
@@ -166,8 +169,8 @@ def parse_obj_file(path):
         t_face = np.arange(len(f))
     else:
         v, f, rv, rf, t_face = _parse_lines(path)
-    names = {}
-    for tag in ("o", "g", "usemtl"):
+    found = {}
+    for tag in ("o", "g", "usemtl") if names else ():
         t = tag.encode()
         cand = np.flatnonzero((c0 == t[0]))
         rows = [r for r in cand.tolist() if bytes(raw[starts[r]:ends[r]]).split(maxsplit=1)[:1] == [t]]
@@ -181,17 +184,22 @@ def parse_obj_file(path):
         for r in (rf[t_face], rv):  # the record before each triangle's and each vertex's line
             last = np.searchsorted(rows, r, side="right") - 1
             per.append(np.where(last >= 0, code[np.maximum(last, 0)], -1))
-        names[tag] = (list(uniq), *per)
-    return v, f, names
+        found[tag] = (list(uniq), *per)
+    return v, f, found
 
 
-def _runs(raw, starts, ends, rows) -> bytes:
-    """The bytes of lines ``rows`` (ascending), joined: consecutive lines are one slice."""
+def _runs(raw, starts, ends, rows) -> list:
+    """The bytes of lines ``rows`` (ascending) as buffers: consecutive lines are one slice of the
+    file, passed as it is (no copy) when there are few, else joined into one."""
+    import pyarrow as pa  # noqa: PLC0415
     if not len(rows):
-        return b""
+        return []
     cut = np.flatnonzero(np.diff(rows) != 1) + 1
     first, last = rows[np.r_[0, cut]], rows[np.r_[cut - 1, len(rows) - 1]]
-    return b"".join(raw[starts[a]:ends[b]].tobytes() for a, b in zip(first.tolist(), last.tolist()))
+    spans = list(zip(starts[first].tolist(), ends[last].tolist()))
+    if len(spans) <= 64:
+        return [pa.py_buffer(raw[a:b]) for a, b in spans]
+    return [pa.py_buffer(b"".join(raw[a:b].tobytes() for a, b in spans))]
 
 
 def _fast_blocks(raw, starts, ends, rv, rf):
@@ -200,16 +208,14 @@ def _fast_blocks(raw, starts, ends, rv, rf):
     import pyarrow.compute as pc  # noqa: PLC0415
     import pyarrow.csv as pcsv  # noqa: PLC0415
 
-    def table(data: bytes, typ):
-        if not data:
+    def table(buffers: list, typ):
+        if not buffers:
             return np.zeros((0, 3), np.float64 if typ == pa.float64() else np.int64)
-        t = pcsv.read_csv(pa.BufferReader(data),
-                          read_options=pcsv.ReadOptions(column_names=["t", "a", "b", "c"], block_size=1 << 24),
-                          parse_options=pcsv.ParseOptions(delimiter=" ", quote_char=False),
-                          convert_options=pcsv.ConvertOptions(include_columns=["a", "b", "c"],
-                                                              column_types={k: pa.string() for k in "abc"}
-                                                              if typ is None else {k: typ for k in "abc"}))
-        return t
+        opts = dict(read_options=pcsv.ReadOptions(column_names=["t", "a", "b", "c"], block_size=1 << 24),
+                    parse_options=pcsv.ParseOptions(delimiter=" ", quote_char=False),
+                    convert_options=pcsv.ConvertOptions(include_columns=["a", "b", "c"],
+                                                        column_types={k: typ or pa.string() for k in "abc"}))
+        return pa.concat_tables([pcsv.read_csv(pa.BufferReader(b), **opts) for b in buffers])
     try:
         tv = table(_runs(raw, starts, ends, rv), pa.float64())
         v = tv if isinstance(tv, np.ndarray) else _columns(tv, np.float64)
@@ -226,26 +232,28 @@ def _fast_blocks(raw, starts, ends, rv, rf):
         return None
     if v is None or f is None or len(v) != len(rv) or len(f) != len(rf):
         return None  # a null (empty field) or a count that does not match: the general path
-    if (f == 0).any():
-        return None  # the general path names the line
-    neg = f < 0
-    f = f - 1
-    if neg.any():  # negative indices count back from the vertices read before the face's line
-        before = np.searchsorted(rv, rf)[:, None] + np.zeros((1, 3), np.int64)
-        f[neg] = before[neg] + f[neg] + 1
+    if (f <= 0).any():
+        if (f == 0).any():
+            return None  # the general path names the line
+        neg = f < 0  # negative indices count back from the vertices read before the face's line
+        f[neg] += (np.searchsorted(rv, rf)[:, None] + np.zeros((1, 3), np.int64))[neg] + 1
+    f -= 1
     return v, f
 
 
 def _columns(table, dtype) -> np.ndarray | None:
     """Columns a, b, c of an Arrow table as one (n, 3) array, chunk by chunk (one copy); None
     when a column holds nulls (an empty field) or another type."""
+    import pyarrow as pa  # noqa: PLC0415
+    want = pa.float64() if dtype is np.float64 else pa.int64()
     out = np.empty((table.num_rows, 3), dtype)
     for i, k in enumerate("abc"):
         col, row = table.column(k), 0
-        if col.null_count or col.type.to_pandas_dtype() is not dtype:
+        if col.null_count or col.type != want:
             return None
         for chunk in col.chunks:
-            out[row:row + len(chunk), i] = chunk.to_numpy()
+            # the values buffer as it is (Array.to_numpy imports pandas: 1 s in a fresh process)
+            out[row:row + len(chunk), i] = np.frombuffer(chunk.buffers()[1], dtype, len(chunk), chunk.offset * 8)
             row += len(chunk)
     return out
 
@@ -310,13 +318,15 @@ def _numbers(tokens, typ, rows, per_row, fail, why):
     try:
         return pc.cast(tokens, typ).to_numpy(zero_copy_only=False)
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
-        ok = pc.is_valid(pc.cast(tokens, typ, safe=False) if False else _try_cast(tokens, typ))
-        bad = np.flatnonzero(~ok.to_numpy(zero_copy_only=False))
+        ok = pc.is_valid(_number_like(tokens, typ)).to_numpy(zero_copy_only=False)
+        bad = np.flatnonzero(~ok)
+        if not len(bad):  # number-like but out of the type's range
+            raise ValueError(why + " (or out of range)") from None
         fail(np.repeat(rows, per_row)[bad[:1]], why)
 
 
-def _try_cast(tokens, typ):
-    """Per-token cast with nulls where a token is not a number (for the error's line number)."""
+def _number_like(tokens, typ):
+    """The tokens, null where a token is not written as a number of ``typ`` (for the error's line)."""
     import pyarrow as pa  # noqa: PLC0415
     import pyarrow.compute as pc  # noqa: PLC0415
     pattern = r"^[+-]?\d+$" if pa.types.is_integer(typ) else \
@@ -325,9 +335,8 @@ def _try_cast(tokens, typ):
     return pc.if_else(good, tokens, pa.scalar(None, pa.string()))
 
 
-def _obj_classes(names: dict, labels: dict, label: str) -> np.ndarray:
+def _obj_classes(names: dict, labels: dict, label: str, n: int) -> np.ndarray:
     """Class code per triangle: the first of usemtl, g, o whose name a ``labels`` pattern matches."""
-    n = len(next(iter(names.values()))[1]) if names else 0
     code = np.full(n, -1, np.int16)
     for tag in ("usemtl", "g", "o"):
         if tag not in names:

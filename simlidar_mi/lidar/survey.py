@@ -159,8 +159,9 @@ class SceneGeometry:
         return float(lo[sel, 0].min()) if sel.any() else None
 
 
-def generate(cfg: SceneConfig) -> SceneGeometry:
-    """Build the plants and primitives a scene file asks for (no Mitsuba)."""
+def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
+    """Build the plants and primitives a scene file asks for (no Mitsuba).  Mesh primitives
+    are read here, once (``read_meshes=False``: when first needed, for callers that may not)."""
     t0 = time.perf_counter()
     parts: list[Branches] = []
     leaves, instances = Leaves.empty(), None
@@ -190,7 +191,7 @@ def generate(cfg: SceneConfig) -> SceneGeometry:
     for j, p in enumerate(cfg.arrays["primitive"]):
         params = {k: v for k, v in p.items() if k not in ("type", "label") and v is not None}
         prim = Primitive(p["type"], params, p["label"])
-        if prim.kind in ("obj", "ply"):  # read once here; bounds, build and sensor reuse the arrays
+        if read_meshes and prim.kind in ("obj", "ply"):  # bounds, build and sensor reuse the arrays
             prim = replace(prim, mesh=primitive_mesh_data(prim, cfg.source, j))
         prims.append(prim)
     if cfg.has("vineyard") or cfg.has("vineyard.canopy"):  # VSP vineyard (plants/vineyard.py)
@@ -252,7 +253,7 @@ def measure(cfg: SceneConfig, geometry: SceneGeometry | None = None) -> dict:
     a leaf-on orchard adds its leaf area per tree and the row's LAI (plants/apple_leaves.py)."""
     from ..plants.measures import wood_measures  # noqa: PLC0415
     from ..plants.apple_leaves import orchard_leaf_measures  # noqa: PLC0415
-    geometry = geometry or generate(cfg)
+    geometry = geometry or generate(cfg, read_meshes=False)  # the measures read no mesh
     return {**wood_measures(geometry.branches).to_dict(), **orchard_leaf_measures(cfg, geometry.leaves)}
 
 

@@ -203,27 +203,35 @@ def e2e(d: Path, checkout: str | None = None) -> None:
 
 
 def pipe(scene: Path, repeat: int = 3) -> None:
-    """The cost of carrying a mesh primitive's arrays back from run_scan's forked generation
-    (simlidar_mi/_runtime/fork.py pickles the child's result through a pipe)."""
+    """The cost of carrying a mesh primitive's arrays back from run_scan's forked generation:
+    pickled through the fork helper's pipe, or left as files on a RAM disk (what run_scan does)."""
     import pickle
     sys.path.insert(0, str(ROOT))
     from simlidar_mi._runtime.fork import Forked
     from simlidar_mi.config import load_scene
-    from simlidar_mi.lidar.survey import generate
+    from simlidar_mi.io.mesh_import import mesh_drop, unship_meshes
+    from simlidar_mi.lidar.survey import _plan
     cfg = load_scene(scene)
-    here, forked, size = [], [], 0
+    here, piped, filed, size = [], [], [], 0
     for _ in range(repeat):
         t = time.perf_counter()
-        g = generate(cfg)
+        g, _ = _plan(cfg)
         here.append(time.perf_counter() - t)
         size = len(pickle.dumps(g, protocol=pickle.HIGHEST_PROTOCOL))
         t = time.perf_counter()
-        job = Forked("generating", generate, cfg, parallel=True)
+        job = Forked("generating", _plan, cfg, parallel=True)
         job.wait()
         job.close()
-        forked.append(time.perf_counter() - t)
-    print(f"{scene.name}: generate here {min(here):.3f} s, in a forked child and back through the pipe "
-          f"{min(forked):.3f} s (+{min(forked) - min(here):.3f} s for {size / 1e6:.0f} MB pickled)")
+        piped.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        with mesh_drop() as drop:
+            job = Forked("generating", _plan, cfg, None, drop, parallel=True)
+            g, _ = job.wait()
+            job.close()
+            g.primitives = unship_meshes(g.primitives)
+        filed.append(time.perf_counter() - t)
+    print(f"{scene.name}: generate here {min(here):.3f} s; in a forked child and back pickled through "
+          f"the pipe {min(piped):.3f} s ({size / 1e6:.0f} MB), as files {min(filed):.3f} s")
 
 
 if __name__ == "__main__":

@@ -1,6 +1,8 @@
 """Meshes users bring: OBJ and PLY primitives read once, checked, labelled, scanned."""
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import plyfile
 import pytest
@@ -244,3 +246,25 @@ def test_forest_exported_as_ply_scans_like_the_forest(tmp_path):
     assert abs(mesh["leaf"] - native["leaf"]) <= 0.01 * native["leaf"]
     assert abs(mesh["ground"] - native["ground"]) <= 0.01 * native["ground"]
     assert 0.98 * native["wood"] <= mesh["wood"] <= native["wood"]
+
+
+def test_meshes_cross_from_a_forked_child_as_files(tmp_path):
+    """run_scan generates in a forked child: its meshes come back through files, whole."""
+    from simlidar_mi._runtime.fork import Forked
+    from simlidar_mi.io.mesh_import import mesh_drop, unship_meshes
+    from simlidar_mi.lidar.survey import _plan
+    obj = tmp_path / "m.obj"
+    obj.write_text("g Leaves\n" + QUAD + "f 1 2 3\ng Bark\nf 1 3 4\n")
+    scene = tmp_path / "s.toml"
+    scene.write_text(f'[[primitive]]\ntype = "obj"\npath = "{obj.name}"\nlabels = {{leaf = ["Leaves"]}}\n' + SCAN)
+    cfg = load_scene(scene)
+    want = generate(cfg).primitives[0].mesh
+    with mesh_drop() as drop:
+        job = Forked("generating", _plan, cfg, None, drop, parallel=True)
+        geometry, _ = job.wait()
+        job.close()
+        assert len(os.listdir(drop)) == 3  # vertices, faces, classes
+        got = unship_meshes(geometry.primitives)[0].mesh
+    np.testing.assert_array_equal(got.vertices, want.vertices)
+    np.testing.assert_array_equal(got.faces, want.faces)
+    np.testing.assert_array_equal(got.face_class, [3, 2])

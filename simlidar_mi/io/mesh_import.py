@@ -20,13 +20,17 @@ from __future__ import annotations
 import fnmatch
 import os
 import stat
+import tempfile
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..errors import ConfigError
 from ..geometry import CLASS_CODES, Mesh, Primitive
 
-__all__ = ["MESH_SUFFIXES", "MAX_MESH_BYTES", "read_mesh", "primitive_mesh_data", "parse_obj_file", "read_ply_arrays"]
+__all__ = ["MESH_SUFFIXES", "MAX_MESH_BYTES", "read_mesh", "primitive_mesh_data", "mesh_drop", "ship_meshes",
+           "unship_meshes", "parse_obj_file", "read_ply_arrays"]
 
 MESH_SUFFIXES = {"obj": (".obj",), "ply": (".ply",)}
 MAX_MESH_BYTES = 256 * 2**20  # a 2.4 M-triangle OBJ is 115 MB (its read peaks at ~6× that), as PLY 66 MB
@@ -107,6 +111,59 @@ def primitive_mesh_data(prim: Primitive, source: str | None = None, index: int |
     p = prim.params
     return read_mesh(p["path"], prim.kind, label=prim.label, labels=p.get("labels"),
                      label_property=p.get("label_property"), source=source, index=index)
+
+
+# Handing meshes from a forked child to its parent: as raw files on a RAM disk, not pickled
+# through the pipe (+0.43 s for the 76 MB of a 2.4 M-triangle mesh; the files: ~0.05 s).
+
+@dataclass(frozen=True)
+class _Shipped:
+    """Where a forked child left a mesh's arrays (in place of ``Primitive.mesh``)."""
+
+    base: str
+    n_vertices: int
+    n_faces: int
+    has_class: bool
+
+
+@contextmanager
+def mesh_drop():
+    """A private folder on a RAM disk where possible (``/dev/shm``), removed at the end."""
+    shm = "/dev/shm"
+    where = shm if os.path.isdir(shm) and os.access(shm, os.W_OK) else None
+    with tempfile.TemporaryDirectory(prefix="simlidar-mesh-", dir=where) as folder:
+        yield folder
+
+
+def ship_meshes(primitives: list, folder: str) -> list:
+    """The primitives with each mesh written to ``folder`` (a forked child's side)."""
+    out = []
+    for j, prim in enumerate(primitives):
+        m = prim.mesh
+        if not isinstance(m, Mesh):
+            out.append(prim)
+            continue
+        base = os.path.join(folder, str(j))
+        np.ascontiguousarray(m.vertices, np.float64).tofile(base + ".v")
+        np.ascontiguousarray(m.faces, np.uint32).tofile(base + ".f")
+        if m.face_class is not None:
+            np.ascontiguousarray(m.face_class, np.uint8).tofile(base + ".c")
+        out.append(replace(prim, mesh=_Shipped(base, len(m.vertices), len(m.faces), m.face_class is not None)))
+    return out
+
+
+def unship_meshes(primitives: list) -> list:
+    """The primitives with the meshes :func:`ship_meshes` wrote read back (the parent's side)."""
+    out = []
+    for prim in primitives:
+        s = prim.mesh
+        if isinstance(s, _Shipped):
+            v = np.fromfile(s.base + ".v", np.float64).reshape(s.n_vertices, 3)
+            f = np.fromfile(s.base + ".f", np.uint32).reshape(s.n_faces, 3)
+            c = np.fromfile(s.base + ".c", np.uint8) if s.has_class else None
+            prim = replace(prim, mesh=Mesh(v, f, c))
+        out.append(prim)
+    return out
 
 
 # ----------------------------------------------------------------------------------- OBJ

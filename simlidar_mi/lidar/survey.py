@@ -26,7 +26,7 @@ from .._runtime.progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError, SimlidarWarning
 from ..geometry import Branches, Leaves, Primitive
-from ..io.mesh_import import primitive_mesh_data
+from ..io.mesh_import import mesh_drop, primitive_mesh_data, ship_meshes, unship_meshes
 from ..io.atomic import atomic_file, staged_dir, writes_output
 from .patterns import AIRBORNE_PULSE_RATE_HZ, AIRBORNE_SPEED_M_S, scan_patterns, scanner_positions_m  # noqa: F401
 
@@ -342,9 +342,11 @@ class _ScanStages:
         t = time.perf_counter()
         early = plan_from_keys(cfg)  # a scan too large is refused here, at once
         if _overlap_generation(cfg, scheduler):  # Mitsuba imported here while a forked child generates
-            with contextlib.closing(Forked("generating the scene", _plan, cfg, early)) as job:
+            with mesh_drop() as drop, contextlib.closing(Forked("generating the scene", _plan, cfg, early,
+                                                                drop)) as job:
                 mitsuba(cfg["scene"]["variant"])
                 self.geometry, self.patterns = job.wait()
+                self.geometry.primitives = unship_meshes(self.geometry.primitives)
         else:
             self.geometry, self.patterns = _plan(cfg, early)
         geometry, patterns = self.geometry, self.patterns
@@ -501,9 +503,10 @@ def plan_from_keys(cfg: SceneConfig) -> list | None:
     return patterns
 
 
-def _plan(cfg: SceneConfig, early: list | None = None) -> tuple[SceneGeometry, list]:
+def _plan(cfg: SceneConfig, early: list | None = None, drop: str | None = None) -> tuple[SceneGeometry, list]:
     """The geometry and the scan patterns of ``cfg`` (no Mitsuba: a forked child may run it);
-    ``early``: :func:`plan_from_keys`'s patterns, when already made."""
+    ``early``: :func:`plan_from_keys`'s patterns, when already made; ``drop``: a folder the
+    meshes are left in for a parent (:func:`~simlidar_mi.io.mesh_import.ship_meshes`)."""
     if early is None:
         early = plan_from_keys(cfg)
     geometry = generate(cfg)
@@ -514,6 +517,8 @@ def _plan(cfg: SceneConfig, early: list | None = None) -> tuple[SceneGeometry, l
         patterns = scan_patterns(cfg, lo, hi, geometry.near_x_m)
     if cfg.has("sensor"):
         check_rays(cfg, patterns, scene_sensor(cfg, geometry, patterns))
+    if drop is not None:
+        geometry.primitives = ship_meshes(geometry.primitives, drop)
     return geometry, patterns
 
 

@@ -114,13 +114,36 @@ class Leaves:
 
 
 @dataclass(frozen=True)
-class Primitive:
-    """An explicit shape from a scene file (calibration targets).
+class Mesh:
+    """A triangle mesh read from a file (OBJ or PLY primitive).
 
-    kind is 'cylinder' (p0, p1, diameter), 'box' (min, max corners) or 'obj' (path).
-    The class label says what the scanner reports on a hit ('wood' or 'leaf').
+    Attributes
+    ----------
+    vertices : (n, 3) float64, metres, as written in the file.
+    faces : (m, 3) uint32, 0-based vertex indices, in the file's face order (polygons as fans).
+    face_class : (m,) uint8 class code (:data:`CLASS_CODES`) per triangle, or None: every
+        triangle has the primitive's label.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_class: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.faces)
+
+
+@dataclass(frozen=True)
+class Primitive:
+    """An explicit shape from a scene file (calibration targets, meshes users bring).
+
+    kind is 'cylinder' (p0, p1, diameter), 'box' (min, max corners) or 'obj'/'ply' (path).
+    The class label says what the scanner reports on a hit ('wood' or 'leaf'; a mesh's
+    faces may carry their own classes). ``mesh``: the file's triangles once read
+    (:func:`simlidar_mi.io.mesh_import.read_mesh`), so bounds, build and sensor reuse them.
     """
 
     kind: str
     params: dict = field(default_factory=dict)
     label: str = "wood"
+    mesh: Mesh | None = None

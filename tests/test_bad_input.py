@@ -12,8 +12,8 @@ from simlidar_mi.config import load_scene
 from simlidar_mi.errors import ConfigError, SimlidarWarning
 from simlidar_mi.geometry import Branches, Leaves, Primitive
 from simlidar_mi.lidar.survey import SceneGeometry, generate, run_scan
-from simlidar_mi.scene import build as build_mod
-from simlidar_mi.scene.build import read_obj
+from simlidar_mi.io import mesh_import as import_mod
+from simlidar_mi.io.mesh_import import read_mesh
 from tests.conftest import SCENES
 
 CALIB = SCENES / "calibration_cylinder.toml"
@@ -107,21 +107,22 @@ def test_obj_checked_before_reading(tmp_path, monkeypatch, make, words):
     """/etc/passwd given as an OBJ was read line by line before being refused."""
     path = make(tmp_path)
 
-    def no_open(*args, **kwargs):
-        raise AssertionError("the file was opened")
-    monkeypatch.setattr(build_mod, "open", no_open, raising=False)
+    def no_read(*args, **kwargs):
+        raise AssertionError("the file was read")
+    monkeypatch.setattr(import_mod, "parse_obj_file", no_read)
     with pytest.raises(ConfigError, match=words) as exc:
-        read_obj(str(path), "scene.toml", 3)
+        read_mesh(str(path), "obj", source="scene.toml", index=3)
     assert exc.value.key == "primitive[3].path" and exc.value.value == str(path)
+    assert exc.value.file == "scene.toml" and "OBJ mesh of primitive 3" in str(exc.value)
 
 
 def test_obj_size_limit_and_scene_extension_check(tmp_path, monkeypatch):
     obj = tmp_path / "big.obj"
     obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
-    assert read_obj(str(obj))[1].tolist() == [[0, 1, 2]]
-    monkeypatch.setattr(build_mod, "MAX_OBJ_BYTES", 16)
-    with pytest.raises(ConfigError, match="32 bytes exceed the limit for OBJ primitives, 16 bytes"):
-        read_obj(str(obj))
+    assert read_mesh(str(obj), "obj").faces.tolist() == [[0, 1, 2]]
+    monkeypatch.setattr(import_mod, "MAX_MESH_BYTES", 16)
+    with pytest.raises(ConfigError, match="32 bytes exceed the limit for mesh primitives, 16 bytes"):
+        read_mesh(str(obj), "obj")
     # The scene file is refused at load time, naming the primitive.
     with pytest.raises(ConfigError) as exc:
         load_scene(_obj_scene(tmp_path, "/etc/passwd"))
@@ -183,8 +184,8 @@ def test_one_obj_parser_for_primitives_and_exports(tmp_path):
     obj = tmp_path / "two.obj"
     obj.write_text("o a\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n"
                    "o b\nv 0 0 1\nv 1 0 1\nv 0 1 1\nf -3 -2 -1\n")
-    v, f = read_obj(str(obj))
-    assert f.tolist() == [[0, 1, 2], [0, 2, 3], [4, 5, 6]] and v.shape == (7, 3)
+    m = read_mesh(str(obj), "obj")
+    assert m.faces.tolist() == [[0, 1, 2], [0, 2, 3], [4, 5, 6]] and m.vertices.shape == (7, 3)
     parts = read_export(obj)
     assert parts["a"][1].tolist() == [[0, 1, 2], [0, 2, 3]]
     assert parts["b"][1].tolist() == [[0, 1, 2]] and parts["b"][0][:, 2].tolist() == [1, 1, 1]

@@ -261,18 +261,33 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
         present.add(name)
     for j, prim in enumerate(arrays["primitive"]):
         if prim["type"] is None:
-            raise ConfigError("missing; valid: cylinder, box, obj", file=src, key=f"primitive[{j}].type")
+            raise ConfigError("missing; valid: cylinder, box, obj, ply", file=src, key=f"primitive[{j}].type")
         for need in PRIMITIVE_NEEDS[prim["type"]]:
             if prim[need] is None:
                 raise ConfigError(f"a {prim['type']} primitive needs '{need}'", file=src,
                                   key=f"primitive[{j}].{need}")
     digest = _scene_digest(sections, given, present, arrays, arrays_given)  # paths as written
     for j, prim in enumerate(arrays["primitive"]):
-        if prim["type"] == "obj" and not prim["path"].lower().endswith(".obj"):
-            raise ConfigError("an obj primitive's file name must end in .obj (a Wavefront OBJ mesh)",
+        kind = prim["type"]
+        if kind in ("obj", "ply") and not prim["path"].lower().endswith(f".{kind}"):
+            what = "a Wavefront OBJ mesh" if kind == "obj" else "a PLY mesh"
+            raise ConfigError(f"an {kind} primitive's file name must end in .{kind} ({what})",
                               file=src, key=f"primitive[{j}].path", value=prim["path"])
-        if prim["type"] == "obj" and path is not None:
+        if kind in ("obj", "ply") and path is not None:
             prim["path"] = str((Path(path).parent / prim["path"]).resolve())
+        mesh_only = [k for k in ("labels", "label_property") if prim[k] is not None]
+        if kind not in ("obj", "ply") and mesh_only:
+            raise ConfigError(f"only mesh primitives (obj, ply) take '{mesh_only[0]}'", file=src,
+                              key=f"primitive[{j}].{mesh_only[0]}", value=prim[mesh_only[0]])
+        if prim["labels"] is not None:
+            ints = all(isinstance(x, int) for xs in prim["labels"].values() for x in xs)
+            if ints != (kind == "ply"):
+                raise ConfigError("an obj mesh's labels are name patterns (strings), a ply mesh's are "
+                                  "values of label_property (integers)", file=src,
+                                  key=f"primitive[{j}].labels", value=prim["labels"])
+            if kind == "ply" and prim["label_property"] is None:
+                raise ConfigError("a ply mesh's labels need label_property (the face property to read)",
+                                  file=src, key=f"primitive[{j}].label_property")
     return SceneConfig(Path(path) if path else None, sections, arrays, present, digest,
                        overridden, given, from_preset)
 

@@ -336,17 +336,39 @@ SECTIONS: dict[str, dict[str, Key]] = {
                        "Mitsuba variant of the photo render"),
     },
 }
+def _mesh_labels(v):
+    """{class: [OBJ name patterns (str) or PLY property values (int)]}, classes wood/leaf/ground."""
+    for cls, items in v.items():
+        if cls not in ("wood", "leaf", "ground"):
+            return f"unknown class '{cls}'; valid: wood, leaf, ground"
+        if not isinstance(items, list) or not items or \
+                not (all(isinstance(x, str) for x in items) or
+                     all(isinstance(x, int) and not isinstance(x, bool) for x in items)):
+            return f"'{cls}' must be a non-empty list of name patterns (OBJ) or of integers (PLY)"
+    return None
+
+
 # Sections that hold a list of tables ([[primitive]]).
 ARRAY_SECTIONS: dict[str, dict[str, Key]] = {
     "primitive": {
-        "type": Key(STR, None, one_of("cylinder", "box", "obj"), "shape of the primitive"),
+        "type": Key(STR, None, one_of("cylinder", "box", "obj", "ply"), "shape of the primitive: a "
+                    "cylinder, a box, or a triangle mesh from a Wavefront OBJ or PLY file"),
         "p0_m": Key(LIST, None, vec3, "cylinder: centre of one end"),
         "p1_m": Key(LIST, None, vec3, "cylinder: centre of the other end"),
         "diameter_m": Key(FLOAT, None, positive, "cylinder: diameter"),
         "min_m": Key(LIST, None, vec3, "box: lowest corner"),
         "max_m": Key(LIST, None, vec3, "box: highest corner"),
-        "path": Key(STR, None, None, "obj: Wavefront OBJ file (relative to the scene file)"),
-        "label": Key(STR, "wood", one_of("wood", "leaf"), "class of the hits on this shape"),
+        "path": Key(STR, None, None, "obj/ply: the mesh file (relative to the scene file); OBJ text, "
+                    "or PLY binary (either byte order) or ASCII; polygons become triangle fans"),
+        "label": Key(STR, "wood", one_of("wood", "leaf"), "class of the hits on this shape (a mesh's "
+                     "faces that no 'labels' entry matches)"),
+        "labels": Key((dict,), None, _mesh_labels,
+                      "obj/ply: classes of a mesh's faces, {wood|leaf|ground = [...]}: OBJ name patterns "
+                      "('*', '?', '[...]'; case-sensitive) matched against a face's usemtl material, "
+                      "else its g group, else its o object; PLY integer values of 'label_property'. "
+                      "The first class listed that matches wins"),
+        "label_property": Key(STR, None, None, "ply: the integer face property 'labels' reads "
+                              "('part' in simlidar-mi forest exports: 0 wood, 1 leaves)"),
         "reflectance": Key(FLOAT, None, unit_interval, "this shape's reflectance in [0, 1] "
                            "(default: [materials] of its label)"),
     },
@@ -377,7 +399,8 @@ ARRAY_SECTIONS: dict[str, dict[str, Key]] = {
         "tree": Key((dict,), None, None, "overrides of the preset's laws and constants"),
     },
 }
-PRIMITIVE_NEEDS = {"cylinder": ("p0_m", "p1_m", "diameter_m"), "box": ("min_m", "max_m"), "obj": ("path",)}
+PRIMITIVE_NEEDS = {"cylinder": ("p0_m", "p1_m", "diameter_m"), "box": ("min_m", "max_m"), "obj": ("path",),
+                   "ply": ("path",)}
 
 # Feature modules keep their keys in keys_<feature>.py (a dict SECTIONS whose keys
 # come from keys_base, so there is no import cycle) and are merged here: a new

@@ -33,7 +33,7 @@ from ..geometry import Branches, Leaves
 from .atomic import atomic_file
 
 __all__ = ["PART_WOOD", "PART_LEAVES", "PlyMesh", "prism_tubes", "tube_faces", "leaf_triangles",
-           "write_ply", "write_ply_stream", "read_ply", "write_obj_stream", "read_obj", "parse_obj",
+           "write_ply", "write_ply_stream", "read_ply", "write_obj_stream", "read_obj",
            "ply_size_bytes"]
 
 PART_WOOD = 0
@@ -251,64 +251,22 @@ def write_obj_stream(path: str | Path,
     return path
 
 
-def parse_obj(lines: Iterable[str]):
-    """Parse the ``v``, ``f`` and ``o``/``g`` records of Wavefront OBJ text; the one OBJ parser
-    (scene primitives and export round trips both use it).
-
-    Returns ``(vertices (n, 3) float64, faces (m, 3) int64 0-based and global, vertex_object
-    (n,) int, face_object (m,) int, names)``: polygons become triangle fans, negative
-    indices count back from the last vertex read, and each record belongs to the object
-    whose ``o``/``g`` block it is in ("default" before any).  Raises ``ValueError`` naming
-    the line number for a malformed record.
-    """
-    verts, faces, v_obj, f_obj = [], [], [], []
-    names = ["default"]
-    obj = 0
-    lineno = 0
-    try:
-        for lineno, line in enumerate(lines, 1):
-            parts = line.split()
-            if not parts:
-                continue
-            tag = parts[0]
-            if tag in ("o", "g"):
-                name = " ".join(parts[1:]) or "default"
-                if name not in names:
-                    names.append(name)
-                obj = names.index(name)
-            elif tag == "v":
-                if len(parts) < 4:
-                    raise ValueError("a vertex needs three coordinates")
-                verts.append([float(x) for x in parts[1:4]])
-                v_obj.append(obj)
-            elif tag == "f":
-                idx = [int(x.split("/")[0]) for x in parts[1:]]
-                if len(idx) < 3:
-                    raise ValueError("a face needs three vertices")
-                idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
-                faces += [[idx[0], idx[j], idx[j + 1]] for j in range(1, len(idx) - 1)]
-                f_obj += [obj] * (len(idx) - 2)
-    except UnicodeDecodeError:
-        raise  # a ValueError too, but the caller words it (not UTF-8 text)
-    except (ValueError, IndexError) as exc:
-        raise ValueError(f"line {lineno}: {exc}") from exc
-    return (np.asarray(verts, np.float64).reshape(-1, 3), np.asarray(faces, np.int64).reshape(-1, 3),
-            np.asarray(v_obj, np.int64), np.asarray(f_obj, np.int64), names)
-
-
 def read_obj(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Read an OBJ we exported: object name → (its vertices, its faces re-indexed 0-based to them).
 
-    Vertices are assigned to the object in whose block they appear; faces are
-    re-indexed to that object's vertex list (ours never cross objects).
+    Vertices are assigned to the object (``o``, else ``g``) in whose block they appear; faces
+    are re-indexed to that object's vertex list (ours never cross objects).  The parser is
+    the scene primitives' (:func:`simlidar_mi.io.mesh_import.parse_obj_file`).
     """
+    from .mesh_import import parse_obj_file  # noqa: PLC0415
     try:
-        with open(path, encoding="utf-8") as fh:
-            v, f, v_obj, f_obj, names = parse_obj(fh)
+        v, f, names = parse_obj_file(path)
     except ValueError as exc:
         raise ConfigError(f"not a readable OBJ mesh: {exc}", key="path", value=str(path)) from exc
+    tag = "o" if "o" in names else "g" if "g" in names else None
+    uniq, f_obj, v_obj = names[tag] if tag else ([], np.full(len(f), -1), np.full(len(v), -1))
     out = {}
-    for k, nm in enumerate(names):
+    for k, nm in [(-1, "default")] + list(enumerate(uniq)):
         vk, fk = v[v_obj == k], f[f_obj == k]
         if len(vk) == 0 and len(fk) == 0:
             continue

@@ -170,7 +170,7 @@ def run_one(scene: str, overrides: list[str], rows_dir: str | None, readings: bo
     from .survey import build, generate, scan_measures, scan_patterns  # noqa: PLC0415
     cfg = load_scene(scene, overrides, text=text)
     for prim in cfg.arrays.get("primitive", []):
-        if prim.get("type") == "obj" and obj_files and prim.get("path") in obj_files:
+        if prim.get("type") in ("obj", "ply") and obj_files and prim.get("path") in obj_files:
             prim["path"] = obj_files[prim["path"]]
     version = code_version() if version is None else version
     table = scene_table(cfg)
@@ -242,11 +242,11 @@ def _scene_bundle(scene: str, cfgs: list[SceneConfig]) -> dict[str, Any]:
     objs: dict[str, bytes] = {}
     for cfg in cfgs:
         for prim in cfg.arrays.get("primitive", []):
-            if prim.get("type") == "obj" and prim.get("path") and prim["path"] not in objs:
+            if prim.get("type") in ("obj", "ply") and prim.get("path") and prim["path"] not in objs:
                 try:
                     objs[prim["path"]] = Path(prim["path"]).read_bytes()
                 except OSError as exc:
-                    raise ConfigError(f"cannot read OBJ file: {exc.strerror or exc}", file=scene,
+                    raise ConfigError(f"cannot read mesh file: {exc.strerror or exc}", file=scene,
                                       key="primitive.path", value=prim["path"]) from exc
     return {"scene": scene, "text": Path(scene).read_bytes().decode("utf-8"), "objs": objs}
 

@@ -15,7 +15,7 @@ import json
 import logging
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +26,7 @@ from .._runtime.progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError, SimlidarWarning
 from ..geometry import Branches, Leaves, Primitive
+from ..io.mesh_import import mesh_drop, primitive_mesh_data, ship_meshes, unship_meshes
 from ..io.atomic import atomic_file, staged_dir, writes_output
 from .patterns import AIRBORNE_PULSE_RATE_HZ, AIRBORNE_SPEED_M_S, scan_patterns, scanner_positions_m  # noqa: F401
 
@@ -74,9 +75,8 @@ class SceneGeometry:
             elif prim.kind == "box":
                 lo.append(np.asarray([p["min_m"]], float))
                 hi.append(np.asarray([p["max_m"]], float))
-            elif prim.kind == "obj":
-                from ..scene.build import read_obj  # noqa: PLC0415
-                v, _ = read_obj(p["path"], self.source, j)
+            elif prim.kind in ("obj", "ply"):
+                v = primitive_mesh_data(prim, self.source, j).vertices
                 lo.append(v.min(0, keepdims=True))
                 hi.append(v.max(0, keepdims=True))
         if self.instances is not None and len(self.instances):
@@ -159,8 +159,9 @@ class SceneGeometry:
         return float(lo[sel, 0].min()) if sel.any() else None
 
 
-def generate(cfg: SceneConfig) -> SceneGeometry:
-    """Build the plants and primitives a scene file asks for (no Mitsuba)."""
+def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
+    """Build the plants and primitives a scene file asks for (no Mitsuba).  Mesh primitives
+    are read here, once (``read_meshes=False``: when first needed, for callers that may not)."""
     t0 = time.perf_counter()
     parts: list[Branches] = []
     leaves, instances = Leaves.empty(), None
@@ -187,9 +188,12 @@ def generate(cfg: SceneConfig) -> SceneGeometry:
             parts.append(fb)
             leaves = Leaves.concat([leaves, forest_leaves])
     prims = []
-    for p in cfg.arrays["primitive"]:
+    for j, p in enumerate(cfg.arrays["primitive"]):
         params = {k: v for k, v in p.items() if k not in ("type", "label") and v is not None}
-        prims.append(Primitive(p["type"], params, p["label"]))
+        prim = Primitive(p["type"], params, p["label"])
+        if read_meshes and prim.kind in ("obj", "ply"):  # bounds, build and sensor reuse the arrays
+            prim = replace(prim, mesh=primitive_mesh_data(prim, cfg.source, j))
+        prims.append(prim)
     if cfg.has("vineyard") or cfg.has("vineyard.canopy"):  # VSP vineyard (plants/vineyard.py)
         from ..plants.vineyard import vineyard_from_config  # noqa: PLC0415
         vy = vineyard_from_config(cfg)
@@ -249,7 +253,7 @@ def measure(cfg: SceneConfig, geometry: SceneGeometry | None = None) -> dict:
     a leaf-on orchard adds its leaf area per tree and the row's LAI (plants/apple_leaves.py)."""
     from ..plants.measures import wood_measures  # noqa: PLC0415
     from ..plants.apple_leaves import orchard_leaf_measures  # noqa: PLC0415
-    geometry = geometry or generate(cfg)
+    geometry = geometry or generate(cfg, read_meshes=False)  # the measures read no mesh
     return {**wood_measures(geometry.branches).to_dict(), **orchard_leaf_measures(cfg, geometry.leaves)}
 
 
@@ -338,9 +342,11 @@ class _ScanStages:
         t = time.perf_counter()
         early = plan_from_keys(cfg)  # a scan too large is refused here, at once
         if _overlap_generation(cfg, scheduler):  # Mitsuba imported here while a forked child generates
-            with contextlib.closing(Forked("generating the scene", _plan, cfg, early)) as job:
+            with mesh_drop() as drop, contextlib.closing(Forked("generating the scene", _plan, cfg, early,
+                                                                drop)) as job:
                 mitsuba(cfg["scene"]["variant"])
                 self.geometry, self.patterns = job.wait()
+                self.geometry.primitives = unship_meshes(self.geometry.primitives, drop)
         else:
             self.geometry, self.patterns = _plan(cfg, early)
         geometry, patterns = self.geometry, self.patterns
@@ -497,9 +503,10 @@ def plan_from_keys(cfg: SceneConfig) -> list | None:
     return patterns
 
 
-def _plan(cfg: SceneConfig, early: list | None = None) -> tuple[SceneGeometry, list]:
+def _plan(cfg: SceneConfig, early: list | None = None, drop: str | None = None) -> tuple[SceneGeometry, list]:
     """The geometry and the scan patterns of ``cfg`` (no Mitsuba: a forked child may run it);
-    ``early``: :func:`plan_from_keys`'s patterns, when already made."""
+    ``early``: :func:`plan_from_keys`'s patterns, when already made; ``drop``: the shared file the
+    meshes are left in for a parent (:func:`~simlidar_mi.io.mesh_import.ship_meshes`)."""
     if early is None:
         early = plan_from_keys(cfg)
     geometry = generate(cfg)
@@ -510,6 +517,8 @@ def _plan(cfg: SceneConfig, early: list | None = None) -> tuple[SceneGeometry, l
         patterns = scan_patterns(cfg, lo, hi, geometry.near_x_m)
     if cfg.has("sensor"):
         check_rays(cfg, patterns, scene_sensor(cfg, geometry, patterns))
+    if drop is not None:
+        geometry.primitives = ship_meshes(geometry.primitives, drop)
     return geometry, patterns
 
 

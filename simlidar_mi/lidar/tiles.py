@@ -71,11 +71,11 @@ def scene_bundle(cfg, prepare) -> dict[str, Any]:
     passed in, sent by reference, so that this module does not import the workflows)."""
     objs: dict[str, bytes] = {}
     for prim in cfg.arrays.get("primitive", []):
-        if prim.get("type") == "obj" and prim.get("path") and prim["path"] not in objs:
+        if prim.get("type") in ("obj", "ply") and prim.get("path") and prim["path"] not in objs:
             try:
                 objs[prim["path"]] = Path(prim["path"]).read_bytes()
             except OSError as exc:
-                raise ConfigError(f"cannot read OBJ file: {exc.strerror or exc}", file=cfg.source,
+                raise ConfigError(f"cannot read mesh file: {exc.strerror or exc}", file=cfg.source,
                                   key="primitive.path", value=prim["path"]) from exc
     digest = hashlib.sha256(pickle.dumps(cfg, protocol=5))
     for path in sorted(objs):
@@ -113,7 +113,7 @@ def _prepared(bundle: dict[str, Any]) -> tuple[_Prepared, bool]:
             local[path] = str(Path(tmp) / f"{j}_{Path(path).name}")
             Path(local[path]).write_bytes(data)
         for prim in cfg.arrays.get("primitive", []):
-            if prim.get("type") == "obj" and prim.get("path") in local:
+            if prim.get("type") in ("obj", "ply") and prim.get("path") in local:
                 prim["path"] = local[prim["path"]]
         patterns, built, sensor = bundle["prepare"](cfg)
     got = _Prepared(cfg, patterns, built, sensor, time.perf_counter() - t0)

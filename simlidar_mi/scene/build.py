@@ -36,7 +36,7 @@ import numpy as np
 from .._runtime.mitsuba import mitsuba
 from ..errors import ConfigError, SimlidarWarning
 from ..geometry import CLASS_CODES, Branches, Leaves, Primitive
-from ..io.mesh_export import parse_obj
+from ..io.mesh_import import primitive_mesh_data
 from .prisms import exposed_ends, prism_arrays, prism_mesh
 
 log = logging.getLogger(__name__)
@@ -46,13 +46,11 @@ CAP_SIDES = 32
 MIN_LENGTH_M = 1e-9
 # Warn when float32 rounding at the scene's extent exceeds this share of its smallest feature.
 FLOAT32_FEATURE_SHARE = 0.01
-OBJ_SUFFIXES = (".obj",)
-MAX_OBJ_BYTES = 256 * 2**20
 # Flat wood/leaf meshes of at least this many triangles go into one shape group placed by an
 # identity instance: Embree then builds them with its instance-level quality, 2.5x faster on
 # the Table 3 orchard (2.4 M triangles) with the same coherent and incoherent trace speed
 # (BENCHMARKS.md); below it the top-level build is already fast.
-GROUP_MIN_TRIANGLES = 200_000  # parsed in Python: ~10 M lines; larger meshes belong in PLY/instances
+GROUP_MIN_TRIANGLES = 200_000
 
 
 @dataclass(frozen=True)
@@ -187,22 +185,24 @@ def default_origin(points_m: np.ndarray) -> np.ndarray:
 
 
 def primitive_mesh(prim: Primitive, k: int, source: str | None, index: int | None = None):
-    """Triangles of an explicit primitive, in real (float64) coordinates."""
+    """Triangles of an explicit primitive, in real (float64) coordinates: (vertices, faces,
+    class code per face or None when every face has the primitive's label)."""
     p = prim.params
     if prim.kind == "cylinder":
         p0, p1 = np.asarray([p["p0_m"]], float), np.asarray([p["p1_m"]], float)
         r = np.array([0.5 * float(p["diameter_m"])]) * np.pi / (k * np.sin(np.pi / k))
         v, f, _ = prism_mesh(p0, p1, r, k)
-        return v, f
+        return v, f, None
     if prim.kind == "box":
         lo, hi = np.asarray(p["min_m"], float), np.asarray(p["max_m"], float)
         c = np.array([[x, y, z] for z in (lo[2], hi[2]) for y in (lo[1], hi[1]) for x in (lo[0], hi[0])])
         f = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
                       [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])
-        return c, f
-    if prim.kind == "obj":
-        return read_obj(p["path"], source, index)
-    raise ConfigError("unknown primitive type; valid: cylinder, box, obj", file=source,
+        return c, f, None
+    if prim.kind in ("obj", "ply"):
+        m = primitive_mesh_data(prim, source, index)
+        return m.vertices, m.faces, m.face_class
+    raise ConfigError("unknown primitive type; valid: cylinder, box, obj, ply", file=source,
                       key="primitive.type" if index is None else f"primitive[{index}].type",
                       value=prim.kind)
 
@@ -216,47 +216,6 @@ def _primitive_feature_m(prim: Primitive) -> float:
         side = np.abs(np.asarray(p["max_m"], float) - np.asarray(p["min_m"], float))
         return float(side.min())
     return float("inf")
-
-
-def read_obj(path: str, source: str | None = None,
-             index: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and triangulated faces of a Wavefront OBJ file (v and f records only).
-
-    ``index`` is the primitive's position in the scene file, for messages.  The name
-    must end in ``.obj`` and the file must be a regular file of at most
-    :data:`MAX_OBJ_BYTES`; both are checked before a byte is read.
-    """
-    key = "primitive.path" if index is None else f"primitive[{index}].path"
-
-    def bad(why: str, exc: Exception | None = None) -> ConfigError:
-        what = "OBJ mesh" if index is None else f"OBJ mesh of primitive {index}"
-        return ConfigError(f"{what}: {why}", file=source, key=key, value=str(path))
-    if not str(path).lower().endswith(OBJ_SUFFIXES):
-        raise bad("the file name must end in .obj (a Wavefront OBJ mesh)")
-    try:
-        st = os.stat(path)
-    except OSError as exc:
-        raise bad(f"cannot read it: {exc.strerror or exc}") from exc
-    if not stat.S_ISREG(st.st_mode):
-        raise bad("not a regular file")
-    if st.st_size > MAX_OBJ_BYTES:
-        raise bad(f"{st.st_size} bytes exceed the limit for OBJ primitives, {MAX_OBJ_BYTES} bytes "
-                  f"({MAX_OBJ_BYTES / 2**20:g} MiB)")
-    try:
-        with open(path, encoding="utf-8") as fh:
-            v, f, _, _, _ = parse_obj(fh)
-    except OSError as exc:
-        raise bad(f"cannot read it: {exc.strerror or exc}") from exc
-    except UnicodeDecodeError as exc:
-        raise bad("not UTF-8 text") from exc
-    except ValueError as exc:
-        raise bad(str(exc)) from exc
-    if len(f) == 0:
-        raise bad("no faces")
-    f = f.reshape(-1, 3)
-    if f.max() >= len(v) or f.min() < 0 or not np.isfinite(v).all():
-        raise bad("a face index out of range or a non-finite vertex")
-    return v, f
 
 
 def build_scene(branches: Branches, leaves: Leaves | None = None,
@@ -331,6 +290,7 @@ class _Shapes:
     group_rows: list = field(default_factory=list)
     instance_keys: list = field(default_factory=list)  # (shape key, tree id, prototype)
     group_meshes: list = field(default_factory=list)  # the mesh of each group row
+    top_level: set = field(default_factory=set)  # shapes kept out of groups (own reflectance)
     n_tri: int = 0
 
 
@@ -338,7 +298,7 @@ def _scene_origin(kept: Branches, leaves: Leaves, primitives, prim_meshes, insta
                   origin_m, source) -> np.ndarray:
     """The float64 origin the float32 scene is placed around, checked for float32 precision
     against the smallest feature."""
-    pts = [kept.p0, kept.p1, leaves.vertices.reshape(-1, 3)] + [v for v, _ in prim_meshes]
+    pts = [kept.p0, kept.p1, leaves.vertices.reshape(-1, 3)] + [m[0] for m in prim_meshes]
     if instances is not None and len(instances):
         pts.append(np.asarray(instances.translation_m, np.float64))
     if scanner_m is not None:
@@ -408,19 +368,34 @@ def _add_leaves_and_primitives(mi, parts: _Shapes, leaves: Leaves, primitives, p
         parts.shapes["leaf_mesh"] = _mi_mesh(mi, "leaf_mesh", v, f)
         parts.groups.append(("leaf_mesh", CLASS_CODES["leaf"], leaves.leaf_id.astype(np.uint32)))
         parts.n_tri += len(f)
-    for j, (prim, (v, f)) in enumerate(zip(primitives, prim_meshes)):
+    for j, (prim, (v, f, face_class)) in enumerate(zip(primitives, prim_meshes)):
         v = v - origin
         key = f"primitive_{j:04d}"
-        parts.shapes[key] = _mi_mesh(mi, key, v, f)
-        label = prim.label if prim.label in ("wood", "leaf") else "wood"
-        parts.groups.append((key, CLASS_CODES[label], np.full(len(f), n_branches + j, np.uint32)))
+        label = CLASS_CODES[prim.label if prim.label in ("wood", "leaf") else "wood"]
+        if prim.params.get("reflectance") is not None:  # read per top-level shape
+            parts.top_level.update([key] + [f"{key}_{c}" for c in CLASS_CODES.values()])
+        if face_class is None:
+            parts.shapes[key] = _mi_mesh(mi, key, v, f)
+            parts.groups.append((key, label, np.full(len(f), n_branches + j, np.uint32)))
+        else:  # faces of several classes: one mesh a class (same element id), face order kept
+            for code in np.unique(face_class):
+                sub = f"{key}_{int(code)}"
+                fc = f[face_class == code]
+                used = np.zeros(len(v), bool)
+                used[fc] = True  # only this class's vertices, renumbered in their order
+                parts.shapes[sub] = _mi_mesh(mi, sub, v[used], (np.cumsum(used) - 1)[fc].astype(np.uint32))
+                parts.groups.append((sub, int(code), np.full(len(fc), n_branches + j, np.uint32)))
         parts.n_tri += len(f)
 
 
 def _group_big_meshes(mi, parts: _Shapes, proto: int) -> list:
     """Big wood and leaf meshes go into one shape group placed once without a transform (the
-    last "prototype", number ``proto``; BENCHMARKS §9).  Returns the groups moved."""
-    flat = [g for g in parts.groups if g[0] in ("wood_mesh", "leaf_mesh")]
+    last "prototype", number ``proto``; BENCHMARKS §9), and so do mesh primitives that are big
+    on their own (a user's 2.4 M-triangle OBJ built in 10 s at the top level, 4 s grouped).
+    Returns the groups moved."""
+    flat = [g for g in parts.groups if g[0] in ("wood_mesh", "leaf_mesh")
+            or (g[0].startswith("primitive_") and len(g[2]) >= GROUP_MIN_TRIANGLES
+                and g[0] not in parts.top_level)]
     if sum(len(e) for _, _, e in flat) < GROUP_MIN_TRIANGLES:
         return []
     members = {}
@@ -449,7 +424,9 @@ def _lookup_tables(mi, scene, parts: _Shapes, primitives, instances) -> dict:
     shape_rho = np.full(size, -1.0, np.float32)
     for j, prim in enumerate(primitives):
         if prim.params.get("reflectance") is not None:
-            shape_rho[by_key[f"primitive_{j:04d}"]] = prim.params["reflectance"]
+            for key in by_key:
+                if key == f"primitive_{j:04d}" or key.startswith(f"primitive_{j:04d}_"):
+                    shape_rho[by_key[key]] = prim.params["reflectance"]
     prim_shapes = []
     for key, cls, elems in parts.groups:
         rid = by_key[key]

@@ -150,8 +150,16 @@ class Totals:
             self.leaf.merge(tmp.wood)
             self.leaf_exact_m2 += tmp.wood_exact_m2
             return
-        v, f = primitive_mesh(prim, 3, source, j)
-        self.triangles(np.asarray(v, float)[np.asarray(f)], acc)
+        v, f, face_class = primitive_mesh(prim, 3, source, j)
+        tri = np.asarray(v, float)[np.asarray(f)]
+        if face_class is None:
+            self.triangles(tri, acc)
+        else:  # a labelled mesh: its leaf and wood faces apart (ground faces are no vegetation)
+            from ..geometry import CLASS_CODES  # noqa: PLC0415
+            for cls, to in (("wood", self.wood), ("leaf", self.leaf)):
+                sel = face_class == CLASS_CODES[cls]
+                if sel.any():
+                    self.triangles(tri[sel], to)
         if prim.kind == "box" and acc is self.wood:
             lo, hi = np.asarray(p["min_m"], float), np.asarray(p["max_m"], float)
             ijk, w = box_volume(self.vox(lo), self.vox(hi))

@@ -30,7 +30,8 @@ its end half-way between the last sweep and the next.  :func:`helios_pulses` mod
 (the same float64 steps as HELIOS's source) and the test checks it against our sweep;
 ``--pulse-log`` checks HELIOS's own pulse log (``--writePulse``) against ours.
 
-Modes: ``single`` — one ray a pulse (ours: no divergence; HELIOS: beamSampleQuality 1);
+Modes: ``single`` — one ray a pulse (ours: no divergence; HELIOS: beamSampleQuality 1, which
+casts the central ray only; its divergence stays set because its energy model divides by it);
 ``fwf`` — 0.3 mrad divergence and 19 sub-rays (HELIOS: beamSampleQuality 3, rings of
 1 + 6 + 12) with full-waveform echoes.
 
@@ -271,7 +272,7 @@ def write_helios_xml(out: Path, sweep: Sweep, plan: dict, divergence_mrad: float
     for mode, m in MODES.items():
         sc = ET.SubElement(doc, "scanner", {
             "id": f"tractor_{mode}", "name": f"simlidar tractor sweep ({mode})", "optics": "rotating",
-            "accuracy_m": "0", "beamDivergence_rad": g(divergence_mrad * 1e-3 if mode != "single" else 0.0),
+            "accuracy_m": "0", "beamDivergence_rad": g(divergence_mrad * 1e-3),
             "pulseFreqs_Hz": g(int(sweep.pulse_rate_hz)), "pulseLength_ns": g(pulse_length_ns),
             "rangeMin_m": g(range_min_m), "scanAngleMax_deg": "180", "scanAngleEffectiveMax_deg": "180",
             "scanFreqMin_Hz": "0", "scanFreqMax_Hz": g(2 * plan["scan_freq_hz"]),
@@ -482,10 +483,12 @@ def main(argv: list[str] | None = None) -> None:
     print(f"exported {ex.n_triangles:,} triangles and {ex.sweep.n_sweeps * ex.sweep.n_angles:,} pulses "
           f"to {ex.out} in {time.perf_counter() - t:.1f} s", file=sys.stderr)
     binary = os.environ.get("HELIOS")
-    runs = a.runs.split(",")
+    runs = [r for r in a.runs.split(",") if r]   # --runs "": export only
     if not binary:
         runs = [r for r in runs if r != "helios"]
         print("HELIOS is not set: HELIOS++ is not run", file=sys.stderr)
+    if not runs:
+        return
     res: dict = {r: {} for r in runs}
     for mode in a.modes.split(","):
         for r in runs:

@@ -9,18 +9,18 @@ OUT     ?= out
 .PHONY: demo test docs bench llvm test-tools bytecode clean
 
 # Dr.Jit needs libLLVM >= 17; Debian 12 ships libllvm19. The package's own finder
-# (simlidar_mi/_llvm.py, standard library only, so it runs before the venv exists)
+# (simlidar_mi/_runtime/llvm.py, standard library only, so it runs before the venv exists)
 # answers: exit 0 found, 3 none. apt-get runs only for 3, and only as root.
 llvm:
-	@$(PY) -I simlidar_mi/_llvm.py; rc=$$?; \
+	@$(PY) -I simlidar_mi/_runtime/llvm.py; rc=$$?; \
 	if [ $$rc = 0 ]; then :; \
 	elif [ $$rc != 3 ]; then \
-	  echo "WARNING: could not check for libLLVM >= 17 ('$(PY) simlidar_mi/_llvm.py' exited $$rc)"; \
+	  echo "WARNING: could not check for libLLVM >= 17 ('$(PY) simlidar_mi/_runtime/llvm.py' exited $$rc)"; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 	  echo "installing libllvm19 with apt-get"; \
 	  { apt-get install -y --no-install-recommends libllvm19 || \
 	    { apt-get update && apt-get install -y --no-install-recommends libllvm19; }; } && \
-	  $(PY) -I simlidar_mi/_llvm.py || \
+	  $(PY) -I simlidar_mi/_runtime/llvm.py || \
 	  { echo "apt-get could not install libllvm19 (dpkg locked or offline?); install it and rerun"; exit 1; }; \
 	else \
 	  echo "WARNING: no libLLVM >= 17; install it with: sudo apt-get install -y libllvm19"; \

@@ -26,7 +26,7 @@ from simlidar_mi.config import load_scene
 from simlidar_mi.lidar.survey import generate, build, scan_patterns
 from simlidar_mi.lidar.scan import scan
 from simlidar_mi.scene import build as build_mod
-from simlidar_mi._mitsuba import mitsuba
+from simlidar_mi._runtime.mitsuba import mitsuba
 build_mod.GROUP_MIN_TRIANGLES = int(sys.argv[1])
 cfg = load_scene(sys.argv[2], sys.argv[3:])
 geo = generate(cfg)

@@ -8,7 +8,7 @@ same process, warm, interleaved call for call: the ``--before`` tree's ``simlida
 (loaded as another module of this package, so everything it imports is this checkout's) and
 this checkout's, each into a fresh file name beside the other (no file replaced); medians of
 wall and CPU seconds (``time.process_time``), their ratio, and whether the files are the same
-bytes.  Also: both in a forked child as ``run_scan`` runs them (``simlidar_mi._fork.Forked``,
+bytes.  Also: both in a forked child as ``run_scan`` runs them (``simlidar_mi._runtime.fork.Forked``,
 wall from the fork to the child's answer), the two passes of the new writer alone (points;
 records packed without the file), a forked child that does nothing, and the import cost of
 laspy and pyproj in fresh processes.
@@ -54,7 +54,7 @@ def _timed(fn, *args):
 
 
 def _forked(fn, res, path):
-    from simlidar_mi._fork import Forked
+    from simlidar_mi._runtime.fork import Forked
     w = time.perf_counter()
     job = Forked("writing points.las", fn, res, path, parallel=True)
     try:

@@ -134,7 +134,7 @@ print(json.dumps({"s": time.perf_counter() - t}))
 PATCHED = r"""
 import json, sys, time, resource
 import drjit as dr
-from simlidar_mi._mitsuba import mitsuba
+from simlidar_mi._runtime.mitsuba import mitsuba
 mi = mitsuba()
 acc = {"scene_load_s": 0.0, "scene_loads": 0, "ray_test_s": 0.0, "rays": 0}
 orig_load = mi.load_dict
@@ -176,7 +176,7 @@ import drjit as dr
 from simlidar_mi.config import load_scene
 from simlidar_mi.lidar.survey import generate, build, scan_patterns
 from simlidar_mi.lidar.scan import scan
-from simlidar_mi._mitsuba import mitsuba
+from simlidar_mi._runtime.mitsuba import mitsuba
 scene, reps, *sets = sys.argv[1:]
 cfg = load_scene(scene, sets)
 geo = generate(cfg); lo, hi = geo.bounds_m()
@@ -221,7 +221,7 @@ import json, sys, time, resource
 import numpy as np
 from simlidar_mi.config import load_scene
 from simlidar_mi.lidar.survey import generate, build
-from simlidar_mi._mitsuba import mitsuba
+from simlidar_mi._runtime.mitsuba import mitsuba
 from simlidar_mi.scene import build as B
 scene, *sets = sys.argv[1:]
 mi = mitsuba()

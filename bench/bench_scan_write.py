@@ -51,7 +51,7 @@ def wrap(mod, attr, name):
     setattr(mod, attr, g)
 t0 = time.time()
 import simlidar_mi.cli as cli
-from simlidar_mi import _mitsuba
+from simlidar_mi._runtime import mitsuba as _mitsuba
 from simlidar_mi.lidar import survey, scan as scan_mod
 from simlidar_mi.scene import build as build_mod
 from simlidar_mi.io import atomic

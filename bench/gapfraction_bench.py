@@ -41,7 +41,7 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 from _machine import machine  # noqa: E402
 
-from simlidar_mi._mitsuba import mitsuba  # noqa: E402
+from simlidar_mi._runtime.mitsuba import mitsuba  # noqa: E402
 from simlidar_mi.config import load_scene  # noqa: E402
 from simlidar_mi.canopy.cameras import make_camera  # noqa: E402
 from simlidar_mi.canopy.canopy import canopies_from_config  # noqa: E402

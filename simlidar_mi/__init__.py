@@ -2,7 +2,9 @@
 
 The package is laid out by workflow over a shared base (imports point down only)::
 
-    config, errors, geometry, _llvm, _mitsuba, _validate   shared base
+    errors, geometry   shared base: one exception family, plain-data geometry
+    config/    the scene-file schema (one key table per feature), loader, sensor presets
+    _runtime/  how a run runs: libLLVM and Mitsuba loading, signals, progress, forks, Dask
     io/        writers and readers (EXR, LAS, PNG, CSV, meshes)
     lsystem/   grammars, derivation, turtles
     plants/    generators -> plain geometry (apple, strawberry, random leaves and trees, vineyards)
@@ -14,7 +16,8 @@ The package is laid out by workflow over a shared base (imports point down only)
 
 What a notebook needs is importable from here. Importing the package picks a libLLVM
 >= 17 for Dr.Jit (setting DRJIT_LIBLLVM_PATH unless the user already did) but loads
-neither Mitsuba nor a workflow until one of its names is first used.
+neither numpy, Mitsuba nor a workflow until one of its names is first used, and changes no
+process-wide setting (signal handlers, thread pools): the command line does that in ``main``.
 
 Examples
 --------
@@ -36,29 +39,11 @@ gap fraction: ``sm.run_gapfraction("scenes/strawberry_plot.toml", "out/")``; for
 """
 from __future__ import annotations
 
-import os as _os
-import sys as _sys
+import importlib
 
-_orig = getattr(_sys, "orig_argv", [])
-if _sys.argv and _os.path.basename(_sys.argv[0]) == "simlidar-mi" \
-        or any(_orig[i:i + 2] == ["-m", "simlidar_mi.cli"] for i in range(len(_orig))):
-    # The console script: Ctrl-C or SIGTERM during the imports below (before cli.main)
-    # exits 130 or 143 with one line instead of a traceback.
-    from ._signals import exit_on_interrupt as _exit_on_interrupt
-    _exit_on_interrupt()
-    # One OpenBLAS thread, set before numpy loads it (unless the user chose): our products are
-    # small (3x3 rotations, point batches), and each idle OpenBLAS worker spins ~0.1 s of CPU
-    # after start-up, taken from Mitsuba's import and Embree's build (BENCHMARKS §8a).
-    _os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-del _orig
-
-import importlib  # noqa: E402
-
-from . import _llvm  # noqa: E402
+from ._runtime import llvm as _llvm
 from .errors import (ConfigError, DerivationTooLarge, GrammarError, LLVMNotFound,
                      PhotoError, SimlidarError)
-from .geometry import Branches, Leaves, Primitive
-
 from ._version import __version__
 
 try:
@@ -69,6 +54,7 @@ except LLVMNotFound:
 # name -> module that defines it; loaded on first use (PEP 562) so that importing the
 # package stays cheap and the workflows below never import this file's names.
 _API = {
+    "Branches": "geometry", "Leaves": "geometry", "Primitive": "geometry",
     "load_scene": "config", "SceneConfig": "config",
     "generate": "lidar.survey", "build": "lidar.survey", "measure": "lidar.survey",
     "run_scan": "lidar.survey", "preview": "lidar.preview",
@@ -101,7 +87,6 @@ def __dir__() -> list[str]:
 
 
 __all__ = [
-    "Branches", "Leaves", "Primitive",
     "SimlidarError", "ConfigError", "GrammarError", "DerivationTooLarge", "LLVMNotFound",
     "PhotoError", "__version__", *_API,
 ]

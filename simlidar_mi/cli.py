@@ -229,7 +229,7 @@ def _sensors_run(args: argparse.Namespace) -> int:
     import json
 
     from .config import sensor_preset
-    from .sensor_presets import BUILTIN, format_preset, format_table
+    from .config.presets import BUILTIN, format_preset, format_table
 
     if args.name is not None:
         p = sensor_preset(args.name)
@@ -277,7 +277,7 @@ def _photo_gap_args(p: argparse.ArgumentParser) -> None:
 def _photo_gap_run(args: argparse.Namespace) -> int:
     import json
 
-    from ._progress import make_progress
+    from ._runtime.progress import make_progress
     from .errors import PhotoError
     from .canopy.photo import photo_gap
     from .io.atomic import check_output_dir
@@ -552,8 +552,10 @@ def main(argv: list[str] | None = None) -> int:
     stopped mid-work can abort (rc 134) instead of exiting 130.  A finished run ends the
     same way (:func:`_exit_now`): its files are closed and in place by then, and the
     interpreter's teardown of Mitsuba, Dr.Jit and the arrays took 0.1 s after a scan."""
-    from ._signals import raise_on_interrupt, received
+    from ._runtime.signals import raise_on_interrupt, received, start_program
 
+    if argv is None:  # the program itself, not a caller's main([...]): process-wide settings
+        start_program()
     args = build_parser().parse_args(argv)
     raise_on_interrupt()  # from here Ctrl-C and SIGTERM unwind, so staging folders and locks go
     try:
@@ -595,7 +597,7 @@ def _interrupted(command: str, exc: BaseException | None, argv: list[str] | None
     """One line, then 130 (Ctrl-C) or 143 (SIGTERM); the program itself ends at once."""
     import signal  # noqa: PLC0415
 
-    from ._signals import Terminated, exit_status, received  # noqa: PLC0415
+    from ._runtime.signals import Terminated, exit_status, received  # noqa: PLC0415
     if exc is None:
         exc = Terminated() if received() == signal.SIGTERM else KeyboardInterrupt()
     word, rc = exit_status(exc)

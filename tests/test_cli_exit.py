@@ -73,25 +73,29 @@ def test_other_threads_finish_first(tmp_path):
 
 
 def test_the_command_runs_with_one_openblas_thread_unless_the_user_chose():
-    """``python -m simlidar_mi.cli`` and the console script set OPENBLAS_NUM_THREADS=1 before numpy
+    """The program (``main()`` with its own command line) sets OPENBLAS_NUM_THREADS=1 before numpy
     loads OpenBLAS (its idle workers spin ~0.1 s of CPU each at start-up); a user's value stays,
-    and importing the package as a library changes nothing."""
+    and importing the package or its command-line module as a library changes nothing."""
     import os
     import subprocess
     import sys
-    code = "import os, simlidar_mi; print(os.environ.get('OPENBLAS_NUM_THREADS'))"
     env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
-    lib = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
-    assert lib.stdout.strip() == "None"
+    lib = subprocess.run([sys.executable, "-c", "import os, sys, signal, simlidar_mi, simlidar_mi.cli; "
+                          "print(os.environ.get('OPENBLAS_NUM_THREADS'), 'numpy' in sys.modules, "
+                          "signal.getsignal(signal.SIGINT) is signal.default_int_handler)"],
+                         capture_output=True, text=True, env=env, check=True)
+    assert lib.stdout.split() == ["None", "False", "True"]  # no thread pool, no numpy, no handler
+    # the program: `sensors` lists presets (loads numpy); a hook at exit reports what OpenBLAS got
+    probe = ("import atexit, os, sys; from threadpoolctl import threadpool_info; "
+             "atexit.register(lambda: print('BLAS', os.environ['OPENBLAS_NUM_THREADS'], "
+             "[i['num_threads'] for i in threadpool_info() if i['internal_api'] == 'openblas'], "
+             "file=sys.stderr)); from simlidar_mi.cli import main; "
+             "sys.argv = ['simlidar-mi', 'sensors']; main()")
     for given, want in ((None, "1"), ("3", "3")):
         e = dict(env) if given is None else dict(env, OPENBLAS_NUM_THREADS=given)
-        # the command line `python -m simlidar_mi.cli` as the package sees it while it is imported
-        out = subprocess.run([sys.executable, "-c", "import sys; sys.orig_argv[:] = [sys.executable, '-m', "
-                              "'simlidar_mi.cli']; import os, simlidar_mi, numpy; "
-                              "from threadpoolctl import threadpool_info; "
-                              "print(os.environ['OPENBLAS_NUM_THREADS'], "
-                              "[i['num_threads'] for i in threadpool_info() if i['internal_api'] == 'openblas'])"],
-                             capture_output=True, text=True, env=e, check=True)
-        assert out.stdout.split(maxsplit=1)[0] == want
+        out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=e)
+        line = [x for x in out.stderr.splitlines() if x.startswith("BLAS")]
+        assert line, out.stderr
+        assert line[0].split(maxsplit=2)[1] == want
         if given is None:
-            assert out.stdout.split(maxsplit=1)[1].strip() in ("[1]", "[]")
+            assert line[0].split(maxsplit=2)[2] in ("[1]", "[]")

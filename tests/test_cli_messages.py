@@ -39,7 +39,7 @@ def test_cuda_variant_without_gpu_is_one_line(tmp_path, command):
 def test_mitsuba_cuda_variant_raises_config_error():
     if _has_cuda():
         pytest.skip("this machine has a CUDA device")
-    from simlidar_mi._mitsuba import mitsuba
+    from simlidar_mi._runtime.mitsuba import mitsuba
     from simlidar_mi.errors import ConfigError
     with pytest.raises(ConfigError, match="no CUDA device was found"):
         mitsuba("cuda_ad_rgb")

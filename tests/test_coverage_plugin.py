@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simlidar_mi._mitsuba import mitsuba
+from simlidar_mi._runtime.mitsuba import mitsuba
 from simlidar_mi.scene.build import _mi_mesh as _mesh  # the builder's own mesh constructor
 
 

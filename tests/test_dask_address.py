@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from simlidar_mi import _dask
+from simlidar_mi._runtime import cluster as _dask
 from simlidar_mi.cli import main
 from simlidar_mi.errors import ConfigError
 from tests.conftest import REPO, SCENES

@@ -72,7 +72,7 @@ def test_docs_build_without_warnings(built):
 
 def test_scene_key_reference_lists_every_key(built):
     """One table per section and one row per key of the schema, with its default and range."""
-    from simlidar_mi.config_keys import ARRAY_SECTIONS, SECTIONS
+    from simlidar_mi.config.keys import ARRAY_SECTIONS, SECTIONS
     page = _text(built / "reference" / "scene-keys.html")
     rows = simlidar_ref.key_rows()
     assert len(rows) == sum(len(k) for k in (*SECTIONS.values(), *ARRAY_SECTIONS.values()))
@@ -115,7 +115,7 @@ def test_api_reference_documents_every_exported_name(built):
 
 
 def test_sensor_reference_shows_every_preset_value_and_source(built):
-    from simlidar_mi import sensor_presets as sp
+    from simlidar_mi.config import presets as sp
     page = (built / "reference" / "sensors.html").read_text()
     for p in sp.BUILTIN.values():
         assert f'id="preset-{p.name}"' in page
@@ -133,7 +133,7 @@ def test_every_scene_key_has_a_description_unit_and_range():
 def test_schema_check_finds_what_a_key_lacks(monkeypatch):
     """The check above can fail: an undocumented key, a quantity without a unit, a check whose
     range cannot be read are each reported."""
-    from simlidar_mi import config_keys as ck
+    from simlidar_mi.config import keys as ck
     odd = lambda v: None if v != 3 else "is three"  # noqa: E731 - no 'must' complaint
     n = 2
     closes_over = lambda v: None if v != n else "must not be two"  # noqa: E731
@@ -160,7 +160,7 @@ def test_schema_check_finds_what_a_key_lacks(monkeypatch):
     ("one_of('a', 'b')", 'one of "a", "b"'), ("vec2", "a list of two numbers [x, y] in metres"),
 ])
 def test_allowed_range_is_read_from_the_check(check, text):
-    from simlidar_mi import config_keys as ck
+    from simlidar_mi.config import keys as ck
     assert simlidar_ref.key_range(eval(check, vars(ck))) == text
 
 

@@ -1,4 +1,4 @@
-"""simlidar_mi._fork: one call in a forked child (the forest's pictures, a scan's LAS file)."""
+"""simlidar_mi._runtime.fork: one call in a forked child (the forest's pictures, a scan's LAS file)."""
 from __future__ import annotations
 
 import copyreg
@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from simlidar_mi._fork import Forked, use_fork
+from simlidar_mi._runtime.fork import Forked, use_fork
 from simlidar_mi.config import load_scene
 from simlidar_mi.errors import SimlidarError
 from simlidar_mi.lidar import survey
@@ -135,7 +135,7 @@ CALIB = SCENES / "calibration_cylinder.toml"
 def test_scan_files_are_the_same_bytes_with_the_las_forked_or_in_turn(tmp_path, monkeypatch):
     cfg = load_scene(CALIB)
     forked = survey.run_scan(cfg, tmp_path / "forked")
-    monkeypatch.setattr("simlidar_mi._fork.use_fork", lambda parallel: False)
+    monkeypatch.setattr("simlidar_mi._runtime.fork.use_fork", lambda parallel: False)
     in_turn = survey.run_scan(load_scene(CALIB), tmp_path / "turn")
     for k in ("exr", "png", "las"):
         assert forked.files[k].read_bytes() == in_turn.files[k].read_bytes(), k
@@ -180,7 +180,7 @@ def test_generation_and_wood_measures_forked_give_the_same_files(tmp_path, monke
     ran = dict(line.split() for line in pids.read_text().splitlines())
     assert set(ran) == {"_plan", "scene_measures"}
     assert all(int(pid) != os.getpid() for pid in ran.values())  # both in children
-    monkeypatch.setattr("simlidar_mi._fork.use_fork", lambda parallel: False)
+    monkeypatch.setattr("simlidar_mi._runtime.fork.use_fork", lambda parallel: False)
     in_turn = survey.run_scan(load_scene(cfg_path, sets), tmp_path / "turn")
     for k in ("exr", "png", "las"):
         assert forked.files[k].read_bytes() == in_turn.files[k].read_bytes(), k
@@ -203,8 +203,8 @@ def test_a_generation_error_in_the_child_is_raised_here_as_itself(tmp_path, monk
 
 
 def test_generation_overlaps_only_a_fresh_local_process(monkeypatch):
-    from simlidar_mi._dask import ENV, may_use_cluster
-    from simlidar_mi._mitsuba import mitsuba, variant_ready
+    from simlidar_mi._runtime.cluster import ENV, may_use_cluster
+    from simlidar_mi._runtime.mitsuba import mitsuba, variant_ready
     cfg = load_scene(CALIB)
     mitsuba(cfg["scene"]["variant"])
     assert variant_ready(cfg["scene"]["variant"])

@@ -109,7 +109,7 @@ def test_random_vertical_law_at_nadir():
 
 
 def test_zenith_exactly_zero():
-    from simlidar_mi._mitsuba import mitsuba
+    from simlidar_mi._runtime.mitsuba import mitsuba
     mi = mitsuba()
     canopy = _rl(300, "spherical", 7)
     built = build_canopy_scene(canopy)
@@ -203,7 +203,7 @@ def test_perspective_reads_lower_and_converges_as_window_narrows():
 @pytest.mark.parametrize("kind", ["orthographic", "perspective"])
 @pytest.mark.parametrize("zenith,azimuth", [(0.0, 0.0), (15.0, 90.0), (30.0, 37.0)])
 def test_numpy_camera_matches_mitsuba_sensor(kind, zenith, azimuth):
-    from simlidar_mi._mitsuba import mitsuba
+    from simlidar_mi._runtime.mitsuba import mitsuba
     mi = mitsuba()
     canopy = _rl(50, "spherical", 1, size=(1.2, 0.8))
     cam = make_camera(kind, canopy, zenith, azimuth_deg=azimuth, resolution=64)

@@ -76,7 +76,7 @@ def test_plain_species_names_pass_and_the_mesh_writer_checks_them_too(tmp_path):
 
 
 def test_a_preset_file_must_be_a_regular_toml_file_of_bounded_size(tmp_path):
-    from simlidar_mi.sensor_presets import MAX_PRESET_BYTES
+    from simlidar_mi.config.presets import MAX_PRESET_BYTES
     (tmp_path / "folder.toml").mkdir()
     os.mkfifo(tmp_path / "pipe.toml")  # reading it would block for ever
     with open(tmp_path / "big.toml", "wb") as fh:  # sparse: no disk used

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from simlidar_mi import _llvm
+from simlidar_mi._runtime import llvm as _llvm
 from simlidar_mi.errors import LLVMNotFound
 from tests.conftest import REPO
 
@@ -33,7 +33,7 @@ def test_version_parsing():
 
 def test_chosen_llvm_runs_the_kernel_that_aborts_on_llvm_15():
     """dr.maximum compiles to llvm.maximum, which LLVM 15 cannot select (process abort)."""
-    code = ("import simlidar_mi, os; from simlidar_mi._mitsuba import mitsuba; mi = mitsuba(); "
+    code = ("import simlidar_mi, os; from simlidar_mi._runtime.mitsuba import mitsuba; mi = mitsuba(); "
             "import drjit as dr; print(dr.maximum(dr.arange(mi.Float, 10), 3.0)[0], "
             "os.environ['DRJIT_LIBLLVM_PATH'])")
     env = {k: v for k, v in os.environ.items() if k != "DRJIT_LIBLLVM_PATH"}
@@ -115,8 +115,8 @@ def test_make_llvm_finder_crash_does_not_run_apt(tmp_path):
 
 
 def test_finder_script_runs_without_the_package(tmp_path):
-    """`python3 -I simlidar_mi/_llvm.py`: no venv, no package import, exit 0 or 3."""
-    proc = subprocess.run([sys.executable, "-I", str(REPO / "simlidar_mi" / "_llvm.py")],
+    """`python3 -I simlidar_mi/_runtime/llvm.py`: no venv, no package import, exit 0 or 3."""
+    proc = subprocess.run([sys.executable, "-I", str(REPO / "simlidar_mi" / "_runtime" / "llvm.py")],
                           capture_output=True, text=True, cwd=tmp_path, timeout=60)
     found = _llvm.find_libllvm() is not None or "DRJIT_LIBLLVM_PATH" in os.environ
     assert proc.returncode == (0 if found else 3), proc.stderr

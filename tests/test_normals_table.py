@@ -3,7 +3,7 @@ on a flat orchard (meshes in the identity group) and on an instanced forest (tur
 import numpy as np
 import pytest
 
-from simlidar_mi._mitsuba import mitsuba
+from simlidar_mi._runtime.mitsuba import mitsuba
 from simlidar_mi.lidar.scan import _lidar, _range_integrator
 from simlidar_mi.lidar.survey import build, generate, load_scene, scan_patterns
 

@@ -275,7 +275,7 @@ _SITECUSTOMIZE = textwrap.dedent("""
 
 
 @pytest.mark.parametrize("module, prefix", [
-    ("numpy", "simlidar-mi: interrupted"),                        # start-up, before main
+    ("numpy", "simlidar-mi scan: interrupted"),                   # the first heavy import, in main
     ("drjit", "simlidar-mi scan: interrupted"),                   # inside Mitsuba's import
     ("simlidar_mi.plugins.tractor_lidar", "simlidar-mi scan: interrupted"),  # build
     ("laspy", "simlidar-mi scan: interrupted"),                   # writing, files staged
@@ -299,7 +299,7 @@ def test_ctrl_c_exits_130_with_one_line(tmp_path, module, prefix):
 
 
 def test_interrupts_deferred_delivers_after_the_block():
-    from simlidar_mi._signals import interrupts_deferred
+    from simlidar_mi._runtime.signals import interrupts_deferred
     seen = []
     with pytest.raises(KeyboardInterrupt):
         with interrupts_deferred():

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from simlidar_mi._fork import HOLD_ENV, use_fork
+from simlidar_mi._runtime.fork import HOLD_ENV, use_fork
 from simlidar_mi.cli import main
 from simlidar_mi.io.atomic import LOCK_NAME
 from tests.conftest import REPO, SCENES
@@ -324,7 +324,7 @@ def test_sigterm_to_a_study_with_workers_is_one_line_and_leaks_nothing(tmp_path)
 
 _SWALLOWED = """
 import signal, sys, weakref
-from simlidar_mi._signals import exit_on_interrupt, raise_on_interrupt
+from simlidar_mi._runtime.signals import exit_on_interrupt, raise_on_interrupt
 exit_on_interrupt(); raise_on_interrupt()  # as the command line sets them
 class Thing: pass
 thing = Thing()

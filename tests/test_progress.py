@@ -7,10 +7,11 @@ import os
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
-from simlidar_mi._progress import Progress, make_progress
+from simlidar_mi._runtime.progress import Progress, make_progress
 from simlidar_mi.errors import ConfigError
 from tests.conftest import REPO, SCENES
 
@@ -99,7 +100,7 @@ def test_only_the_shared_helper_uses_tqdm():
     """One progress helper, not copies: no other module draws its own bar."""
     users = [p.relative_to(REPO) for p in (REPO / "simlidar_mi").rglob("*.py")
              if re.search(r"^\s*(from|import) tqdm", p.read_text(), re.M)
-             and p.name != "_progress.py"]
+             and p.relative_to(REPO) != Path("simlidar_mi/_runtime/progress.py")]
     assert users == []
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simlidar_mi._dask import _dask_config_dirs
+from simlidar_mi._runtime.cluster import _dask_config_dirs
 from simlidar_mi.geometry import CLASS_CODES
 from simlidar_mi.io.las import BeamGeometry
 from simlidar_mi.lidar.platforms import airborne_pattern, rosette_patterns, rotating_patterns
@@ -57,7 +57,7 @@ def _probe(tmp_path: Path, files: dict[str, str]) -> dict:
     home.mkdir(exist_ok=True)
     env = {k: v for k, v in os.environ.items() if not k.startswith("DASK_")}
     env.update(HOME=str(home), PYTHONPATH=str(REPO))
-    code = ("import json, sys; from simlidar_mi._dask import configured_address; "
+    code = ("import json, sys; from simlidar_mi._runtime.cluster import configured_address; "
             "a = configured_address(); print(json.dumps([a, 'dask' in sys.modules]))")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     return dict(zip(("address", "dask_imported"), json.loads(out.stdout.strip().splitlines()[-1])))

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simlidar_mi import _dask
+from simlidar_mi._runtime import cluster as _dask
 from simlidar_mi.cli import main
 from simlidar_mi.config import load_scene
 from simlidar_mi.errors import ConfigError

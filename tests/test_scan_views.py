@@ -13,7 +13,7 @@ import gc
 import numpy as np
 import pytest
 
-from simlidar_mi._mitsuba import mitsuba
+from simlidar_mi._runtime.mitsuba import mitsuba
 from simlidar_mi.geometry import Branches
 from simlidar_mi.lidar.scan import ScanSettings, scan
 from simlidar_mi.scene.build import build_scene

@@ -11,7 +11,7 @@ import pytest
 from simlidar_mi.cli import main
 from simlidar_mi.config import load_scene, sensor_preset
 from simlidar_mi.errors import ConfigError, SimlidarWarning
-from simlidar_mi.sensor_presets import BUILTIN, UNCHECKED, format_preset, format_table
+from simlidar_mi.config.presets import BUILTIN, UNCHECKED, format_preset, format_table
 
 NAMES = ["sick-lms111", "sick-lms511", "velodyne-vlp16", "ouster-os1-64", "livox-mid70",
          "riegl-vz400i", "riegl-minivux1uav"]

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from simlidar_mi import _dask
+from simlidar_mi._runtime import cluster as _dask
 from simlidar_mi.cli import main
 from simlidar_mi.errors import ConfigError
 from simlidar_mi.lidar import study

@@ -1,7 +1,7 @@
 """References generated from the code at build time: the scene-file keys and the sensor presets.
 
-The scene-file schema (:data:`simlidar_mi.config_keys.SECTIONS` and ``ARRAY_SECTIONS``) is the one
-source of the key reference: each :class:`~simlidar_mi.config_keys_base.Key` gives the type, the
+The scene-file schema (:data:`simlidar_mi.config.keys.SECTIONS` and ``ARRAY_SECTIONS``) is the one
+source of the key reference: each :class:`~simlidar_mi.config.keys_base.Key` gives the type, the
 default and the one-line meaning; the unit is read from the key's name (the project names every
 quantity with its unit: ``_m``, ``_deg``, ``_hz`` ...); the allowed range is the check's own
 complaint, the text a user sees when a value is refused. :func:`problems` lists what the schema
@@ -164,7 +164,7 @@ class KeyRow:
 
 def key_rows() -> list[KeyRow]:
     """Every scene-file key, section by section, in the schema's order."""
-    from simlidar_mi.config_keys import ARRAY_SECTIONS, SECTIONS
+    from simlidar_mi.config.keys import ARRAY_SECTIONS, SECTIONS
     rows = []
     for tables, array in ((SECTIONS, False), (ARRAY_SECTIONS, True)):
         for section, keys in tables.items():
@@ -181,7 +181,7 @@ def key_rows() -> list[KeyRow]:
 def problems() -> list[str]:
     """What the schema lacks for its reference: keys without a description, quantities without a
     unit, checks whose range cannot be read. Empty when the reference is complete."""
-    from simlidar_mi.config_keys import ARRAY_SECTIONS, SECTIONS
+    from simlidar_mi.config.keys import ARRAY_SECTIONS, SECTIONS
     out = []
     for tables in (SECTIONS, ARRAY_SECTIONS):
         for section, keys in tables.items():
@@ -273,7 +273,7 @@ class SensorPresets(Directive):
     has_content = False
 
     def run(self):
-        from simlidar_mi import sensor_presets as sp
+        from simlidar_mi.config import presets as sp
         doc = self.state.document
         summary = []
         for p in sp.BUILTIN.values():

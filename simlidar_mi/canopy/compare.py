@@ -406,7 +406,7 @@ def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[st
         Output folder: ``comparison.csv``, ``pairs.csv``, ``comparison.png``,
         ``comparison.json``, ``photo_mask_*.png``, ``virtual_*.png``.  Files appear together
         when everything succeeded; a failure leaves the folder as it was.
-    progress : see :func:`simlidar_mi._progress.make_progress` (the scenes' renders).
+    progress : see :func:`simlidar_mi._runtime.progress.make_progress` (the scenes' renders).
     readings : bool
         Also render every strawberry scene under the other petiole reading and report both
         series (``readings.csv``); False skips that second render.

@@ -32,8 +32,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .._mitsuba import check_variant
-from .._progress import make_progress
+from .._runtime.mitsuba import check_variant
+from .._runtime.progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError, SimlidarError
 from ..geometry import Branches, Leaves
@@ -173,7 +173,7 @@ def render_gap(built, canopy: Canopy, camera: Camera, window: Window, *, spp: in
                jitter: bool = False, seed: int = 0, variant: str | None = None,
                integrator=None) -> GapImage:
     """Render ``camera``'s coverage image of ``built`` (from :func:`build_canopy_scene`)."""
-    from .._mitsuba import mitsuba  # noqa: PLC0415
+    from .._runtime.mitsuba import mitsuba  # noqa: PLC0415
     if not (isinstance(spp, numbers.Integral) and not isinstance(spp, bool) and spp >= 1):
         raise ConfigError("samples per pixel must be an integer ≥ 1", key="gapfraction.spp", value=spp)
     mi = mitsuba(variant)
@@ -241,7 +241,7 @@ def gap_images(canopy: Canopy, *, cameras: Sequence[str] = DEFAULTS["cameras"],
                           margin_m=margin_m, fov_deg=fov_deg, camera_height_m=camera_height_m)
     views, offsets = views
     built = build_canopy_scene(canopy, offsets, variant=variant)
-    from .._mitsuba import mitsuba  # noqa: PLC0415
+    from .._runtime.mitsuba import mitsuba  # noqa: PLC0415
     mi = mitsuba(variant)
     integrator = mi.load_dict({"type": "coverage", "jitter": bool(jitter)})
     return [render_gap(built, canopy, cam, win, spp=spp, jitter=jitter, seed=seed,
@@ -433,7 +433,7 @@ def run_gapfraction(scene: SceneConfig | str | Path, out_dir: str | Path | None 
     - ``gap_<camera>_z<zenith>_s<step>.exr``: replicate 0's float32 coverage with the
       settings in the header.
 
-    ``progress``: see :func:`simlidar_mi._progress.make_progress` (a count of replicate
+    ``progress``: see :func:`simlidar_mi._runtime.progress.make_progress` (a count of replicate
     plots rendered, then the files written).
     """
     cfg = scene if isinstance(scene, SceneConfig) else load_scene(scene, list(overrides))

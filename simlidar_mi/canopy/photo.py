@@ -42,7 +42,7 @@ from typing import Any, Literal, Sequence, Union
 
 import numpy as np
 
-from .._progress import make_progress
+from .._runtime.progress import make_progress
 from ..errors import PhotoError, SimlidarError
 from ..io.png import (BACKGROUND_RGB, FOREGROUND_RGB, WINDOW_RGB, dimmed, write_label_png,
                       write_mask_png)

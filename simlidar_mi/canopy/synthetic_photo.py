@@ -93,7 +93,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .._progress import make_progress
+from .._runtime.progress import make_progress
 from ..errors import ConfigError, SimlidarError
 from ..io.atomic import writes_output
 from .cameras import CAMERAS
@@ -318,7 +318,7 @@ def _render_jobs_here(jobs: Sequence[PhotoJob], settings: PhotoSettings, seed: i
                       done=lambda: None) -> list[np.ndarray]:
     """Render in this process (which must already run, or not yet have, an RGB variant);
     ``done()`` is called after each photo."""
-    from .._mitsuba import mitsuba  # noqa: PLC0415
+    from .._runtime.mitsuba import mitsuba  # noqa: PLC0415
     mi = mitsuba(settings.variant)
     out = []
     for job in jobs:
@@ -370,7 +370,7 @@ def _worker_main(in_path: str, out_path: str) -> int:
 
 
 def _process_variant() -> str | None:
-    from .. import _mitsuba  # noqa: PLC0415  (does not import Mitsuba itself)
+    from .._runtime import mitsuba as _mitsuba  # noqa: PLC0415  (does not import Mitsuba itself)
     return _mitsuba._state.get("variant")
 
 
@@ -385,7 +385,7 @@ def render_photos(jobs: Sequence[PhotoJob], settings: PhotoSettings | None = Non
     seed : Mitsuba sampler seed (same seed, same bytes).
     isolate : render in a child process (True), here (False), or here only when this
         process already runs ``settings.variant`` (None, the default).
-    progress : see :func:`simlidar_mi._progress.make_progress` (photos rendered).
+    progress : see :func:`simlidar_mi._runtime.progress.make_progress` (photos rendered).
 
     Returns
     -------
@@ -615,7 +615,7 @@ def run_synthetic_photos(scene, out_dir: str | Path | None = None, overrides: Se
     - ``photo_<camera>_z<zenith>_s<step>.png``: the synthetic photo;
     - ``photo_<camera>_z<zenith>_s<step>_canopeo.png``: Canopeo's mask, window outlined.
 
-    ``progress``: see :func:`simlidar_mi._progress.make_progress` (the coverage renders,
+    ``progress``: see :func:`simlidar_mi._runtime.progress.make_progress` (the coverage renders,
     then the photos).
     """
     from ..config import SceneConfig, load_scene  # noqa: PLC0415

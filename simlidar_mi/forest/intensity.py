@@ -11,7 +11,7 @@ from typing import Sequence, overload
 import numpy as np
 from scipy.special import erf, erfc
 
-from .._validate import real
+from ..config.checks import real
 from ..errors import ConfigError
 
 __all__ = ["Bump", "Domain", "SpeciesIntensity", "expected_count", "intensity_grid"]

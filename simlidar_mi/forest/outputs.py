@@ -12,7 +12,7 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from ..config_keys_base import SAFE_NAME
+from ..config.keys_base import SAFE_NAME
 from ..errors import ConfigError
 from ..io.mesh_export import (PART_LEAVES, PART_WOOD, prism_tubes, tube_faces, write_obj_stream,
                              write_ply_stream)

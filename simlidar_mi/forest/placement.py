@@ -31,7 +31,7 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validate import real
+from ..config.checks import real
 from ..errors import ConfigError
 from .intensity import Bump, Domain, SpeciesIntensity, expected_count, intensity_grid  # noqa: F401 (re-exported)
 

@@ -52,8 +52,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from .._fork import Forked, use_fork
-from .._progress import make_progress
+from .._runtime.fork import Forked, use_fork
+from .._runtime.progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..io.atomic import staged_dir, writes_output
@@ -123,7 +123,7 @@ def _use_fork(parallel: bool | None) -> bool:
 
 def _pictures(forest: Forest, stage: Path, max_trees: int, parallel: bool | None) -> Forked:
     """``layout.png`` and ``preview.png`` drawn into a staged folder, in a forked process when
-    :func:`simlidar_mi._fork.use_fork` allows, while the caller writes the tables and meshes:
+    :func:`simlidar_mi._runtime.fork.use_fork` allows, while the caller writes the tables and meshes:
     the child shares the forest's memory and alone imports matplotlib; the bytes are those of
     drawing in turn. ``wait()`` gives the drawing's seconds; a failed or dead child raises
     :class:`~simlidar_mi.errors.SimlidarError` with its traceback (the staged folder is then
@@ -138,7 +138,7 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
     """Make the forest of a scene file and write its files (see the module docstring).
 
     All files appear together when complete (staged); a failure leaves ``out_dir``
-    as it was.  ``progress``: see :func:`simlidar_mi._progress.make_progress`.
+    as it was.  ``progress``: see :func:`simlidar_mi._runtime.progress.make_progress`.
     ``parallel``: draw the pictures in a forked process (None: when fork is available
     and the process may use two or more cores; False: in turn, in this process).
     """

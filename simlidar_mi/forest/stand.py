@@ -46,7 +46,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from .._progress import bar, make_progress
+from .._runtime.progress import bar, make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
@@ -350,7 +350,7 @@ class Forest:
 
 
 def _bar(it: Iterable, progress, desc: str, total: int | None = None) -> Iterable:
-    """Trees of ``it`` as one stage of the shared progress helper (:mod:`simlidar_mi._progress`)."""
+    """Trees of ``it`` as one stage of the shared progress helper (:mod:`simlidar_mi._runtime.progress`)."""
     return bar(it, progress, desc, total, unit="tree")
 
 
@@ -420,7 +420,7 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     config_or_params : a scene (SceneConfig or path) with ``[forest]`` and ``[[species]]``,
         or ForestParams.
     seed : master seed (default: the scene's ``scene.seed``; required with ForestParams).
-    progress : see :func:`simlidar_mi._progress.make_progress` (trees, prototypes).
+    progress : see :func:`simlidar_mi._runtime.progress.make_progress` (trees, prototypes).
 
     Returns
     -------

@@ -43,7 +43,7 @@ import warnings
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
-from .._signals import interrupts_deferred
+from .._runtime.signals import interrupts_deferred
 from ..errors import OutputError, SimlidarError, SimlidarWarning
 
 log = logging.getLogger(__name__)

@@ -28,16 +28,12 @@ import json
 import threading
 import zlib
 from pathlib import Path
-from typing import TYPE_CHECKING
-
 import numpy as np
 import OpenEXR
 
 from ..errors import SimlidarError
 from .atomic import atomic_file
-
-if TYPE_CHECKING:  # annotations only: io sits below the workflows
-    from ..lidar.scan import ScanResult
+from .scan_record import ScanRecord
 
 
 def header_value(value):
@@ -109,7 +105,7 @@ def scan_exr_layout(result, *, seed: int | None = None, scene_sha256: str = "",
 
 
 def result_rows(result, a: int, b: int) -> dict[str, np.ndarray]:
-    """Rows [a, b) of a held ScanResult's first-return channels."""
+    """Rows [a, b) of a held ScanRecord's first-return channels."""
     out = {"range": result.range_m[a:b], "class": result.cls[a:b], "branch_id": result.element_id[a:b],
            "hit_fraction": result.hit_fraction[a:b]}
     if result.tree_id is not None:
@@ -117,7 +113,7 @@ def result_rows(result, a: int, b: int) -> dict[str, np.ndarray]:
     return out
 
 
-def write_scan_exr(result: ScanResult, path: str | Path, *, seed: int | None = None,
+def write_scan_exr(result: ScanRecord, path: str | Path, *, seed: int | None = None,
                    scene_sha256: str = "", extra: dict | None = None, threads: int = 2) -> Path:
     """Write ``result`` to ``path`` (ZIP compression, scanlines); returns the path.
 
@@ -297,7 +293,7 @@ def _header_bytes(header: dict, dtypes: dict, n: int, m: int) -> bytes:
     return bytes(out + b"\0")
 
 
-def _echo_channels(result: ScanResult, channels: dict, header: dict) -> None:
+def _echo_channels(result: ScanRecord, channels: dict, header: dict) -> None:
     """Add the echo channels and the sensor header of a ``[sensor]`` scan (module docstring)."""
     n, m = result.shape
     echoes, sensor = result.echoes, result.sensor

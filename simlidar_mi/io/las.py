@@ -67,7 +67,7 @@ echo's range.  VLR record 2 states the intensity scale, record 3 holds the resol
 JSON.
 
 laspy is imported on first use, not with this module: with pyproj, which laspy imports, it takes
-0.1 s, and ``run_scan`` writes the LAS in a forked child (simlidar_mi._fork), so the child pays
+0.1 s, and ``run_scan`` writes the LAS in a forked child (simlidar_mi._runtime.fork), so the child pays
 it, not the process that writes the EXR and the PNG meanwhile (issue #8, BENCHMARKS.md §8f).
 """
 from __future__ import annotations
@@ -82,11 +82,10 @@ from ..geometry import CLASS_CODES
 from .atomic import atomic_file
 from .las_fields import (SCALES_M, BeamAngles, ScaleChooser, echo_intensity, firing_order, firing_sort,
                          intensity_text)
+from .scan_record import ScanRecord
 
-if TYPE_CHECKING:  # annotations only: io sits below the workflows
+if TYPE_CHECKING:  # annotations only: laspy loads in the LAS writer's child
     import laspy
-
-    from ..lidar.scan import ScanResult
 
 LAS_CLASS = {CLASS_CODES["ground"]: 2, CLASS_CODES["leaf"]: 5, CLASS_CODES["wood"]: 64}
 #: Nominal duration of one row (sweep, azimuth step) for platforms without a pulse rate.
@@ -102,7 +101,7 @@ CHUNK_POINTS = 1 << 16
 LAS_CLASS_LUT = np.zeros(256, np.uint8)
 LAS_CLASS_LUT[list(LAS_CLASS)] = list(LAS_CLASS.values())
 _INT32 = np.iinfo(np.int32)
-def scan_times_s(result: ScanResult, first_row: int = 0) -> tuple[np.ndarray, str]:
+def scan_times_s(result: ScanRecord, first_row: int = 0) -> tuple[np.ndarray, str]:
     """(N, M) float64 ``gps_time`` of every beam of ``result`` and the definition used.
 
     ``first_row`` shifts a path leg by the rows of the legs before it.  A pattern with a
@@ -131,7 +130,7 @@ def row_times_s(pattern, first_row: int, a: int, b: int) -> tuple[np.ndarray, st
 
 class BeamGeometry:
     """Points along the beams of one pattern, ``origin + r · direction`` with the float64
-    operations of ``ScanResult.points_m()`` (origin moved by ``col_time · velocity`` on a moving
+    operations of ``ScanRecord.points_m()`` (origin moved by ``col_time · velocity`` on a moving
     platform; direction the column's, turned by the row's yaw through cos/sin of every row),
     one axis at a time.
 
@@ -193,7 +192,7 @@ def crs_wkt(crs: str) -> str:
     return pyproj.CRS.from_user_input(crs).to_wkt("WKT1_GDAL")
 
 
-def write_scan_las(result: ScanResult | list[ScanResult], path: str | Path,
+def write_scan_las(result: ScanRecord | list[ScanRecord], path: str | Path,
                    crs: str | None = None) -> Path:
     """Write every non-escape first return of ``result`` (or of several legs) to ``path``;
     with echoes (a ``[sensor]`` scan), every echo.
@@ -242,7 +241,7 @@ class _LegPoints:
     rows (the kept beams of each block found again in the second pass, which is cheaper than
     keeping their indices), echoes (a ``[sensor]`` leg) by :data:`CHUNK_POINTS`."""
 
-    def __init__(self, res: ScanResult, leg: int, first_row: int, with_echoes: bool):
+    def __init__(self, res: ScanRecord, leg: int, first_row: int, with_echoes: bool):
         self.res, self.leg, self.first_row, self.with_echoes = res, leg, first_row, with_echoes
         self.m = res.shape[1]
         self.echo_cols = None
@@ -478,7 +477,7 @@ def _fill_fields(arr: np.ndarray, rec, cols: dict, *, with_tree: bool, with_echo
         arr["bit_fields"] = 0x11  # return number (bits 0-3) 1, number of returns (bits 4-7) 1
 
 
-def _echo_points(res: ScanResult, leg: int, times_s: np.ndarray) -> dict:
+def _echo_points(res: ScanRecord, leg: int, times_s: np.ndarray) -> dict:
     """Per-point columns of a ``[sensor]`` leg: its echoes (module docstring), in firing order."""
     m = res.shape[1]
     echoes = res.echoes

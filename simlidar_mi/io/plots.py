@@ -41,17 +41,13 @@ import functools
 import importlib.util
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
-
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from ..geometry import CLASS_CODES
 from ._viridis_lut import VIRIDIS_RGB_HEX
 from .atomic import atomic_file
-
-if TYPE_CHECKING:  # annotations only: io sits below the workflows
-    from ..lidar.scan import ScanResult
+from .scan_record import ScanRecord
 
 __all__ = ["plot_scan_png", "range_rgb", "range_limits", "lut_index", "VIRIDIS_LUT",
            "GROUND_RGB", "ESCAPE_RGB", "MAX_IMAGE_PX", "MIN_DATA_W", "MIN_DATA_H"]
@@ -296,13 +292,13 @@ class RangeImageReducer:
         return _paint(np.ascontiguousarray(codes.T[::-1])), (self.fr, self.fc)
 
 
-def plot_scan_png(result: ScanResult, path: str | Path, title: str = "", *,
+def plot_scan_png(result: ScanRecord, path: str | Path, title: str = "", *,
                   max_px: int = MAX_IMAGE_PX, reduced: RangeImageReducer | None = None) -> Path:
     """Write the range image of a scan (module docstring) as an RGB PNG, atomically.
 
     Parameters
     ----------
-    result : ScanResult
+    result : ScanRecord
     path : path-like
         Destination ``.png``.
     title : str

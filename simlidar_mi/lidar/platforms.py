@@ -38,7 +38,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..config_keys import SECTIONS
+from ..config.keys import SECTIONS
 from ..errors import ConfigError
 
 #: The beam limit of a pattern made without one (``max_beams=None``): [scan] max_beams's default.

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._mitsuba import check_variant
-from .._progress import make_progress
+from .._runtime.mitsuba import check_variant
+from .._runtime.progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..io.atomic import atomic_file, writes_output
 from .survey import build, generate
@@ -17,9 +17,9 @@ def preview(cfg: SceneConfig | str | Path, path: str | Path, *, width: int = 102
             spp: int = 16, overrides: list[str] | tuple = (), progress=False) -> Path:
     """A shaded side view of the scene (looking along +x, like the scanner) as PNG.
 
-    ``progress``: see :func:`simlidar_mi._progress.make_progress` (stages generate, build,
+    ``progress``: see :func:`simlidar_mi._runtime.progress.make_progress` (stages generate, build,
     render, write)."""
-    from .._mitsuba import mitsuba  # noqa: PLC0415
+    from .._runtime.mitsuba import mitsuba  # noqa: PLC0415
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, overrides)
     check_variant(cfg["scene"]["variant"], cfg.source)  # before any work

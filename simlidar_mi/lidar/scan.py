@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .._mitsuba import mitsuba
+from .._runtime.mitsuba import mitsuba
 from ..config import SECTIONS
 from ..errors import ConfigError
 from ..geometry import CLASS_CODES

@@ -5,7 +5,7 @@ stochastic on/off) and fitted A_PR = 3.6166·A_IM (R² 0.70) and A_L = 10.812·A
 (R² 0.78).  :func:`run_study` runs the full factorial grid (or any list of overrides)
 on a base scene, one orchard per task, with Dask as the engine (``workers`` > 1 runs
 tasks in separate processes; ``scheduler``, ``DASK_SCHEDULER_ADDRESS`` or an active
-``distributed.Client`` runs them on a cluster, see :mod:`simlidar_mi._dask`).  Every finished
+``distributed.Client`` runs them on a cluster, see :mod:`simlidar_mi._runtime.cluster`).  Every finished
 orchard is written at once to ``rows/<key>.json``, so an interrupted study resumes where it
 stopped; each row names the ``worker`` that computed it.  Outputs:
 ``study.csv`` (one row per orchard), ``regression.json`` and ``correlations.png``.
@@ -54,9 +54,9 @@ from typing import Any
 
 import numpy as np
 
-from .._dask import code_version  # noqa: F401  (rows record it; tests patch it here)
+from .._runtime.cluster import code_version  # noqa: F401  (rows record it; tests patch it here)
 from .._version import __version__  # noqa: F401
-from .._progress import make_progress
+from .._runtime.progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
@@ -120,7 +120,7 @@ def scene_table(cfg: SceneConfig) -> dict[str, Any]:
     after defaults and overrides (so the same effective scene gives the same table however
     it was written), OBJ primitives by the SHA-256 of their file, and the sections the file
     declares (they choose what is generated)."""
-    from ..config_keys import SECTIONS  # noqa: PLC0415
+    from ..config.keys import SECTIONS  # noqa: PLC0415
     table: dict[str, Any] = {"sections": sorted(cfg.declared)}
     for section, values in cfg.sections.items():
         for key, value in values.items():
@@ -146,7 +146,7 @@ def _key(table: dict[str, Any], readings: bool = True, version: str | None = Non
 def _die_with_parent(parent_pid: int) -> None:
     """Dask worker initializer: end this worker as soon as the study process dies, even by
     SIGKILL, so that no orphan keeps scanning and writing rows."""
-    from .._fork import die_with_parent  # noqa: PLC0415
+    from .._runtime.fork import die_with_parent  # noqa: PLC0415
     die_with_parent(parent_pid)
 
 
@@ -161,11 +161,11 @@ def run_one(scene: str, overrides: list[str], rows_dir: str | None, readings: bo
     study's :func:`code_version` (default: this process's).  ``text`` is the scene file's
     text (then ``scene`` only names it), ``obj_files`` maps the scene's OBJ paths to local
     copies: how a cluster worker scans a scene it cannot read from disk.  The row records
-    the ``worker`` that computed it (:func:`simlidar_mi._dask.worker_name`).
+    the ``worker`` that computed it (:func:`simlidar_mi._runtime.cluster.worker_name`).
     """
     from dataclasses import replace  # noqa: PLC0415
 
-    from .._dask import worker_name  # noqa: PLC0415
+    from .._runtime.cluster import worker_name  # noqa: PLC0415
     from .scan import resolve_settings, scan  # noqa: PLC0415  (imports Mitsuba in the worker)
     from .survey import build, generate, scan_measures, scan_patterns  # noqa: PLC0415
     cfg = load_scene(scene, overrides, text=text)
@@ -257,7 +257,7 @@ def _cluster_task(bundle: dict[str, Any], overrides: list[str], readings: bool, 
     simlidar-mi, Mitsuba or Dr.Jit) refuses, so that no row is filed under the wrong version."""
     import tempfile  # noqa: PLC0415
 
-    from .._dask import worker_name  # noqa: PLC0415
+    from .._runtime.cluster import worker_name  # noqa: PLC0415
     mine = code_version()
     if mine != version:
         raise ConfigError(f"Dask worker {worker_name()} runs other code ({mine}) than the study "
@@ -509,7 +509,7 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
     old rows stay in ``rows/``, unused, so nothing computed is lost.
     ``on_mismatch="refuse"`` raises :class:`ConfigError` saying the same, before any scan.
 
-    Where the orchards are scanned (:func:`simlidar_mi._dask.cluster_client`): the Dask
+    Where the orchards are scanned (:func:`simlidar_mi._runtime.cluster.cluster_client`): the Dask
     scheduler at ``scheduler`` (``"tcp://host:8786"``; ``"local"`` forces the local pool),
     else an active ``distributed.Client``, else ``DASK_SCHEDULER_ADDRESS``, else ``workers``
     local processes.  On a cluster the scene file and its OBJ files are sent to the workers
@@ -517,7 +517,7 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
     each row comes back to be written here as soon as its orchard is done."""
     if on_mismatch not in ("recompute", "refuse"):
         raise ConfigError("must be 'recompute' or 'refuse'", key="on_mismatch", value=on_mismatch)
-    from .._dask import check_scheduler  # noqa: PLC0415
+    from .._runtime.cluster import check_scheduler  # noqa: PLC0415
     check_scheduler(scheduler)  # an empty address is refused before any work
     scene = str(Path(scene).resolve())
     load_scene(scene)  # fail early, before any task, on a bad base scene
@@ -552,7 +552,7 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
     rows_dir.mkdir(parents=True, exist_ok=True)
     todo = [(o, k) for o, k in zip(grid, keys) if _read_row(rows_dir / f"{k}.json") is None]
     if todo:
-        from .._dask import cluster_client, run_on_client  # noqa: PLC0415
+        from .._runtime.cluster import cluster_client, run_on_client  # noqa: PLC0415
         with cluster_client(scheduler) as client:
             if client is None:
                 _run_local(scene, todo, rows_dir, readings, version, workers, progress)

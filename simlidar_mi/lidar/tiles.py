@@ -2,7 +2,7 @@
 
 :func:`simlidar_mi.lidar.survey.run_scan` calls :func:`scan_on_cluster` when a cluster is
 chosen (``scheduler=``, an active ``distributed.Client`` or ``DASK_SCHEDULER_ADDRESS``, see
-:func:`simlidar_mi._dask.cluster_client`).  Every pattern (leg) of the scan is cut into tiles
+:func:`simlidar_mi._runtime.cluster.cluster_client`).  Every pattern (leg) of the scan is cut into tiles
 of ``tile_rows`` rows (airborne scan lines, path sweeps, tractor positions; by default about
 :data:`DEFAULT_TILE_BEAMS` beams a tile).  The validated scene goes to the cluster once, as
 data (its OBJ files by content), like the study's; each worker generates and builds it once
@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from .._progress import make_progress
+from .._runtime.progress import make_progress
 from ..errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -124,9 +124,9 @@ def _prepared(bundle: dict[str, Any]) -> tuple[_Prepared, bool]:
 def _tile_task(bundle: dict[str, Any], leg: int, r0: int, r1: int, version: str) -> dict[str, Any]:
     """Scan rows r0 … r1 − 1 of leg ``leg`` on a worker; return the tile's arrays.  A worker
     running other code (another simlidar-mi, Mitsuba or Dr.Jit) refuses, as in the study."""
-    from .._dask import worker_name  # noqa: PLC0415
+    from .._runtime.cluster import worker_name  # noqa: PLC0415
     from .scan import scan  # noqa: PLC0415
-    from .._dask import code_version  # noqa: PLC0415
+    from .._runtime.cluster import code_version  # noqa: PLC0415
     mine = code_version()
     if mine != version:
         raise ConfigError(f"Dask worker {worker_name()} runs other code ({mine}) than this scan "
@@ -184,8 +184,8 @@ def scan_on_cluster(client: Any, cfg, patterns: list, prepare, *, tile_rows: int
     ``n_dropped``, ``n_instances``, ``n_triangles``, as attributes; the merged results, one
     per leg; facts of the run: ``tiles``, ``workers``, ``build_seconds``, the longest build
     of one worker)."""
-    from .._dask import run_on_client  # noqa: PLC0415
-    from .._dask import code_version  # noqa: PLC0415
+    from .._runtime.cluster import run_on_client  # noqa: PLC0415
+    from .._runtime.cluster import code_version  # noqa: PLC0415
     plan = tile_plan(patterns, tile_rows)
     tiles: list[dict[str, Any]] = []
     with make_progress(progress).stage("scan: tiles", len(plan), "tile") as st:

@@ -71,7 +71,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import real as _real
+from ..config.checks import real as _real
 from ..errors import ConfigError, GrammarError
 from ..geometry import Branches, Leaves
 from .modules import CLOSE, OPEN, ModuleString

@@ -32,8 +32,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .._validate import flag as _flag
-from .._validate import real as _real
+from ..config.checks import flag as _flag
+from ..config.checks import real as _real
 from ..errors import ConfigError
 from ..geometry import Branches
 from ..lsystem import (DEFAULT_MAX_MODULES, Grammar, ModuleString, derive, format_table1,

@@ -54,8 +54,8 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import real as _real
-from ..config_keys import SECTIONS as _KEYS
+from ..config.checks import real as _real
+from ..config.keys import SECTIONS as _KEYS
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
 from .laws import TruncNormal
@@ -89,7 +89,7 @@ class AppleLeafParams:
     angle_distribution: Any = _D["angle_distribution"]
 
     def __post_init__(self) -> None:
-        # the scene-file checks of config_keys_orchard, for Python callers too
+        # the scene-file checks of config.keys_orchard, for Python callers too
         for name, key in _KEYS["orchard.leaves"].items():
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, key.types):

@@ -37,7 +37,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..config_keys_orchard import LEAF_ANGLE_LAWS
+from ..config.keys_orchard import LEAF_ANGLE_LAWS
 from ..errors import ConfigError
 
 __all__ = ["LEAF_ANGLE_LAWS", "leaf_angle_cdf", "leaf_angle_table", "sample_leaf_angles"]

@@ -42,8 +42,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .._validate import real as _real
-from .._validate import seed_sequence as _root_seed
+from ..config.checks import real as _real
+from ..config.checks import seed_sequence as _root_seed
 from ..errors import ConfigError
 from ..geometry import Leaves
 

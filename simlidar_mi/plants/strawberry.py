@@ -40,8 +40,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .._validate import real as _real
-from .._validate import seed_sequence as _root_seed
+from ..config.checks import real as _real
+from ..config.checks import seed_sequence as _root_seed
 from ..errors import ConfigError
 from ..geometry import Leaves
 from .strawberry_leaf import (_MAX_REDRAWS, TRIANGLES_PER_LEAF, StrawberryLeafParams,

@@ -23,7 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .._validate import seed_sequence as _root_seed
+from ..config.checks import seed_sequence as _root_seed
 from ..errors import ConfigError
 from ..geometry import Leaves
 from .strawberry import StrawberryPlot

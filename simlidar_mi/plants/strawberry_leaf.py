@@ -92,7 +92,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .._validate import real as _real
+from ..config.checks import real as _real
 from ..errors import ConfigError
 
 __all__ = [

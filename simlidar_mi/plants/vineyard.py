@@ -85,7 +85,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import flag, real
+from ..config.checks import flag, real
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves, Primitive
 from .tree_leaves import LeafTable

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._progress import make_progress
+from .._runtime.progress import make_progress
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
 from .grid import VoxelGrid, grid_dataset

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._progress import make_progress
+from .._runtime.progress import make_progress
 from ..errors import ConfigError, SimlidarWarning
 from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
 from .estimators import (BUILTIN, ESTIMATE_VARIABLES, G_SPHERICAL, MIN_BEAMS, ORACLE_G, estimate_all,

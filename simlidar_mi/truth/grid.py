@@ -265,7 +265,7 @@ def write_grid(ds, path: str | Path) -> Path:
     deadlocked it (its clean-up waits on a lock the interrupted write holds)."""
     import errno  # noqa: PLC0415
 
-    from .._signals import interrupts_deferred  # noqa: PLC0415
+    from .._runtime.signals import interrupts_deferred  # noqa: PLC0415
     from ..io.atomic import atomic_file  # noqa: PLC0415
 
     path = Path(path)

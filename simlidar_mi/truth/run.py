@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._progress import make_progress
+from .._runtime.progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..io.atomic import staged_dir, write_csv, writes_output
@@ -149,7 +149,7 @@ def _figure(ds, prof: dict, path: Path, title: str) -> None:
 def run_truth(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
               overrides: list[str] | tuple = (), progress=False) -> TruthRun:
     """Compute the truth of a scene file; with ``out_dir`` write truth.nc, truth_summary.csv
-    and truth_profiles.png there (atomically). Keys: ``[truth]`` (config_keys_truth.py)."""
+    and truth_profiles.png there (atomically). Keys: ``[truth]`` (config/keys_truth.py)."""
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, list(overrides))
     t = cfg["truth"]

@@ -20,7 +20,7 @@ import sys
 import time
 from typing import IO, Any, Iterable, Iterator
 
-from .errors import ConfigError
+from ..errors import ConfigError
 
 MODES = ("off", "bar", "lines")
 

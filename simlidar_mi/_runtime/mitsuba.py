@@ -4,9 +4,9 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
-from ._llvm import ensure_libllvm
-from ._signals import interrupts_deferred
-from .errors import ConfigError
+from .llvm import ensure_libllvm
+from .signals import interrupts_deferred
+from ..errors import ConfigError
 
 DEFAULT_VARIANT = "llvm_ad_mono"
 _PLUGIN_MODULES = ("tractor_lidar", "range_integrator", "coverage_integrator")

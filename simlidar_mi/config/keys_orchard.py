@@ -1,8 +1,8 @@
 """Scene-file keys of leafy apple orchards: ``[orchard.leaves]`` and the row spacing in ``[orchard]``.
 
-Merged section by section into :data:`simlidar_mi.config_keys.SECTIONS` at the end of that
+Merged section by section into :data:`simlidar_mi.config.keys.SECTIONS` at the end of that
 file: ``[orchard]`` keeps its own keys and gains ``row_spacing_m``. Key and the checks come
-from :mod:`simlidar_mi.config_keys_base`, so this module does not import config_keys (no
+from :mod:`simlidar_mi.config.keys_base`, so this module does not import config.keys (no
 import cycle, either import order works). The laws behind the keys are
 documented in :mod:`simlidar_mi.plants.apple_leaves` and :mod:`simlidar_mi.plants.leaf_angles`.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from .config_keys_base import FLOAT, INT, STR, Key, at_least, nonneg, one_of, positive, unit_interval
+from .keys_base import FLOAT, INT, STR, Key, at_least, nonneg, one_of, positive, unit_interval
 
 #: de Wit's (1965) named leaf inclination laws (plus the uniform one).
 LEAF_ANGLE_LAWS = ("spherical", "uniform", "planophile", "erectophile", "plagiophile", "extremophile")
@@ -37,7 +37,7 @@ def _even_sides(v) -> str | None:
 
 
 SECTIONS: dict[str, dict[str, Key]] = {
-    "orchard": {  # added to the [orchard] keys of config_keys.py
+    "orchard": {  # added to the [orchard] keys of config/keys.py
         "row_spacing_m": Key(FLOAT, 4.0, positive, "distance between rows; the row's ground area "
                              "n_trees × spacing_m × row_spacing_m is the LAI's denominator"),
     },

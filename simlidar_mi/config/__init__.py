@@ -1,7 +1,7 @@
 """Scene files (TOML) → validated, typed settings.
 
 A scene file is a TOML document whose sections are listed in
-:data:`simlidar_mi.config_keys.SECTIONS`; every
+:data:`simlidar_mi.config.keys.SECTIONS`; every
 key has a type, a default and a check, and anything else is refused with the file,
 the dotted key and the value.  ``--set section.key=value`` overrides are parsed as
 TOML values and validated the same way.
@@ -33,10 +33,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ._validate import parse_toml, tomllib  # noqa: F401  (tomllib: tomli on Python 3.10, for callers)
-from .config_keys import ARRAY_SECTIONS, FLOAT, PRIMITIVE_NEEDS, SECTIONS, Key
-from .errors import ConfigError, SimlidarWarning
-from .sensor_presets import apply_preset
+from .checks import parse_toml, tomllib  # noqa: F401  (tomllib: tomli on Python 3.10, for callers)
+from .keys import ARRAY_SECTIONS, FLOAT, PRIMITIVE_NEEDS, SECTIONS, Key
+from ..errors import ConfigError, SimlidarWarning
+from .presets import apply_preset
 
 
 @dataclass
@@ -311,6 +311,6 @@ def _scene_digest(sections: dict, given: set[str], present: set[str], arrays: di
 def sensor_preset(ref: str | Path, base_dir: str | Path | None = None):
     """A built-in sensor preset (``simlidar-mi sensors`` lists them) or a user preset .toml
     (relative to ``base_dir``, default the working folder), checked against this schema."""
-    from .sensor_presets import resolve
+    from .presets import resolve
     return resolve(str(ref) if isinstance(ref, Path) else ref, base_dir=Path(base_dir) if base_dir is not None else Path.cwd(),
                    sections=SECTIONS, check=_check_value, key="preset")

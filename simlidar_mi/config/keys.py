@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import math
 
-# Key, the value types and the checks live in config_keys_base (feature key modules import
+# Key, the value types and the checks live in keys_base (feature key modules import
 # them from there without importing this module); re-exported here for config.py and others.
-from .config_keys_base import (BOOL, FLOAT, INT, LIST, STR, Check, Key, _epsg,  # noqa: F401
+from .keys_base import (BOOL, FLOAT, INT, LIST, STR, Check, Key, _epsg,  # noqa: F401
                                _finite, _numbers, at_least, azimuth, nonneg, one_of, positive,
                                range3, safe_name, unit_interval, vec2, vec3, waypoints, within)
 
@@ -379,8 +379,8 @@ ARRAY_SECTIONS: dict[str, dict[str, Key]] = {
 }
 PRIMITIVE_NEEDS = {"cylinder": ("p0_m", "p1_m", "diameter_m"), "box": ("min_m", "max_m"), "obj": ("path",)}
 
-# Feature modules keep their keys in config_keys_<feature>.py (a dict SECTIONS whose keys
-# come from config_keys_base, so there is no import cycle) and are merged here: a new
+# Feature modules keep their keys in keys_<feature>.py (a dict SECTIONS whose keys
+# come from keys_base, so there is no import cycle) and are merged here: a new
 # section is added, an existing one (e.g. [orchard]) gains the feature's keys.
 def _merge(feature: dict[str, dict[str, Key]]) -> None:
     for name, keys in feature.items():
@@ -390,9 +390,9 @@ def _merge(feature: dict[str, dict[str, Key]]) -> None:
         SECTIONS.setdefault(name, {}).update(keys)
 
 
-from .config_keys_orchard import SECTIONS as _ORCHARD  # noqa: E402  ([orchard.leaves]; [orchard] row_spacing_m)
-from .config_keys_truth import SECTIONS as _TRUTH  # noqa: E402
-from .config_keys_vineyard import SECTIONS as _VINEYARD  # noqa: E402
+from .keys_orchard import SECTIONS as _ORCHARD  # noqa: E402  ([orchard.leaves]; [orchard] row_spacing_m)
+from .keys_truth import SECTIONS as _TRUTH  # noqa: E402
+from .keys_vineyard import SECTIONS as _VINEYARD  # noqa: E402
 
 _merge(_ORCHARD)
 _merge(_VINEYARD)

@@ -10,7 +10,7 @@ except ModuleNotFoundError:  # Python 3.10: the same parser as a package
 
 import numpy as np
 
-from .errors import ConfigError
+from ..errors import ConfigError
 
 
 def real(key: str, value, *, positive: bool = False, nonneg: bool = False) -> float:

@@ -26,7 +26,7 @@ import warnings
 from contextlib import nullcontext
 from typing import Any, Callable
 
-from .errors import SimlidarError
+from ..errors import SimlidarError
 
 
 def use_fork(parallel: bool | None) -> bool:

@@ -6,7 +6,7 @@ within the canopy width, …) are checked by :class:`~simlidar_mi.plants.vineyar
 """
 from __future__ import annotations
 
-from .config_keys_base import BOOL, FLOAT, INT, LIST, Key, _finite, _numbers, at_least, nonneg, positive
+from .keys_base import BOOL, FLOAT, INT, LIST, Key, _finite, _numbers, at_least, nonneg, positive
 
 
 def _heights(v):

@@ -60,6 +60,18 @@ def exit_on_interrupt() -> None:
         signal.signal(signal.SIGTERM, _exit_at_start)
 
 
+def start_program() -> None:
+    """The program's own start-up (console script, ``python -m simlidar_mi.cli``), never a
+    library import: Ctrl-C or SIGTERM before the command's handlers are set exits 130 or 143
+    with one line, and numpy will load OpenBLAS with one thread unless the user chose.
+
+    One thread: our products are small (3x3 rotations, point batches), and each idle OpenBLAS
+    worker spins ~0.1 s of CPU after start-up, taken from Mitsuba's import and Embree's build
+    (BENCHMARKS §8a).  Must run before numpy is first imported (the package root does not)."""
+    exit_on_interrupt()
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
 def _raise_interrupt(signum, frame) -> None:  # noqa: ARG001
     _received.append(signum)
     raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt

@@ -1,7 +1,7 @@
 """Scene-file keys of ``[truth]``: the canopy ground-truth grid (``simlidar-mi truth``)."""
 from __future__ import annotations
 
-from .config_keys_base import FLOAT, STR, Key, nonneg, one_of, positive
+from .keys_base import FLOAT, STR, Key, nonneg, one_of, positive
 
 SECTIONS = {
     "truth": {

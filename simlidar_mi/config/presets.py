@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from ._validate import parse_toml
-from .errors import ConfigError
+from .checks import parse_toml
+from ..errors import ConfigError
 
 # [platform] / [scan] keys a sensor implies; the rest (positions, paths, speeds) belong to the scene
 PLATFORM_KEYS = ("kind", "channels_deg", "channel_offsets_us", "block_period_us", "rotation_hz",

@@ -33,8 +33,8 @@ import threading
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from ._version import __version__
-from .errors import ConfigError
+from .._version import __version__
+from ..errors import ConfigError
 
 log = logging.getLogger(__name__)
 

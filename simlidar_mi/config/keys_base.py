@@ -1,8 +1,8 @@
 """What a scene-file key is (:class:`Key`), its value types and the shared checks.
 
-The lowest layer of the key tables: :mod:`simlidar_mi.config_keys` and every feature's
-``config_keys_<feature>.py`` import from here, so a feature module never imports
-config_keys (which imports it: that would be an import cycle).
+The lowest layer of the key tables: :mod:`simlidar_mi.config.keys` and every feature's
+``keys_<feature>.py`` import from here, so a feature module never imports
+config.keys (which imports it: that would be an import cycle).
 """
 from __future__ import annotations
 

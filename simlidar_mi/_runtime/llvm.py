@@ -5,7 +5,7 @@ select: the process aborts instead of raising.  So before drjit is imported we
 look for a libLLVM >= 17 and set DRJIT_LIBLLVM_PATH, unless the user set it.
 
 Standard library only, so ``make llvm`` can run this file as a script with the
-system python3 before the venv exists (``python3 simlidar_mi/_llvm.py``; exit 0
+system python3 before the venv exists (``python3 simlidar_mi/_runtime/llvm.py``; exit 0
 when a usable libLLVM is found, 3 when none is).
 """
 from __future__ import annotations
@@ -67,7 +67,7 @@ def ensure_libllvm() -> str:
     """
     path = find_libllvm()
     if path is None:
-        from .errors import LLVMNotFound  # noqa: PLC0415  (late: this file also runs as a script)
+        from ..errors import LLVMNotFound  # noqa: PLC0415  (late: this file also runs as a script)
         raise LLVMNotFound(INSTALL_HINT)
     os.environ["DRJIT_LIBLLVM_PATH"] = path
     return path

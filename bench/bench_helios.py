@@ -48,7 +48,13 @@ What cannot be matched (the counts differ for these reasons, not for geometry):
   equally weighted apart from its energy model; ours sample the beam's Gaussian profile
   (full angle γ at 1/e²).  Pulse length: HELIOS's pulseLength_ns is the whole pulse;
   ours is the FWHM.  Detection: HELIOS's threshold and peak finder are its own.
+* Detection limit: HELIOS keeps an echo above ``receivedEnergyMin_W`` (default 1e-4 W of its
+  default 4 W), ours above ``detection_threshold`` of the emitted energy; the far ground,
+  met at grazing angles just below the horizon, falls under HELIOS's limit first (one tree,
+  500 sweeps: 10 ground pulses a sweep fewer than ours, single ray).
 * Noise: none in either (HELIOS ``accuracy_m = 0``, ours no range noise).
+* Leg ends: HELIOS v2.0.2 loses pulses near the end of a leg (:data:`EXTRA_SWEEPS`), so its
+  leg runs longer and the extra sweeps are cut; its scan time includes them (+2 sweeps).
 
 Timing: each run is its own process (HELIOS: ``helios++``; ours: ``simlidar-mi scan``
 writing all its files); end to end is its wall time, peak memory its ru_maxrss (the

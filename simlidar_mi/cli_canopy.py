@@ -95,6 +95,9 @@ def register(command, scene_args, overrides) -> None:
                        help="scene azimuth at the photo's top, counter-clockwise from +x (default 90: +y)")
         p.add_argument("--downscale", type=int, default=1, choices=(1, 2, 4, 8),
                        help="analyse the photo at 1/N of its size")
+        p.add_argument("--lai", action="store_true",
+                       help="also each photo's LAI by the gap-fraction methods of evaluate-photo "
+                            "(Miller, Lang-Xiang, 57.5 degrees, LAI-2200): fisheye_photo_lai.csv")
 
     @command("fisheye-photo", "Ring/sector gap fractions of real fisheye photographs (the table of "
              "`fisheye`): circle, lens projection, classification", _fisheye_photo_args)
@@ -105,13 +108,16 @@ def register(command, scene_args, overrides) -> None:
         results = run_fisheye_photos(args.photos, args.out, lens=args.lens, coeffs=args.coeffs,
                                      circle=args.circle, format=args.format, method=args.method,
                                      rings_deg=args.rings or DEFAULT_RINGS_DEG, n_sectors=args.sectors,
-                                     heading_deg=args.heading, downscale=args.downscale)
+                                     heading_deg=args.heading, downscale=args.downscale, lai=args.lai)
         for r in results:
             xc, yc, rad = r.circle_px
             print(f"{r.path.name}: circle {xc:.1f},{yc:.1f},{rad:.1f} px{' (detected)' if r.detected else ''}, "
                   f"gap {r.gap_fraction:.4f}" + (f", blue threshold {r.threshold:g}" if r.threshold is not None else ""))
             print("  ring gap " + "  ".join(f"{a:g}-{b:g}°: {g:.4f}" for a, b, g in
                                             zip(r.table.ring_lo_deg, r.table.ring_hi_deg, r.table.ring_gap)))
+            if r.lai is not None:
+                print("  LAI " + "  ".join(f"{m}: {r.lai[m]:.3f}" for m in ("miller", "miller_lx", "hinge_57",
+                                                                              "lai2200")))
         print(f"wrote {args.out}/fisheye_photo_gap.csv")
         return 0
 

@@ -100,3 +100,43 @@ def test_downward_grass_circle_cut_by_the_frame():
     assert r.detected and abs(xc - 2144) < 100 and abs(yc - 1424) < 100 and rad > 1424  # wider than the frame is tall
     assert 0.3 < r.gap_fraction < 0.95
     assert r.table.n_pixels.sum() == r.n_inside
+
+
+def test_a_photo_and_a_virtual_image_give_the_same_lai(tmp_path):
+    """Field photos go through the LAI methods by the code evaluate-photo runs on virtual images:
+    a rendered image saved as a photo gives the same LAI by every method."""
+    from simlidar_mi.canopy.lai_table import estimate_methods, method_rings
+    from simlidar_mi.canopy.photo_fisheye import photo_lai
+    from simlidar_mi.config.keys import SECTIONS
+    from simlidar_mi.scene.build import build_scene
+    rng = np.random.default_rng(5)
+    centres = rng.uniform([-3, -3, 1.5], [3, 3, 3.0], (300, 3))
+    tri = centres[:, None, :] + rng.normal(0, 0.15, (300, 3, 3))
+    built = build_scene(Branches.empty(), Leaves(tri, np.arange(300, dtype=np.int32), np.zeros(300, np.int32)),
+                        [], origin_m=np.zeros(3))
+    cam = make_fisheye([0.0, 0.0, 1.0], projection="equidistant", resolution=240)
+    img = render_fisheye(built, cam, spp=1)
+    settings = {k: key.default for k, key in SECTIONS["lai_methods"].items()}
+    t = img.table(method_rings(settings["rings_deg"]), int(settings["n_sectors"]))
+    virtual = estimate_methods(t.gap[None], t.n_pixels[None].astype(float), settings)[0][0]
+    rgb = np.zeros((240, 240, 3), np.uint8)
+    rgb[img.coverage == 0.0] = 255
+    photo = tmp_path / "virtual.png"
+    Image.fromarray(rgb).save(photo)
+    got = photo_lai(fisheye_photo_gap(photo, "equidistant", circle=(120, 120, 120), keep_labels=True))
+    assert 0.05 < virtual["miller"] < 5  # leaves were seen
+    for m, v in virtual.items():
+        assert got[m] == pytest.approx(v, rel=1e-9), m
+    assert 0 < got["lai2200_acf"] <= 1.0 + 1e-9
+
+
+@needs_photos
+def test_chestnut_lai_by_every_method(tmp_path):
+    out = tmp_path / "dhp"
+    (r,) = run_fisheye_photos([CHESTNUT], out, lens="FC-E8", downscale=4, lai=True)
+    rows = list(csv.DictReader(open(out / "fisheye_photo_lai.csv")))
+    assert [row["method"] for row in rows] == ["miller", "miller_lx", "hinge_57", "lai2200"]
+    lai = {row["method"]: float(row["lai"]) for row in rows}
+    # a closed chestnut canopy (gap ≈ 0.07): effective LAI of a few, log-averaging reads higher
+    assert 1.0 < lai["miller"] < 8.0 and lai["miller_lx"] >= lai["miller"] - 1e-9
+    assert r.labels is None and r.lai["lai2200"] == pytest.approx(lai["lai2200"])

@@ -56,6 +56,7 @@ class FisheyePhoto:
     n_inside: int              # pixels whose centre lies inside the circle
     gap_fraction: float        # gap share of the inside pixels (every pixel alike)
     labels: np.ndarray | None = None  # uint8 (H, W): 0 gap, 1 plant, 2 outside; with keep_labels
+    lai: dict | None = None  # each method's LAI (run_fisheye_photos(..., lai=True))
 
 
 def _strips(height: int, width: int):
@@ -213,15 +214,42 @@ def _blue_threshold(photo, cam: FisheyeCamera, p: Path) -> float:
 
 
 PHOTO_CSV_COLUMNS = ("photo", "lens", "method", "threshold", "xc_px", "yc_px", "r_px") + TABLE_COLUMNS
-PHOTO_OUTPUTS = (r"fisheye_photo_gap\.csv", r".+_fisheye_mask\.png")
+PHOTO_OUTPUTS = (r"fisheye_photo_gap\.csv", r"fisheye_photo_lai\.csv", r".+_fisheye_mask\.png")
+LAI_CSV_COLUMNS = ("photo", "method", "lai", "lai2200_acf", "lai2200_le", "lai2200_difn")
+
+
+def photo_lai(photo: FisheyePhoto, settings: dict | None = None) -> dict[str, float]:
+    """The gap-fraction LAI methods on one classified photo (kept with ``keep_labels``), by the
+    code ``evaluate-photo`` runs on virtual images (:mod:`simlidar_mi.canopy.lai_table`).
+
+    ``settings``: ``[lai_methods]`` keys; default the schema's defaults (rings 0–70° by 10°,
+    8 sectors, the PAI-10 floor, no wood correction, the LAI-2200 without a view cap)."""
+    from ..config.keys import SECTIONS  # noqa: PLC0415
+    from .fisheye import gap_table  # noqa: PLC0415
+    from .lai_table import estimate_methods, lai2200_of, method_rings  # noqa: PLC0415
+    s = {k: key.default for k, key in SECTIONS["lai_methods"].items()}
+    s.update(settings or {})
+    if photo.labels is None:
+        raise PhotoError(f"{photo.path}: classify with keep_labels=True to run the LAI methods")
+    coverage = np.where(photo.labels == 2, np.nan, (photo.labels == 1).astype(np.float32))
+    table = gap_table(coverage, photo.camera.pixel_angles(), method_rings(s["rings_deg"]), int(s["n_sectors"]))
+    gaps, n = table.gap[None], table.n_pixels[None].astype(float)
+    est, readings, read_px = estimate_methods(gaps, n, s)
+    out = dict(est[0])
+    ins = lai2200_of(readings, read_px, s)
+    out.update(lai2200_acf=ins.acf, lai2200_le=ins.lai_effective, lai2200_difn=ins.difn)
+    return out
 
 
 @writes_output("out_dir")
 def run_fisheye_photos(paths, out_dir: str | os.PathLike[str] | None = None, *, write_masks: bool = True,
-                       **options) -> list[FisheyePhoto]:
+                       lai: bool = False, **options) -> list[FisheyePhoto]:
     """:func:`fisheye_photo_gap` on every photo (same ``options``); with ``out_dir`` write
     ``fisheye_photo_gap.csv`` (the virtual camera's table columns, one block per photo) and, with
-    ``write_masks``, ``<stem>_fisheye_mask.png`` per photo, atomically."""
+    ``write_masks``, ``<stem>_fisheye_mask.png`` per photo, atomically; with ``lai``,
+    ``fisheye_photo_lai.csv``: each photo's LAI by each method (:func:`photo_lai`)."""
+    if lai:
+        options["keep_labels"] = True
     if out_dir is None:
         return [fisheye_photo_gap(p, **options) for p in paths]
     out, results = Path(out_dir), []
@@ -237,4 +265,14 @@ def run_fisheye_photos(paths, out_dir: str | os.PathLike[str] | None = None, *, 
                                  threshold="" if r.threshold is None else r.threshold,
                                  xc_px=xc, yc_px=yc, r_px=rad)
         write_csv(stage / "fisheye_photo_gap.csv", PHOTO_CSV_COLUMNS, rows)
+        if lai:
+            lai_rows = []
+            for r in results:
+                est = photo_lai(r)
+                extra = {k: est.pop(k) for k in ("lai2200_acf", "lai2200_le", "lai2200_difn")}
+                lai_rows += [{"photo": r.path.name, "method": m, "lai": v,
+                              **(extra if m == "lai2200" else {})} for m, v in est.items()]
+                r.lai = {**est, **extra}
+                r.labels = None  # the LAI is read: free the image-sized array
+            write_csv(stage / "fisheye_photo_lai.csv", LAI_CSV_COLUMNS, lai_rows)
     return results

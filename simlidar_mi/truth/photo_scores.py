@@ -64,6 +64,7 @@ import numpy as np
 
 from ..canopy import lai2200 as li
 from ..canopy import lai_methods as lm
+from ..canopy import lai_table as lt
 from ..canopy import ring_sampler as rs
 from ..errors import ConfigError
 from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
@@ -74,7 +75,7 @@ __all__ = ["PhotoRun", "RadialSums", "footprint_index", "canopy_G", "ray_sampler
 
 PHOTO_OUTPUTS = (r"photo_scores\.(csv|json|png)", r"photo_positions\.csv")
 METHODS = ("miller", "miller_lx", "hinge_57", "lai2200", "lai2200_le", "chen_cihlar")
-HINGE_RING_DEG = (55.0, 60.0)
+HINGE_RING_DEG = lt.HINGE_RING_DEG
 SCORE_FIELDS = ("method", "target", "scale", "n", "coverage", "bias", "rmse", "truth_mean",
                 "estimate_mean")
 
@@ -197,11 +198,6 @@ def canopy_G(triangles: np.ndarray, zenith_deg, n_azimuth: int = 72) -> np.ndarr
     return g.reshape(len(th), n_azimuth).mean(axis=1).reshape(np.shape(zenith_deg))
 
 
-def _edges_to_rings(edges) -> list[tuple[float, float]]:
-    e = [float(x) for x in edges]
-    return list(zip(e[:-1], e[1:]))
-
-
 def ray_sampler(built, positions_m, n_sectors: int, rays_per_cell: int, seed: int = 0):
     """``sample(rings) -> (gaps (n, R, S), n_per_cell)`` by ray fans (:func:`ring_sampler.ring_sector_gaps`)."""
     def sample(rings):
@@ -246,39 +242,25 @@ def score_positions(sample, built, positions_m: np.ndarray, settings: dict, *, t
     sunfleck transects (one per distinct position y).
     """
     s = settings
-    hemi = _edges_to_rings(s["rings_deg"])
-    rings = hemi + [HINGE_RING_DEG] + [tuple(r) for r in li.RING_BOUNDS_DEG]
+    hemi = lt.hemisphere_rings(s["rings_deg"])
+    rings = lt.method_rings(s["rings_deg"])
     n_h = len(hemi)
-    n_sec = int(s["n_sectors"])
     floor = {"zero_gap": s["zero_gap"], "pai_sat": float(s["pai_sat"])}
     alpha = float(s["wood_to_total"])
     t0 = time.perf_counter()
     gaps, npix = sample(rings)
-    sector_az = (np.arange(n_sec) + 0.5) * 360.0 / n_sec
-    view = {"miller": (hemi[0][0], hemi[-1][1]), "miller_lx": (hemi[0][0], hemi[-1][1]),
-            "hinge_57": HINGE_RING_DEG, "lai2200": (0.0, li.RING_BOUNDS_DEG[-1][1])}
-    readings = li.ring_transmittance(gaps[:, n_h + 1:], sector_az, view_cap_deg=s["view_cap_deg"],
-                                     heading_deg=s["heading_deg"], sector_weights=npix[:, n_h + 1:])
-    cap = li.cap_mask(sector_az, s["view_cap_deg"], s["heading_deg"])
-    read_px = np.where(cap, npix[:, n_h + 1:], 0.0).sum(axis=2) if cap.any() else npix[:, n_h + 1:, 0]
-    pix = (lambda a: {"n_pixels": a}) if s["zero_gap"] == "pixel" else (lambda a: {})
+    view = lt.method_views(s["rings_deg"])
+    estimates, readings, read_px = lt.estimate_methods(gaps, npix, s)
+    pix = lt.pixel_floor(s)
     rows = []
-    for i, pos in enumerate(positions_m):
-        g_h = gaps[i, :n_h]
-        lx = lm.lang_xiang(hemi, g_h, **floor, **pix(npix[i, :n_h]))
-        est = {"miller": lm.miller_lai(hemi, g_h, sector_weights=npix[i, :n_h], **floor,
-                                       **pix(npix[i, :n_h])),
-               "miller_lx": (1.0 - alpha) * lx.lai_lx,
-               "hinge_57": lm.hinge_lai(float(lm.ring_gap_fraction(gaps[i, n_h:n_h + 1], npix[i, n_h:n_h + 1])[0]),
-                                        **floor, **pix(npix[i, n_h].sum())),
-               "lai2200": float(li.lai2200(readings[i][None], **floor, **pix(read_px[i][None])).lai)}
+    for i, (pos, est) in enumerate(zip(positions_m, estimates)):
         for m, e in est.items():
             rows.append({"position": i, "x_m": pos[0], "y_m": pos[1], "z_m": pos[2], "method": m,
                          "estimate": e, "LAI_fp": truth_lai(pos, *view[m]),
                          "PAI_fp": truth_pai(pos, *view[m])})
     # Plot scale.
     plot = {m: float(np.mean([r["estimate"] for r in rows if r["method"] == m])) for m in view}
-    ins = li.lai2200(readings, **floor, **pix(read_px))
+    ins = lt.lai2200_of(readings, read_px, s)
     plot["lai2200"], plot["lai2200_le"] = ins.lai, ins.lai_effective
     cc = None
     if transect_x_m is not None:

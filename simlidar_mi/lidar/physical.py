@@ -28,6 +28,7 @@ from ..geometry import CLASS_CODES
 from .noise import apply_range_noise
 from .sensor import SensorModel, subray_offsets
 from .waveform import NO_ID, detect_echoes
+from .waveform_fast import detect_subray_echoes
 
 
 class PhysicalTracer:
@@ -61,13 +62,22 @@ class PhysicalTracer:
         energies; beams are global flat indices)."""
         model, pattern, escape = self.model, self.pattern, self.pattern.escape_m
         n_sub = self.n_sub
-        for b0 in range(0, self.n_beams, self.per_chunk):
+        firsts = list(range(0, self.n_beams, self.per_chunk))
+
+        def launch(b0):  # Dr.Jit runs the kernel on its threads; .numpy() waits for it
+            # A tile's sensor starts up to a packet before the tile (lidar.packets).
+            return self._integrator.trace_subrays(self._scene, self._lidar, self._offsets,
+                                                  self.beam0 - self._lidar.first_beam + b0,
+                                                  min(self.per_chunk, self.n_beams - b0), normals=self.energy)
+
+        ahead = launch(firsts[0]) if firsts else None
+        for i, b0 in enumerate(firsts):
             n = min(self.per_chunk, self.n_beams - b0)
             t1 = time.perf_counter()
-            # A tile's sensor starts up to a packet before the tile (lidar.packets).
-            out = self._integrator.trace_subrays(self._scene, self._lidar, self._offsets,
-                                                 self.beam0 - self._lidar.first_beam + b0, n, normals=self.energy)
-            t = out["t"].numpy().reshape(n, n_sub).astype(np.float64)
+            out = ahead
+            t = out["t"].numpy().reshape(n, n_sub)  # float32; the nearest-hit path reads float64
+            # The next chunk traces while the host reads this one (the same kernels, the same bits).
+            ahead = launch(firsts[i + 1]) if i + 1 < len(firsts) else None
             self.trace_s += time.perf_counter() - t1
             c = out["class"].numpy().reshape(n, n_sub).astype(np.uint8)
             e = out["element_id"].numpy().reshape(n, n_sub).copy()
@@ -78,8 +88,9 @@ class PhysicalTracer:
                     "tree": None if tr is None else np.full(n, NO_ID, np.uint32),
                     "n_ret": np.zeros(n, np.uint8), "inten": None, "echoes": None}
             if self.energy:
-                cos_i = out["cos_incidence"].numpy().reshape(n, n_sub).astype(np.float64)
-                rho = out["reflectance"].numpy().reshape(n, n_sub).astype(np.float64)
+                t = t.copy()  # float32, as traced: the detector reads float64 where it needs it
+                cos_i = out["cos_incidence"].numpy().reshape(n, n_sub).copy()
+                rho = out["reflectance"].numpy().reshape(n, n_sub).copy()
                 del out
                 t1 = time.perf_counter()
                 g0 = self.beam0 + b0
@@ -99,6 +110,7 @@ class PhysicalTracer:
                 part["n_ret"][beams] = echoes.number_of_returns[first]
                 part["echoes"] = echoes
             else:  # range limits alone: each beam's nearest sub-ray inside them
+                t = t.astype(np.float64)
                 del out
                 inside = (t >= model.range_min_m) & (t <= model.range_max_m)
                 r = np.where(inside, t, np.inf)
@@ -127,12 +139,19 @@ def subray_energy(model: SensorModel, range_m: np.ndarray, reflectance: np.ndarr
     return weight * reflectance * np.abs(cos_incidence) * model.r_ref_m ** 2 * inv_r2
 
 
-def _echoes(model: SensorModel, t, c, e, tr, cos_i, rho, weight, beam_index, *, seed: int, leg: int):
+def reference_echoes(model: SensorModel, t, c, e, tr, cos_i, rho, weight, beam_index):
+    """Echoes of (B, S) float64 sub-ray arrays by :func:`subray_energy` and
+    :func:`~simlidar_mi.lidar.waveform.detect_echoes`, no noise: what
+    :func:`~simlidar_mi.lidar.waveform_fast.detect_subray_echoes` reproduces bit for bit."""
     E = subray_energy(model, t, rho, cos_i, weight)
-    echoes = detect_echoes(t, E, c, e, tr, cos_i, beam_index, pulse_length_ns=model.pulse_length_ns,
-                           detection_threshold=model.detection_threshold,
-                           max_returns=model.max_returns, range_min_m=model.range_min_m,
-                           range_max_m=model.range_max_m, echo_rule=model.echo_rule)
+    return detect_echoes(t, E, c, e, tr, cos_i, beam_index, pulse_length_ns=model.pulse_length_ns,
+                         detection_threshold=model.detection_threshold,
+                         max_returns=model.max_returns, range_min_m=model.range_min_m,
+                         range_max_m=model.range_max_m, echo_rule=model.echo_rule)
+
+
+def _echoes(model: SensorModel, t, c, e, tr, cos_i, rho, weight, beam_index, *, seed: int, leg: int):
+    echoes = detect_subray_echoes(model, t, cos_i, rho, c, e, tr, weight, beam_index)
     if model.noise:
         echoes = apply_range_noise(echoes, seed=seed, leg=leg, range_noise_m=model.range_noise_m,
                                    range_noise_per_m=model.range_noise_per_m, noise_model=model.noise_model,

@@ -81,6 +81,25 @@ def test_random_beams_give_the_reference_bits(s, rule):
             _assert_same(ref, fast)
 
 
+def test_single_surface_beams_alone_come_in_beam_order():
+    """Every beam one narrow cluster (the blocks of several spans and sizes): one echo per
+    beam, in beam order, as the reference."""
+    rng = np.random.default_rng(5)
+    s, n = 19, 4000
+    t = _beams(rng, n, s, spread_m=0.2, far_share=0.0, escape_share=0.0)
+    gone = rng.random((n, s)) < 0.05
+    gone[:, :3] = False                    # sizes 16-19, none of one sub-ray
+    t[gone] = np.inf
+    cos_i = np.where(np.isfinite(t), 0.9, 0.0).astype(np.float32)
+    rho = np.where(np.isfinite(t), 0.3, 0.0).astype(np.float32)
+    z = np.zeros((n, s), np.uint32)
+    model = SensorModel(divergence_mrad=0.3, beam_samples=s, max_returns=5, range_at_10pct_m=200.0)
+    args = (t, cos_i, rho, z.astype(np.uint8), z, None, np.full(s, 1.0 / s), np.arange(n))
+    ref, fast = _reference(model, *args), detect_subray_echoes(model, *args)
+    assert len(ref) == n and np.all(np.diff(fast.beam) > 0)
+    _assert_same(ref, fast)
+
+
 def test_no_valid_sub_ray_gives_no_echo():
     t = np.full((5, 4), np.inf, np.float32)
     z = np.zeros((5, 4), np.float32)

@@ -193,7 +193,7 @@ def _assemble(parts, flat, beam_index, cls, element_id, tree_id, cos_i, *, echo_
     _key, grow, g_range, g_energy, width_m, strong, g_height = (np.concatenate(c) for c in zip(*parts))
     level = g_height if echo_rule == "amplitude" else g_energy
     keep = (level >= threshold) & (g_range >= range_min_m) & (g_range <= range_max_m)
-    if len(parts) > 1:  # rows are unique here: order by row
+    if np.any(grow[1:] < grow[:-1]):  # one echo per row here: order by row
         o = np.argsort(grow, kind="stable")
         keep = keep[o]
         grow, g_range, g_energy, width_m, strong = (x[o] for x in (grow, g_range, g_energy, width_m, strong))

@@ -210,7 +210,8 @@ class RangeIntegrator(mi.SamplingIntegrator):
             if normals:  # the ground's normal is +z
                 cos_i = dr.select(use_ground, dr.abs(ray.d.z), cos_i)
                 rho = dr.select(use_ground, dr.gather(mi.Float, self._class_rho, mi.UInt32(GROUND)), rho)
-        out.update({"t": t, "class": cls, "element_id": elem})
+        # class as uint8 from the kernel, as trace() gives it: a quarter of the bytes
+        out.update({"t": t, "class": dr.uint8_array_t(mi.UInt32)(cls), "element_id": elem})
         if tree is not None:
             out["tree_id"] = tree
         if normals:

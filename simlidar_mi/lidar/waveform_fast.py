@@ -115,7 +115,7 @@ def detect_subray_echoes(model, t, cos_i, rho, cls, element_id, tree_id, weight,
     narrow = ~split & alive & (nj[ends] - nj[starts] <= wf._NARROW_SPAN_BINS)
     single = np.flatnonzero(narrow & (size == 1))
     several = np.flatnonzero(narrow & (size > 1))
-    slow = split.copy()                                  # rows left to the reference
+    slow = split & alive                                 # rows left to the reference (below the threshold: none)
     fwd = dict(lo=lo, offset=offset, nb=nb, crow=crow, h=h, bin_sigmas=h / sigma)
     parts = []
     if len(single):
@@ -162,13 +162,14 @@ def _narrow(c, starts, ends, cl, nj, frac, ej, c_energy, **fwd):
         bin0 = nj[starts[cs]] - wf._NARROW_PAD
         V = np.empty((len(cs), T))
         for a in range(0, len(cs), _TILE):  # cache-sized pieces: memory bandwidth is the cost
-            sub = (starts[cs[a:a + _TILE]][:, None] + np.arange(m)).ravel()
-            t0 = (np.repeat(bin0[a:a + _TILE], m) - nj[sub]).astype(np.float64)
-            vals = wf._pulse(t0[:, None] + taps, frac[sub], ej[sub], bs).reshape(-1, m, T)
+            b0 = bin0[a:a + _TILE]
+            sub = (np.arange(m)[:, None] + starts[cs[a:a + _TILE]]).ravel()  # sub-ray j of every cluster, j-major
+            t0 = (np.tile(b0, m) - nj[sub]).astype(np.float64)
+            vals = wf._pulse(t0[:, None] + taps, frac[sub], ej[sub], bs).reshape(m, len(b0), T)
             v = V[a:a + _TILE]
-            np.copyto(v, vals[:, 0, :])  # W = ((0 + v0) + v1) + …, as the reference's bincount
+            np.copyto(v, vals[0])  # W = ((0 + v0) + v1) + …, as the reference's bincount
             for j in range(1, m):
-                v += vals[:, j, :]
+                v += vals[j]
         good, peak_r, width_m, height = wf._one_peak(V, bin0, lo[cs], h)
         good &= (bin0 >= 1) & (bin0 + T < nb[cs])
         ok[sel] = good

@@ -275,7 +275,7 @@ _SITECUSTOMIZE = textwrap.dedent("""
 
 
 @pytest.mark.parametrize("module, prefix", [
-    ("numpy", "simlidar-mi: interrupted"),                        # start-up, before main
+    ("numpy", "simlidar-mi scan: interrupted"),                   # the first heavy import, in main
     ("drjit", "simlidar-mi scan: interrupted"),                   # inside Mitsuba's import
     ("simlidar_mi.plugins.tractor_lidar", "simlidar-mi scan: interrupted"),  # build
     ("laspy", "simlidar-mi scan: interrupted"),                   # writing, files staged

@@ -15,7 +15,7 @@ import json
 import logging
 import time
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +27,7 @@ from ..config import SceneConfig, load_scene
 from ..errors import ConfigError, SimlidarWarning
 from ..geometry import Branches, Leaves, Primitive
 from ..io.atomic import atomic_file, staged_dir, writes_output
+from .patterns import AIRBORNE_PULSE_RATE_HZ, AIRBORNE_SPEED_M_S, scan_patterns, scanner_positions_m  # noqa: F401
 
 log = logging.getLogger(__name__)
 
@@ -221,16 +222,6 @@ def build(cfg: SceneConfig, geometry: SceneGeometry, patterns: list | None = Non
                        scanner_m=np.concatenate(scanner) if scanner else None)
 
 
-def scanner_positions_m(pattern) -> np.ndarray:
-    """(n, 3) real positions a pattern fires from: a platform's row origins, or the
-    tractor's first and last stop on its line (``ScanSettings``)."""
-    rows = getattr(pattern, "row_origin_m", None)
-    if rows is not None:
-        return np.asarray(rows, np.float64)
-    y = pattern.y_m
-    return np.array([[pattern.x0_m, y[0], pattern.z0_m], [pattern.x0_m, y[-1], pattern.z0_m]])
-
-
 def warn_scanner_inside_wood(geometry: SceneGeometry, patterns: list) -> int:
     """Warn (SimlidarWarning) when scanner positions lie inside wood: their beams start
     inside a branch and report its inner wall.  Returns the number of such positions."""
@@ -271,75 +262,6 @@ class ScanRun:
     files: dict[str, Path] = field(default_factory=dict)
 
 
-def scan_patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m=None) -> list:
-    """The beam patterns the scene's [platform] asks for (tractor: [scan] settings, eqs. 6-8).
-
-    ``near_x_m``: the tractor's nearest wood, see :func:`simlidar_mi.lidar.scan.resolve_settings`
-    (:meth:`SceneGeometry.near_x_m` in :func:`run_scan`)."""
-    try:
-        patterns = _patterns(cfg, lo_m, hi_m, near_x_m)
-    except ConfigError as exc:
-        raise cfg.relabel(exc) from None
-    rule = cfg["scan"]["hit_rule"]
-    return [p if p.hit_rule == rule else replace(p, hit_rule=rule) for p in patterns]
-
-
-def _patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m) -> list:
-    from .platforms import (airborne_pattern, path_patterns, rosette_patterns,  # noqa: PLC0415
-                            rotating_patterns, static_pattern)
-    from .scan import resolve_settings  # noqa: PLC0415
-    pf, sc, gr = cfg["platform"], cfg["scan"], cfg["ground"]
-    common = {"footprint": sc["footprint"], "ground": gr["enabled"], "ground_z_m": gr["z_m"],
-              "source": cfg.source, "max_beams": sc["max_beams"]}
-    kind = pf["kind"]
-    sensor_rate = cfg["sensor"]["pulse_rate_hz"]
-
-    def need(key):
-        if pf[key] is None:
-            raise ConfigError(f"a {kind} platform needs this key", file=cfg.source, key=f"platform.{key}")
-        return pf[key]
-
-    def pulse_rate(default):
-        """The platform's pulse rate: [platform] pulse_rate_hz, else [sensor]'s, else ``default``."""
-        own = pf["pulse_rate_hz"]
-        if own is not None and sensor_rate > 0 and own != sensor_rate:
-            raise ConfigError(f"disagrees with sensor.pulse_rate_hz = {sensor_rate:g}; give one of them",
-                              file=cfg.source, key="platform.pulse_rate_hz", value=own)
-        return own if own is not None else (sensor_rate if sensor_rate > 0 else default)
-    if kind == "tractor":
-        return [resolve_settings(sc, gr, lo_m, hi_m, cfg.source, near_x_m, pulse_rate_hz=sensor_rate,
-                                 speed_m_s=pf["speed_m_s"], dy_given=cfg.gave("scan.dy_m"))]
-    if kind == "static":
-        az = pf["azimuth_deg"]
-        return [static_pattern(need("position_m"), tuple(pf["elevation_deg"]),
-                               tuple(az) if isinstance(az, list) else float(az),
-                               escape_m=sc["escape_m"], **common)]
-    if kind == "path":
-        return path_patterns(need("waypoints_m"), pf["step_m"], tuple(pf["elevation_deg"]),
-                             side=pf["side"], escape_m=sc["escape_m"], scan_legs=pf["scan_legs"], **common)
-    if kind == "rotating":  # timing from the block period; a [sensor] pulse rate does not enter
-        return rotating_patterns(pf["channels_deg"], pf["channel_offsets_us"], pf["block_period_us"],
-                                 pf["rotation_hz"], position_m=pf["position_m"], waypoints_m=pf["waypoints_m"],
-                                 speed_m_s=pf["speed_m_s"], azimuth_range_deg=pf["azimuth_range_deg"],
-                                 duration_s=pf["duration_s"], escape_m=sc["escape_m"], **common)
-    if kind == "rosette":
-        from .platforms import MID70_PULSE_RATE_HZ  # noqa: PLC0415
-        return rosette_patterns(pf["rosette_hz"], pf["fov_deg"], pulse_rate(MID70_PULSE_RATE_HZ), pf["look_deg"],
-                                position_m=pf["position_m"], waypoints_m=pf["waypoints_m"],
-                                speed_m_s=pf["speed_m_s"], duration_s=pf["duration_s"],
-                                escape_m=sc["escape_m"], **common)
-    escape = max(sc["escape_m"], 10 * pf["altitude_m"])
-    speed = pf["speed_m_s"] if pf["speed_m_s"] is not None else AIRBORNE_SPEED_M_S
-    return [airborne_pattern(need("start_xy_m"), need("end_xy_m"), pf["altitude_m"], pf["swath_deg"],
-                             speed, pulse_rate(AIRBORNE_PULSE_RATE_HZ), pf["pulses_per_line"],
-                             escape_m=escape, **common)]
-
-
-#: Airborne defaults (the [platform] keys are shared by every kind, so their defaults depend on it).
-AIRBORNE_SPEED_M_S = 30.0
-AIRBORNE_PULSE_RATE_HZ = 300_000.0
-
-
 @writes_output("out_dir")
 def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
              overrides: list[str] | tuple = (), *, write_las: bool = True,
@@ -362,140 +284,195 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     :mod:`simlidar_mi.lidar.stream_sensor`; the same bytes): ``run.result`` is then a
     :class:`~simlidar_mi.lidar.stream.StreamedScan` (shape, counts, areas; no beams).
     """
-    from .._runtime.cluster import check_scheduler, cluster_client  # noqa: PLC0415
-    from .scan import scan  # noqa: PLC0415
+    cfg = _checked_scene(cfg, overrides, scheduler, tile_rows)
+    run = _ScanStages(cfg, out_dir, make_progress(progress))
+    run.generate(scheduler)
+    try:
+        run.scan(scheduler, tile_rows)
+        if out_dir is None:
+            measures, files = run.measures(), {}
+        else:
+            measures, files = run.write(write_las=write_las, write_png=write_png)
+        run.bar("written")
+        results = run.results
+        return ScanRun(results[0] if len(results) == 1 else results, measures, files)
+    finally:  # the measuring child ends with the run, however it ends
+        if run.geo_job is not None:
+            run.geo_job.close()
+
+
+def _checked_scene(cfg: SceneConfig | str | Path, overrides, scheduler: str | None,
+                   tile_rows: int | None) -> SceneConfig:
+    """The scene, with what can be refused before any work refused: the cluster address, the
+    Mitsuba variant, the tile size (even when no cluster would use it)."""
+    from .._runtime.cluster import check_scheduler  # noqa: PLC0415
     check_scheduler(scheduler)  # an empty address is refused before any work
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, overrides)
-    check_variant(cfg["scene"]["variant"], cfg.source)  # before any work
-    if tile_rows is not None:  # refused even when no cluster would use it
+    check_variant(cfg["scene"]["variant"], cfg.source)
+    if tile_rows is not None:
         from .tiles import tile_plan  # noqa: PLC0415
         tile_plan([], tile_rows)
-    steps = ["generate", "build", "scan", "write"]
-    shown = make_progress(progress)
-    bar = shown.stage("scan", len(steps), "stage").step
-    seconds: dict[str, float] = {}
+    return cfg
 
-    t = time.perf_counter()
-    early = plan_from_keys(cfg)  # a scan too large is refused here, at once
-    if _overlap_generation(cfg, scheduler):  # Mitsuba imported here while a forked child generates
-        with contextlib.closing(Forked("generating the scene", _plan, cfg, early)) as job:
-            mitsuba(cfg["scene"]["variant"])
-            geometry, patterns = job.wait()
-    else:
-        geometry, patterns = _plan(cfg, early)
-    n_beams = sum(p.n_beams for p in patterns)
-    if n_beams * (cfg["scan"]["footprint"] + 1) ** 2 > cfg["scan"]["max_beams"]:
-        raise ConfigError(f"{n_beams} beams exceed scan.max_beams = {cfg['scan']['max_beams']}",
-                          file=cfg.source_of("scan.max_beams"), key="scan.max_beams",
-                          value=cfg["scan"]["max_beams"])
-    warn_scanner_inside_wood(geometry, patterns)
-    seconds["generate"] = time.perf_counter() - t
-    bar(f"generated {len(geometry.branches)} branches, {len(geometry.leaves)} leaf triangles")
-    # The measures that need the geometry only, on the second core while the scene is built.
-    geo_job = Forked("measuring the wood", scene_measures, cfg, geometry, patterns) \
-        if out_dir is not None and len(geometry.branches) + len(geometry.leaves) >= FORK_MEASURES_MIN else None
 
-    try:
-        streamed = False  # a first-return scan written chunk by chunk (below)
+class _ScanStages:
+    """One run of :func:`run_scan`, stage by stage: generate → scan → measure → write.
+
+    Each stage reads what the previous one left on ``self`` and times itself into ``seconds``
+    (measures.json's ``seconds``)."""
+
+    STEPS = ("generate", "build", "scan", "write")
+
+    def __init__(self, cfg: SceneConfig, out_dir, shown) -> None:
+        self.cfg, self.out_dir, self.shown = cfg, out_dir, shown
+        self.bar = shown.stage("scan", len(self.STEPS), "stage").step
+        self.seconds: dict[str, float] = {}
+        self.geo_job = None
+        self.streamed = False  # a scan to files traced and written chunk by chunk
+
+    def generate(self, scheduler: str | None) -> None:
+        """Geometry and beam patterns; too large a scan is refused before anything is traced.
+        With files to write, the geometry's measures start on the second core."""
+        cfg = self.cfg
+        t = time.perf_counter()
+        early = plan_from_keys(cfg)  # a scan too large is refused here, at once
+        if _overlap_generation(cfg, scheduler):  # Mitsuba imported here while a forked child generates
+            with contextlib.closing(Forked("generating the scene", _plan, cfg, early)) as job:
+                mitsuba(cfg["scene"]["variant"])
+                self.geometry, self.patterns = job.wait()
+        else:
+            self.geometry, self.patterns = _plan(cfg, early)
+        geometry, patterns = self.geometry, self.patterns
+        self.n_beams = sum(p.n_beams for p in patterns)
+        if self.n_beams * (cfg["scan"]["footprint"] + 1) ** 2 > cfg["scan"]["max_beams"]:
+            raise ConfigError(f"{self.n_beams} beams exceed scan.max_beams = {cfg['scan']['max_beams']}",
+                              file=cfg.source_of("scan.max_beams"), key="scan.max_beams",
+                              value=cfg["scan"]["max_beams"])
+        warn_scanner_inside_wood(geometry, patterns)
+        self.seconds["generate"] = time.perf_counter() - t
+        self.bar(f"generated {len(geometry.branches)} branches, {len(geometry.leaves)} leaf triangles")
+        if self.out_dir is not None and len(geometry.branches) + len(geometry.leaves) >= FORK_MEASURES_MIN:
+            self.geo_job = Forked("measuring the wood", scene_measures, cfg, geometry, patterns)
+
+    def scan(self, scheduler: str | None, tile_rows: int | None) -> None:
+        """Build and trace: in row tiles on a cluster, or here (held in memory, or left to
+        :meth:`write` when it streams chunks to files)."""
+        from .._runtime.cluster import cluster_client  # noqa: PLC0415
+        cfg, geometry, patterns = self.cfg, self.geometry, self.patterns
         with cluster_client(scheduler) as client:
             if client is not None:  # tiles on the cluster's workers, each building the scene once
                 from .tiles import scan_on_cluster  # noqa: PLC0415
                 scene_sensor(cfg, geometry, patterns)  # a bad [sensor] fails here, before any task
                 t = time.perf_counter()
-                built, results, facts = scan_on_cluster(client, cfg, patterns, prepare_scan,
-                                                        tile_rows=tile_rows, progress=shown)
-                seconds["build"] = facts["build_seconds"]  # the slowest worker's (inside the scan's time)
-                seconds["scan"] = time.perf_counter() - t
-                bar(f"built {built.representation} scene on {len(facts['workers'])} workers")
-                bar(f"scanned {n_beams} beams in {facts['tiles']} tiles")
-        if client is None:
-            t = time.perf_counter()
-            built = build(cfg, geometry, patterns)
-            seconds["build"] = time.perf_counter() - t
-            bar(f"built {built.representation} scene")
+                self.built, self.results, facts = scan_on_cluster(client, cfg, patterns, prepare_scan,
+                                                                  tile_rows=tile_rows, progress=self.shown)
+                self.seconds["build"] = facts["build_seconds"]  # the slowest worker's (inside the scan's time)
+                self.seconds["scan"] = time.perf_counter() - t
+                self.bar(f"built {self.built.representation} scene on {len(facts['workers'])} workers")
+                self.bar(f"scanned {self.n_beams} beams in {facts['tiles']} tiles")
+                self.sensor = None  # the tiles carried it
+                return
+        from .scan import scan  # noqa: PLC0415
+        t = time.perf_counter()
+        self.built = build(cfg, geometry, patterns)
+        self.seconds["build"] = time.perf_counter() - t
+        self.bar(f"built {self.built.representation} scene")
+        self.sensor = scene_sensor(cfg, geometry, patterns)
+        chunk = cfg["scan"]["chunk_beams"]
+        # More than one chunk to files: traced and written chunk by chunk (lidar/stream.py).
+        self.streamed = self.out_dir is not None and max(p.n_beams for p in patterns) > chunk
+        t = time.perf_counter()
+        self.results = [] if self.streamed else [
+            scan(self.built, p, cfg["scene"]["variant"], self.sensor, seed=cfg.seed, leg=j, chunk_beams=chunk)
+            for j, p in enumerate(patterns)]
+        self.seconds["scan"] = time.perf_counter() - t
+        if not self.streamed:
+            self.bar(f"scanned {self.n_beams} beams")
 
-            sensor = scene_sensor(cfg, geometry, patterns)
-            chunk = cfg["scan"]["chunk_beams"]
-            # More than one chunk to files: traced and written chunk by chunk (lidar/stream.py).
-            streamed = out_dir is not None and max(p.n_beams for p in patterns) > chunk
-            t = time.perf_counter()
-            results = [] if streamed else [scan(built, p, cfg["scene"]["variant"], sensor, seed=cfg.seed, leg=j,
-                                                chunk_beams=chunk) for j, p in enumerate(patterns)]
-            seconds["scan"] = time.perf_counter() - t
-            if not streamed:
-                bar(f"scanned {n_beams} beams")
+    def measures(self) -> dict:
+        """measures.json's content (the geometry's part from the forked child when it ran),
+        timed as a stage of its own."""
+        t = time.perf_counter()
+        scene = self.geo_job.wait() if self.geo_job is not None else \
+            scene_measures(self.cfg, self.geometry, self.patterns)
+        out = scan_measures(self.cfg, self.geometry, self.built, self.results, scene)
+        self.seconds["measures"] = time.perf_counter() - t
+        if self.out_dir is None:
+            out["seconds"] = {k: round(v, 4) for k, v in self.seconds.items()}
+        return out
 
-        def measured() -> dict:  # the measures, timed as a stage of their own
-            t_m = time.perf_counter()
-            out = scan_measures(cfg, geometry, built, results,
-                                geo_job.wait() if geo_job is not None else scene_measures(cfg, geometry, patterns))
-            seconds["measures"] = time.perf_counter() - t_m
-            return out
-
-        if not streamed and out_dir is None:  # with files: while the LAS is written (below)
-            measures = measured()
+    def write(self, *, write_las: bool, write_png: bool) -> tuple[dict, dict[str, Path]]:
+        """Every file into a staging folder, moved into ``out_dir`` together at the end; the LAS
+        on the second core (forked) while this process measures and writes the EXR and PNG."""
+        cfg, out_dir = self.cfg, Path(self.out_dir)
         files: dict[str, Path] = {}
         t = time.perf_counter()
-        if out_dir is not None:
-            from ..io.exr import write_scan_exr  # noqa: PLC0415
-            with staged_dir(out_dir, SCAN_OUTPUTS) as stage, contextlib.ExitStack() as jobs:
-                las_job = None
-                if write_las and not streamed:  # the longest file: on the second core (simlidar_mi._runtime.fork)
+        with staged_dir(out_dir, SCAN_OUTPUTS) as stage, contextlib.ExitStack() as jobs:
+            las_job = None
+            if self.streamed:
+                measures = self._write_streamed(stage, files, write_las=write_las, write_png=write_png)
+            else:
+                if write_las:  # the longest file: on the second core (simlidar_mi._runtime.fork)
                     from ..io.las import write_scan_las  # noqa: PLC0415
+                    results = self.results
                     las_job = Forked("writing points.las", functools.partial(write_scan_las, crs=cfg["scene"]["crs"]),
                                      results if len(results) > 1 else results[0], stage / "points.las")
                     jobs.callback(las_job.close)
-                if not streamed:
-                    measures = measured()
-                if streamed:  # first returns (lidar/stream.py) or a [sensor] scan (lidar/stream_sensor.py)
-                    from .stream import stream_scan  # noqa: PLC0415
-                    from .stream_sensor import stream_physical_scan  # noqa: PLC0415
-                    names: dict = {}
-                    many = len(patterns) > 1
-                    how = stream_scan if sensor is None else functools.partial(stream_physical_scan, model=sensor,
-                                                                                 seed=cfg.seed)
-                    results, seconds["scan"] = how(
-                        built, patterns, stage, variant=cfg["scene"]["variant"], chunk_beams=chunk,
-                        exr_kwargs={"seed": cfg.seed, "scene_sha256": cfg.sha256,
-                                    "extra": {"scene_file": cfg.source, "representation": built.representation,
-                                              "facets": built.facets}},
-                        png_titles=[f"{cfg['scene']['name']}: range image{f', leg {j}' if many else ''}"
-                                    for j in range(len(patterns))] if write_png else None,
-                        las=write_las, crs=cfg["scene"]["crs"], progress=shown, files=names)
-                    files.update({k: Path(out_dir) / v for k, v in names.items()})
-                    if write_las:
-                        files["las"] = Path(out_dir) / "points.las"
-                    bar(f"scanned and wrote {n_beams} beams in chunks of {chunk}")
-                    measures = measured()
-                for j, res in enumerate([] if streamed else results):
-                    stem = "scan" if len(results) == 1 else f"scan_leg{j}"
-                    write_scan_exr(res, stage / f"{stem}.exr", seed=cfg.seed, scene_sha256=cfg.sha256,
-                                   extra={"scene_file": cfg.source, "representation": built.representation,
-                                          "facets": built.facets},
-                                   threads=1 if las_job is not None and las_job.child is not None else 2)  # a core each
-                    files[f"exr{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.exr"
-                    if write_png:
-                        from ..io.plots import plot_scan_png  # noqa: PLC0415
-                        leg = "" if len(results) == 1 else f", leg {j}"
-                        plot_scan_png(res, stage / f"{stem}.png", title=f"{cfg['scene']['name']}: range image{leg}")
-                        files[f"png{'' if len(results) == 1 else j}"] = Path(out_dir) / f"{stem}.png"
-                if las_job is not None:
-                    las_job.wait()
-                    files["las"] = Path(out_dir) / "points.las"
-                seconds["write"] = (time.perf_counter() - t - (seconds["scan"] if streamed else 0.0)
-                                    - seconds.get("measures", 0.0))
-                measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}
-                with atomic_file(stage / "measures.json") as tmp:
-                    tmp.write_text(json.dumps(measures, indent=2, sort_keys=True) + "\n")
-                files["measures"] = Path(out_dir) / "measures.json"
-        else:
-            measures["seconds"] = {k: round(v, 4) for k, v in seconds.items()}
-        bar("written")
-        return ScanRun(results[0] if len(results) == 1 else results, measures, files)
-    finally:  # the measuring child ends with the run, however it ends
-        if geo_job is not None:
-            geo_job.close()
+                measures = self.measures()
+                self._write_images(stage, files, write_png=write_png,
+                                   threads=1 if las_job is not None and las_job.child is not None else 2)
+            if las_job is not None:
+                las_job.wait()
+                files["las"] = out_dir / "points.las"
+            self.seconds["write"] = (time.perf_counter() - t - (self.seconds["scan"] if self.streamed else 0.0)
+                                     - self.seconds.get("measures", 0.0))
+            measures["seconds"] = {k: round(v, 4) for k, v in self.seconds.items()}
+            with atomic_file(stage / "measures.json") as tmp:
+                tmp.write_text(json.dumps(measures, indent=2, sort_keys=True) + "\n")
+            files["measures"] = out_dir / "measures.json"
+        return measures, files
+
+    def _exr_extra(self) -> dict:
+        return {"scene_file": self.cfg.source, "representation": self.built.representation,
+                "facets": self.built.facets}
+
+    def _write_streamed(self, stage: Path, files: dict, *, write_las: bool, write_png: bool) -> dict:
+        """Trace and write chunk by chunk: first returns (lidar/stream.py) or a [sensor] scan
+        (lidar/stream_sensor.py); the same bytes as a held scan."""
+        from .stream import stream_scan  # noqa: PLC0415
+        from .stream_sensor import stream_physical_scan  # noqa: PLC0415
+        cfg, patterns, chunk = self.cfg, self.patterns, self.cfg["scan"]["chunk_beams"]
+        names: dict = {}
+        many = len(patterns) > 1
+        how = stream_scan if self.sensor is None else functools.partial(stream_physical_scan, model=self.sensor,
+                                                                          seed=cfg.seed)
+        self.results, self.seconds["scan"] = how(
+            self.built, patterns, stage, variant=cfg["scene"]["variant"], chunk_beams=chunk,
+            exr_kwargs={"seed": cfg.seed, "scene_sha256": cfg.sha256, "extra": self._exr_extra()},
+            png_titles=[f"{cfg['scene']['name']}: range image{f', leg {j}' if many else ''}"
+                        for j in range(len(patterns))] if write_png else None,
+            las=write_las, crs=cfg["scene"]["crs"], progress=self.shown, files=names)
+        files.update({k: Path(self.out_dir) / v for k, v in names.items()})
+        if write_las:
+            files["las"] = Path(self.out_dir) / "points.las"
+        self.bar(f"scanned and wrote {self.n_beams} beams in chunks of {chunk}")
+        return self.measures()
+
+    def _write_images(self, stage: Path, files: dict, *, write_png: bool, threads: int) -> None:
+        """scan.exr and scan.png (scan_legJ.* for a path of several legs) of a held scan."""
+        from ..io.exr import write_scan_exr  # noqa: PLC0415
+        results, cfg = self.results, self.cfg
+        for j, res in enumerate(results):
+            stem = "scan" if len(results) == 1 else f"scan_leg{j}"
+            write_scan_exr(res, stage / f"{stem}.exr", seed=cfg.seed, scene_sha256=cfg.sha256,
+                           extra=self._exr_extra(), threads=threads)  # a core each with the LAS child
+            files[f"exr{'' if len(results) == 1 else j}"] = Path(self.out_dir) / f"{stem}.exr"
+            if write_png:
+                from ..io.plots import plot_scan_png  # noqa: PLC0415
+                leg = "" if len(results) == 1 else f", leg {j}"
+                plot_scan_png(res, stage / f"{stem}.png", title=f"{cfg['scene']['name']}: range image{leg}")
+                files[f"png{'' if len(results) == 1 else j}"] = Path(self.out_dir) / f"{stem}.png"
 
 
 def prepare_scan(cfg: SceneConfig) -> tuple[list, object, object]:

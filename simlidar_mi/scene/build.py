@@ -288,6 +288,56 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     leaves = leaves if leaves is not None else Leaves.empty()
     kept, n_dropped, kept_index = clean_branches(branches)
     prim_meshes = [primitive_mesh(prim, 64, source, j) for j, prim in enumerate(primitives)]
+    origin = _scene_origin(kept, leaves, primitives, prim_meshes, instances, scanner_m, origin_m, source)
+
+    parts = _Shapes()
+    k = int(facets)
+    _add_wood(mi, parts, kept, kept_index, origin, representation, k)
+    _add_leaves_and_primitives(mi, parts, leaves, primitives, prim_meshes, origin, len(branches))
+    real_instances = bool(instances is not None and len(instances))
+    if real_instances:
+        parts.n_tri += _add_instances(mi, instances, origin, k, parts.shapes, parts.group_rows,
+                                      parts.instance_keys, parts.group_meshes)
+    flat = _group_big_meshes(mi, parts, len(instances.prototypes) if real_instances else 0)
+
+    scene = mi.load_dict({"type": "scene", **parts.shapes})
+    tables = _lookup_tables(mi, scene, parts, primitives, instances)
+    # Several plants without instancing (an orchard, a flattened forest): a tree id per
+    # primitive, so hits report their tree; one plant needs no extra lookup.
+    plants = np.concatenate([branches.tree_id, leaves.plant_id])
+    if not real_instances and len(plants) and plants.min() < plants.max():
+        trees = []  # laid out like prim_element: top-level shapes, then group rows
+        for key, _, elems in parts.groups + flat:
+            trees.append(_plant_ids(key, elems, branches, leaves, kept_index, parts.faces_per_branch.get(key)))
+        tables["prim_tree"] = _joined(trees)
+    if len(parts.shapes):
+        bb = scene.bbox()
+        lo, hi = np.array(bb.min, float) + origin, np.array(bb.max, float) + origin
+    else:
+        lo = hi = origin.copy()
+    return BuiltScene(scene, origin, n_branches=len(kept), n_dropped=n_dropped, n_triangles=parts.n_tri,
+                      representation=representation, facets=k, bbox_min_m=lo, bbox_max_m=hi, **tables)
+
+
+@dataclass
+class _Shapes:
+    """The Mitsuba shapes of a scene as :func:`build_scene` gathers them, with what each one's
+    primitives are: (shape key, class, element id per primitive) for top-level shapes, and
+    (prototype, shape index, class, element ids) for meshes placed through instances."""
+
+    shapes: dict = field(default_factory=dict)
+    groups: list = field(default_factory=list)
+    faces_per_branch: dict = field(default_factory=dict)  # wood meshes: faces per kept branch
+    group_rows: list = field(default_factory=list)
+    instance_keys: list = field(default_factory=list)  # (shape key, tree id, prototype)
+    group_meshes: list = field(default_factory=list)  # the mesh of each group row
+    n_tri: int = 0
+
+
+def _scene_origin(kept: Branches, leaves: Leaves, primitives, prim_meshes, instances, scanner_m,
+                  origin_m, source) -> np.ndarray:
+    """The float64 origin the float32 scene is placed around, checked for float32 precision
+    against the smallest feature."""
     pts = [kept.p0, kept.p1, leaves.vertices.reshape(-1, 3)] + [v for v, _ in prim_meshes]
     if instances is not None and len(instances):
         pts.append(np.asarray(instances.translation_m, np.float64))
@@ -303,85 +353,93 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
             raise ConfigError("origin_m must be three finite numbers", file=source,
                               key="scene.origin_m", value=origin_m)
     _check_float32(corners, origin, _smallest_feature(kept, leaves, primitives, instances))
+    return origin
 
-    shapes: dict[str, object] = {}
-    groups: list[tuple[str, int, np.ndarray]] = []  # (shape key, class, element id per prim)
-    n_tri = 0
-    k = int(facets)
+
+def _add_wood(mi, parts: _Shapes, kept: Branches, kept_index: np.ndarray, origin: np.ndarray,
+              representation: str, k: int) -> None:
+    """The branches as one prism mesh, analytic cylinders (with capping discs) or linear curves."""
+    if not len(kept):
+        return
+    shapes, groups = parts.shapes, parts.groups
     p0, p1 = kept.p0 - origin, kept.p1 - origin
     radius = 0.5 * kept.diameter
     elem_of_branch = kept_index.astype(np.uint32)  # ids refer to rows of the input branches
-    faces_per_branch = {}  # wood meshes: their faces per kept branch (element ids repeat so)
-    if len(kept):
-        if representation == "mesh":
-            caps = exposed_ends(kept.p0, kept.p1, kept.diameter)
-            v, f, per = prism_arrays(p0, p1, radius * np.pi / (k * np.sin(np.pi / k)), k, caps=caps,
-                                     dtype=np.float32)
-            shapes["wood_mesh"] = _mi_mesh(mi, "wood_mesh", v, f)
-            groups.append(("wood_mesh", CLASS_CODES["wood"], np.repeat(elem_of_branch, per)))
-            faces_per_branch["wood_mesh"] = per
-            n_tri += len(f)
-        elif representation == "cylinder":
-            for j in range(len(kept)):
-                key = f"wood_cyl_{j:07d}"
-                shapes[key] = mi.load_dict({"type": "cylinder", "p0": p0[j].tolist(),
-                                            "p1": p1[j].tolist(), "radius": float(radius[j])})
-                groups.append((key, CLASS_CODES["wood"], elem_of_branch[j:j + 1]))
-            v, f, per = prism_arrays(p0, p1, radius, CAP_SIDES, sides=False, dtype=np.float32,
-                                     caps=exposed_ends(kept.p0, kept.p1, kept.diameter))
-            shapes["wood_caps"] = _mi_mesh(mi, "wood_caps", v, f)
-            groups.append(("wood_caps", CLASS_CODES["wood"], np.repeat(elem_of_branch, per)))
-            faces_per_branch["wood_caps"] = per
-            n_tri += len(f)
-        else:  # linearcurve: Mitsuba reads curves from a text file, one blank line between curves
-            with tempfile.NamedTemporaryFile("w", suffix=".txt", delete=False) as fh:
-                rows = np.concatenate([p0, radius[:, None], p1, radius[:, None]], axis=1).astype(np.float32)
-                np.savetxt(fh, rows, fmt="%.9g %.9g %.9g %.9g\n%.9g %.9g %.9g %.9g\n")
-                curve_path = fh.name
-            try:
-                shapes["wood_curves"] = mi.load_dict({"type": "linearcurve", "filename": curve_path})
-            finally:
-                os.unlink(curve_path)
-            groups.append(("wood_curves", CLASS_CODES["wood"], elem_of_branch))
+    if representation == "mesh":
+        caps = exposed_ends(kept.p0, kept.p1, kept.diameter)
+        v, f, per = prism_arrays(p0, p1, radius * np.pi / (k * np.sin(np.pi / k)), k, caps=caps,
+                                 dtype=np.float32)
+        shapes["wood_mesh"] = _mi_mesh(mi, "wood_mesh", v, f)
+        groups.append(("wood_mesh", CLASS_CODES["wood"], np.repeat(elem_of_branch, per)))
+        parts.faces_per_branch["wood_mesh"] = per
+        parts.n_tri += len(f)
+    elif representation == "cylinder":
+        for j in range(len(kept)):
+            key = f"wood_cyl_{j:07d}"
+            shapes[key] = mi.load_dict({"type": "cylinder", "p0": p0[j].tolist(),
+                                        "p1": p1[j].tolist(), "radius": float(radius[j])})
+            groups.append((key, CLASS_CODES["wood"], elem_of_branch[j:j + 1]))
+        v, f, per = prism_arrays(p0, p1, radius, CAP_SIDES, sides=False, dtype=np.float32,
+                                 caps=exposed_ends(kept.p0, kept.p1, kept.diameter))
+        shapes["wood_caps"] = _mi_mesh(mi, "wood_caps", v, f)
+        groups.append(("wood_caps", CLASS_CODES["wood"], np.repeat(elem_of_branch, per)))
+        parts.faces_per_branch["wood_caps"] = per
+        parts.n_tri += len(f)
+    else:  # linearcurve: Mitsuba reads curves from a text file, one blank line between curves
+        with tempfile.NamedTemporaryFile("w", suffix=".txt", delete=False) as fh:
+            rows = np.concatenate([p0, radius[:, None], p1, radius[:, None]], axis=1).astype(np.float32)
+            np.savetxt(fh, rows, fmt="%.9g %.9g %.9g %.9g\n%.9g %.9g %.9g %.9g\n")
+            curve_path = fh.name
+        try:
+            shapes["wood_curves"] = mi.load_dict({"type": "linearcurve", "filename": curve_path})
+        finally:
+            os.unlink(curve_path)
+        groups.append(("wood_curves", CLASS_CODES["wood"], elem_of_branch))
+
+
+def _add_leaves_and_primitives(mi, parts: _Shapes, leaves: Leaves, primitives, prim_meshes,
+                               origin: np.ndarray, n_branches: int) -> None:
+    """Leaf triangles as one mesh; each primitive as its own mesh (element id after the branches)."""
     if len(leaves):
         # float64 subtraction rounded once to float32 (the bits of converting afterwards)
         v = np.subtract(leaves.vertices, origin, out=np.empty(leaves.vertices.shape, np.float32),
                         casting="unsafe").reshape(-1, 3)
         f = np.arange(len(v), dtype=np.uint32).reshape(-1, 3)
-        shapes["leaf_mesh"] = _mi_mesh(mi, "leaf_mesh", v, f)
-        groups.append(("leaf_mesh", CLASS_CODES["leaf"], leaves.leaf_id.astype(np.uint32)))
-        n_tri += len(f)
+        parts.shapes["leaf_mesh"] = _mi_mesh(mi, "leaf_mesh", v, f)
+        parts.groups.append(("leaf_mesh", CLASS_CODES["leaf"], leaves.leaf_id.astype(np.uint32)))
+        parts.n_tri += len(f)
     for j, (prim, (v, f)) in enumerate(zip(primitives, prim_meshes)):
         v = v - origin
         key = f"primitive_{j:04d}"
-        shapes[key] = _mi_mesh(mi, key, v, f)
+        parts.shapes[key] = _mi_mesh(mi, key, v, f)
         label = prim.label if prim.label in ("wood", "leaf") else "wood"
-        groups.append((key, CLASS_CODES[label], np.full(len(f), len(branches) + j, np.uint32)))
-        n_tri += len(f)
+        parts.groups.append((key, CLASS_CODES[label], np.full(len(f), n_branches + j, np.uint32)))
+        parts.n_tri += len(f)
 
-    group_rows: list[tuple[int, int, int, np.ndarray]] = []  # (prototype, shape index, class, elements)
-    instance_keys: list[tuple[str, int, int]] = []
-    group_meshes: list = []  # the mesh of each group row
-    real_instances = instances is not None and len(instances)
-    if real_instances:
-        n_tri += _add_instances(mi, instances, origin, k, shapes, group_rows, instance_keys, group_meshes)
-    flat = [g for g in groups if g[0] in ("wood_mesh", "leaf_mesh")]
-    grouped = sum(len(e) for _, _, e in flat) >= GROUP_MIN_TRIANGLES
-    if grouped:
-        # The big meshes become the last "prototype", placed once without a transform.
-        proto = len(instances.prototypes) if real_instances else 0
-        members = {}
-        for j, (key, cls, elems) in enumerate(flat):  # names keep the shape index order
-            members[f"{chr(ord('a') + j)}_{key}"] = mesh_j = shapes.pop(key)
-            group_rows.append((proto, j, cls, elems))
-            group_meshes.append(mesh_j)
-        groups = [g for g in groups if g not in flat]
-        shapes["flat_group"] = mi.load_dict({"type": "shapegroup", **members})
-        shapes["flat_instance"] = mi.load_dict({"type": "instance", "shapegroup": shapes["flat_group"]})
-        instance_keys.append(("flat_instance", 0xFFFFFFFF, proto))
 
-    scene = mi.load_dict({"type": "scene", **shapes})
+def _group_big_meshes(mi, parts: _Shapes, proto: int) -> list:
+    """Big wood and leaf meshes go into one shape group placed once without a transform (the
+    last "prototype", number ``proto``; BENCHMARKS §9).  Returns the groups moved."""
+    flat = [g for g in parts.groups if g[0] in ("wood_mesh", "leaf_mesh")]
+    if sum(len(e) for _, _, e in flat) < GROUP_MIN_TRIANGLES:
+        return []
+    members = {}
+    for j, (key, cls, elems) in enumerate(flat):  # names keep the shape index order
+        members[f"{chr(ord('a') + j)}_{key}"] = mesh_j = parts.shapes.pop(key)
+        parts.group_rows.append((proto, j, cls, elems))
+        parts.group_meshes.append(mesh_j)
+    parts.groups = [g for g in parts.groups if g not in flat]
+    parts.shapes["flat_group"] = mi.load_dict({"type": "shapegroup", **members})
+    parts.shapes["flat_instance"] = mi.load_dict({"type": "instance", "shapegroup": parts.shapes["flat_group"]})
+    parts.instance_keys.append(("flat_instance", 0xFFFFFFFF, proto))
+    return flat
+
+
+def _lookup_tables(mi, scene, parts: _Shapes, primitives, instances) -> dict:
+    """The per-shape tables the integrators read by a hit's shape registry id: class, first
+    element row, reflectance; then each instance's tree, prototype and yaw."""
     import drjit as dr  # noqa: PLC0415
+    shapes = parts.shapes
     reg_ids = dr.reinterpret_array(mi.UInt32, scene.shapes_dr()).numpy() if shapes else np.zeros(0, np.uint32)
     by_key = {s.id(): int(r) for s, r in zip(scene.shapes(), reg_ids)}
     size = (max(by_key.values()) + 1) if by_key else 1
@@ -393,51 +451,40 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
         if prim.params.get("reflectance") is not None:
             shape_rho[by_key[f"primitive_{j:04d}"]] = prim.params["reflectance"]
     prim_shapes = []
-    for key, cls, elems in groups:
+    for key, cls, elems in parts.groups:
         rid = by_key[key]
         shape_class[rid], shape_base[rid] = cls, offset
         prim_parts.append(elems)
         prim_shapes.append(shapes[key] if isinstance(shapes[key], mi.Mesh) else None)
         offset += len(elems)
     inst = {}
-    if instance_keys:
+    if parts.instance_keys:
+        group_rows = parts.group_rows
         n_groups = max(g[1] for g in group_rows) + 1
         n_proto = max(g[0] for g in group_rows) + 1
         inst["group_class"] = np.zeros(n_proto * n_groups, np.uint32)
         inst["group_base"] = np.zeros(n_proto * n_groups, np.uint32)
-        for (proto, gidx, cls, elems), mesh in zip(group_rows, group_meshes):
+        for (proto, gidx, cls, elems), mesh in zip(group_rows, parts.group_meshes):
             inst["group_class"][proto * n_groups + gidx] = cls
             inst["group_base"][proto * n_groups + gidx] = offset
             prim_parts.append(elems)
             prim_shapes.append(mesh)
             offset += len(elems)
-        size_i = max(by_key[key] for key, _, _ in instance_keys) + 1
+        size_i = max(by_key[key] for key, _, _ in parts.instance_keys) + 1
         inst["instance_tree"] = np.zeros(size_i, np.uint32)
         inst["instance_proto"] = np.zeros(size_i, np.uint32)
         inst["instance_yaw_rad"] = np.zeros(size_i, np.float64)
-        for key, tree, proto in instance_keys:
+        for key, tree, proto in parts.instance_keys:
             inst["instance_tree"][by_key[key]] = tree
             if key.startswith("tree_"):
                 inst["instance_yaw_rad"][by_key[key]] = np.deg2rad(instances.yaw_deg[int(key[5:])])
             inst["instance_proto"][by_key[key]] = proto * n_groups  # premultiplied row
-        inst["n_instances"] = len(instance_keys) - grouped  # placed trees only
+        grouped = any(key == "flat_instance" for key, _, _ in parts.instance_keys)
+        inst["n_instances"] = len(parts.instance_keys) - grouped  # placed trees only
     prim_element = _joined(prim_parts) if prim_parts else np.zeros(1, np.uint32)
-    # Several plants without instancing (an orchard, a flattened forest): a tree id per
-    # primitive, so hits report their tree; one plant needs no extra lookup.
-    plants = np.concatenate([branches.tree_id, leaves.plant_id])
-    if not real_instances and len(plants) and plants.min() < plants.max():
-        trees = []  # laid out like prim_element: top-level shapes, then group rows
-        for key, _, elems in groups + (flat if grouped else []):
-            trees.append(_plant_ids(key, elems, branches, leaves, kept_index, faces_per_branch.get(key)))
-        inst["prim_tree"] = _joined(trees)
-    if len(shapes):
-        bb = scene.bbox()
-        lo, hi = np.array(bb.min, float) + origin, np.array(bb.max, float) + origin
-    else:
-        lo = hi = origin.copy()
-    return BuiltScene(scene, origin, shape_class, shape_base, prim_element.astype(np.uint32, copy=False),
-                      len(kept), n_dropped, n_tri, representation, k, lo, hi, **inst,
-                      shape_reflectance=shape_rho, prim_shapes=prim_shapes)
+    return {"shape_class": shape_class, "shape_base": shape_base,
+            "prim_element": prim_element.astype(np.uint32, copy=False), "shape_reflectance": shape_rho,
+            "prim_shapes": prim_shapes, **inst}
 
 
 def _joined(parts: list) -> np.ndarray:

@@ -1,0 +1,92 @@
+"""The beam patterns a scene's ``[platform]`` asks for, and where their scanners stand.
+
+Plain data from keys and the geometry's bounds (no Mitsuba): the first step of a scan's plan
+(:func:`simlidar_mi.lidar.survey.run_scan`), also what a cluster worker and the study rebuild.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..config import SceneConfig
+from ..errors import ConfigError
+
+
+def scanner_positions_m(pattern) -> np.ndarray:
+    """(n, 3) real positions a pattern fires from: a platform's row origins, or the
+    tractor's first and last stop on its line (``ScanSettings``)."""
+    rows = getattr(pattern, "row_origin_m", None)
+    if rows is not None:
+        return np.asarray(rows, np.float64)
+    y = pattern.y_m
+    return np.array([[pattern.x0_m, y[0], pattern.z0_m], [pattern.x0_m, y[-1], pattern.z0_m]])
+
+
+def scan_patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m=None) -> list:
+    """The beam patterns the scene's [platform] asks for (tractor: [scan] settings, eqs. 6-8).
+
+    ``near_x_m``: the tractor's nearest wood, see :func:`simlidar_mi.lidar.scan.resolve_settings`
+    (:meth:`SceneGeometry.near_x_m` in :func:`run_scan`)."""
+    try:
+        patterns = _patterns(cfg, lo_m, hi_m, near_x_m)
+    except ConfigError as exc:
+        raise cfg.relabel(exc) from None
+    rule = cfg["scan"]["hit_rule"]
+    return [p if p.hit_rule == rule else replace(p, hit_rule=rule) for p in patterns]
+
+
+def _patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m) -> list:
+    from .platforms import (airborne_pattern, path_patterns, rosette_patterns,  # noqa: PLC0415
+                            rotating_patterns, static_pattern)
+    from .scan import resolve_settings  # noqa: PLC0415
+    pf, sc, gr = cfg["platform"], cfg["scan"], cfg["ground"]
+    common = {"footprint": sc["footprint"], "ground": gr["enabled"], "ground_z_m": gr["z_m"],
+              "source": cfg.source, "max_beams": sc["max_beams"]}
+    kind = pf["kind"]
+    sensor_rate = cfg["sensor"]["pulse_rate_hz"]
+
+    def need(key):
+        if pf[key] is None:
+            raise ConfigError(f"a {kind} platform needs this key", file=cfg.source, key=f"platform.{key}")
+        return pf[key]
+
+    def pulse_rate(default):
+        """The platform's pulse rate: [platform] pulse_rate_hz, else [sensor]'s, else ``default``."""
+        own = pf["pulse_rate_hz"]
+        if own is not None and sensor_rate > 0 and own != sensor_rate:
+            raise ConfigError(f"disagrees with sensor.pulse_rate_hz = {sensor_rate:g}; give one of them",
+                              file=cfg.source, key="platform.pulse_rate_hz", value=own)
+        return own if own is not None else (sensor_rate if sensor_rate > 0 else default)
+    if kind == "tractor":
+        return [resolve_settings(sc, gr, lo_m, hi_m, cfg.source, near_x_m, pulse_rate_hz=sensor_rate,
+                                 speed_m_s=pf["speed_m_s"], dy_given=cfg.gave("scan.dy_m"))]
+    if kind == "static":
+        az = pf["azimuth_deg"]
+        return [static_pattern(need("position_m"), tuple(pf["elevation_deg"]),
+                               tuple(az) if isinstance(az, list) else float(az),
+                               escape_m=sc["escape_m"], **common)]
+    if kind == "path":
+        return path_patterns(need("waypoints_m"), pf["step_m"], tuple(pf["elevation_deg"]),
+                             side=pf["side"], escape_m=sc["escape_m"], scan_legs=pf["scan_legs"], **common)
+    if kind == "rotating":  # timing from the block period; a [sensor] pulse rate does not enter
+        return rotating_patterns(pf["channels_deg"], pf["channel_offsets_us"], pf["block_period_us"],
+                                 pf["rotation_hz"], position_m=pf["position_m"], waypoints_m=pf["waypoints_m"],
+                                 speed_m_s=pf["speed_m_s"], azimuth_range_deg=pf["azimuth_range_deg"],
+                                 duration_s=pf["duration_s"], escape_m=sc["escape_m"], **common)
+    if kind == "rosette":
+        from .platforms import MID70_PULSE_RATE_HZ  # noqa: PLC0415
+        return rosette_patterns(pf["rosette_hz"], pf["fov_deg"], pulse_rate(MID70_PULSE_RATE_HZ), pf["look_deg"],
+                                position_m=pf["position_m"], waypoints_m=pf["waypoints_m"],
+                                speed_m_s=pf["speed_m_s"], duration_s=pf["duration_s"],
+                                escape_m=sc["escape_m"], **common)
+    escape = max(sc["escape_m"], 10 * pf["altitude_m"])
+    speed = pf["speed_m_s"] if pf["speed_m_s"] is not None else AIRBORNE_SPEED_M_S
+    return [airborne_pattern(need("start_xy_m"), need("end_xy_m"), pf["altitude_m"], pf["swath_deg"],
+                             speed, pulse_rate(AIRBORNE_PULSE_RATE_HZ), pf["pulses_per_line"],
+                             escape_m=escape, **common)]
+
+
+#: Airborne defaults (the [platform] keys are shared by every kind, so their defaults depend on it).
+AIRBORNE_SPEED_M_S = 30.0
+AIRBORNE_PULSE_RATE_HZ = 300_000.0

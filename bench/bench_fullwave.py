@@ -1,4 +1,4 @@
-"""A full-waveform scan against the raw cast of its own sub-rays (BENCHMARKS.md §7d).
+"""A full-waveform scan against the raw cast of its own sub-rays (BENCHMARKS.md §7e).
 
 The SIMLIDAR Table 3 orchard (``scenes/simlidar_table3_7x4.toml``) scanned by a tractor line
 scanner of 601 pulses a sweep from −70.25° to 80° and 4200 sweeps (2,524,200 pulses; ``--rows``

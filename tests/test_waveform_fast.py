@@ -1,5 +1,5 @@
 """The scan's echo detector (waveform_fast.detect_subray_echoes) gives the bits of the
-reference path (physical.reference_echoes: subray_energy + waveform.detect_echoes on float64
+reference path (waveform_fast.reference_echoes: subray_energy + waveform.detect_echoes on float64
 arrays): every echo array on random beams and on the included sensor scenes, and the bytes of
 their output files."""
 from __future__ import annotations
@@ -12,11 +12,10 @@ import pytest
 
 import simlidar_mi.lidar.physical as physical
 from simlidar_mi.config import load_scene
-from simlidar_mi.lidar.physical import reference_echoes
 from simlidar_mi.lidar.scan import scan_physical
 from simlidar_mi.lidar.sensor import SensorModel
 from simlidar_mi.lidar.survey import build, generate, run_scan, scan_patterns, scene_sensor
-from simlidar_mi.lidar.waveform_fast import detect_subray_echoes
+from simlidar_mi.lidar.waveform_fast import detect_subray_echoes, reference_echoes
 from tests.conftest import SCENES
 from tests.test_sensor_stream import AIRBORNE, LMS511, VLP16
 

@@ -7,16 +7,17 @@ chunk_beams``) and ``chunk_rays`` sub-rays (at least one beam) at a time:
 1. the beam's S sub-rays (divergence × dot matrix, :func:`~simlidar_mi.lidar.sensor.subray_offsets`)
    are traced by the range integrator (``trace_subrays``);
 2. with energies (``model.needs_energy``), sub-ray j returns E_j = w_j·ρ_j·|cos i_j|·(R_ref/r_j)²
-   (:func:`subray_energy`, the law of :mod:`~simlidar_mi.lidar.sensor`), the echoes come from
-   :func:`~simlidar_mi.lidar.waveform.detect_echoes` and range noise from
-   :mod:`~simlidar_mi.lidar.noise`, keyed by (seed, leg, beam, return number); echo 1 gives the
-   first-return arrays;
+   (:func:`~simlidar_mi.lidar.waveform_fast.subray_energy`, the law of :mod:`~simlidar_mi.lidar.sensor`), the echoes come from
+   :func:`~simlidar_mi.lidar.waveform.detect_echoes` (read from the trace's float32 arrays by
+   :func:`~simlidar_mi.lidar.waveform_fast.detect_subray_echoes`, the same bits as
+   :func:`~simlidar_mi.lidar.waveform_fast.reference_echoes`) and range noise from :mod:`~simlidar_mi.lidar.noise`, keyed by
+   (seed, leg, beam, return number); echo 1 gives the first-return arrays;
 3. without (range limits alone, or divergence with ``detection = "nearest"``), a beam's first
    return is its nearest sub-ray inside [range_min_m, range_max_m] (under ``hit_rule =
    "any"`` its nearest vegetation sub-ray).
 
 ``hit_fraction`` is the profile-weighted share of the beam's sub-rays whose first hit is
-vegetation.
+vegetation.  The next chunk is traced (on Dr.Jit's threads) while the host reads this one.
 """
 from __future__ import annotations
 
@@ -27,8 +28,8 @@ import numpy as np
 from ..geometry import CLASS_CODES
 from .noise import apply_range_noise
 from .sensor import SensorModel, subray_offsets
-from .waveform import NO_ID, detect_echoes
-from .waveform_fast import detect_subray_echoes
+from .waveform import NO_ID
+from .waveform_fast import detect_subray_echoes, reference_echoes, subray_energy  # noqa: F401
 
 
 class PhysicalTracer:
@@ -80,18 +81,18 @@ class PhysicalTracer:
             ahead = launch(firsts[i + 1]) if i + 1 < len(firsts) else None
             self.trace_s += time.perf_counter() - t1
             c = out["class"].numpy().reshape(n, n_sub).astype(np.uint8)
-            e = out["element_id"].numpy().reshape(n, n_sub).copy()
-            tr = out["tree_id"].numpy().reshape(n, n_sub).copy() if "tree_id" in out else None
+            # Views of the kernel's arrays (``out`` lives until the next chunk): read, never edited.
+            e = out["element_id"].numpy().reshape(n, n_sub)
+            tr = out["tree_id"].numpy().reshape(n, n_sub) if "tree_id" in out else None
             veg = (c == CLASS_CODES["wood"]) | (c == CLASS_CODES["leaf"])
             part = {"range": np.full(n, escape, np.float32), "cls": np.zeros(n, np.uint8),
                     "elem": np.full(n, NO_ID, np.uint32), "frac": (veg.astype(np.float64) @ self._weight).astype(np.float32),
                     "tree": None if tr is None else np.full(n, NO_ID, np.uint32),
                     "n_ret": np.zeros(n, np.uint8), "inten": None, "echoes": None}
             if self.energy:
-                t = t.copy()  # float32, as traced: the detector reads float64 where it needs it
-                cos_i = out["cos_incidence"].numpy().reshape(n, n_sub).copy()
-                rho = out["reflectance"].numpy().reshape(n, n_sub).copy()
-                del out
+                # float32, as traced: the detector reads float64 where it needs it
+                cos_i = out["cos_incidence"].numpy().reshape(n, n_sub)
+                rho = out["reflectance"].numpy().reshape(n, n_sub)
                 t1 = time.perf_counter()
                 g0 = self.beam0 + b0
                 echoes = _echoes(model, t, c, e, tr, cos_i, rho, self._weight,
@@ -111,7 +112,6 @@ class PhysicalTracer:
                 part["echoes"] = echoes
             else:  # range limits alone: each beam's nearest sub-ray inside them
                 t = t.astype(np.float64)
-                del out
                 inside = (t >= model.range_min_m) & (t <= model.range_max_m)
                 r = np.where(inside, t, np.inf)
                 if pattern.hit_rule == "any" and n_sub > 1:
@@ -128,26 +128,6 @@ class PhysicalTracer:
                     part["tree"][:] = np.where(got, tr[at, j], NO_ID)
                 part["n_ret"][:] = got
             yield b0, n, part
-
-
-def subray_energy(model: SensorModel, range_m: np.ndarray, reflectance: np.ndarray,
-                  cos_incidence: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """E_j = w_j·ρ_j·|cos i_j|·(R_ref/r_j)² (Lambertian, :mod:`~simlidar_mi.lidar.sensor`);
-    0 where the sub-ray escaped."""
-    with np.errstate(divide="ignore"):
-        inv_r2 = np.where(np.isfinite(range_m) & (range_m > 0), 1.0 / np.square(range_m), 0.0)
-    return weight * reflectance * np.abs(cos_incidence) * model.r_ref_m ** 2 * inv_r2
-
-
-def reference_echoes(model: SensorModel, t, c, e, tr, cos_i, rho, weight, beam_index):
-    """Echoes of (B, S) float64 sub-ray arrays by :func:`subray_energy` and
-    :func:`~simlidar_mi.lidar.waveform.detect_echoes`, no noise: what
-    :func:`~simlidar_mi.lidar.waveform_fast.detect_subray_echoes` reproduces bit for bit."""
-    E = subray_energy(model, t, rho, cos_i, weight)
-    return detect_echoes(t, E, c, e, tr, cos_i, beam_index, pulse_length_ns=model.pulse_length_ns,
-                         detection_threshold=model.detection_threshold,
-                         max_returns=model.max_returns, range_min_m=model.range_min_m,
-                         range_max_m=model.range_max_m, echo_rule=model.echo_rule)
 
 
 def _echoes(model: SensorModel, t, c, e, tr, cos_i, rho, weight, beam_index, *, seed: int, leg: int):

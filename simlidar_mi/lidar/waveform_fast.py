@@ -1,6 +1,6 @@
 """Echoes of traced sub-rays, fast where a beam meets one surface: the bits of
 :func:`~simlidar_mi.lidar.waveform.detect_echoes` on the energies of
-:func:`~simlidar_mi.lidar.physical.subray_energy`.
+:func:`subray_energy` (the law of :mod:`~simlidar_mi.lidar.sensor`).
 
 With a narrow beam nearly every beam's sub-rays meet one surface: their returns form one
 cluster of the waveform that spans a few bins (``waveform`` module docstring) and has one
@@ -28,7 +28,8 @@ import math
 import numpy as np
 
 from . import waveform as wf
-from .waveform import Echoes
+from .sensor import SensorModel
+from .waveform import Echoes, detect_echoes
 
 #: Key layout of the sort: row | float32 range bits (31) | column.
 _RANGE_BITS = 31
@@ -38,8 +39,28 @@ _BLOCK = 64
 _TILE = 256
 
 
+def subray_energy(model: SensorModel, range_m: np.ndarray, reflectance: np.ndarray,
+                  cos_incidence: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """E_j = w_j·ρ_j·|cos i_j|·(R_ref/r_j)² (Lambertian, :mod:`~simlidar_mi.lidar.sensor`);
+    0 where the sub-ray escaped."""
+    with np.errstate(divide="ignore"):
+        inv_r2 = np.where(np.isfinite(range_m) & (range_m > 0), 1.0 / np.square(range_m), 0.0)
+    return weight * reflectance * np.abs(cos_incidence) * model.r_ref_m ** 2 * inv_r2
+
+
+def reference_echoes(model: SensorModel, t, c, e, tr, cos_i, rho, weight, beam_index):
+    """Echoes of (B, S) float64 sub-ray arrays by :func:`subray_energy` and
+    :func:`~simlidar_mi.lidar.waveform.detect_echoes`, no noise: the scan's detector before,
+    which :func:`detect_subray_echoes` reproduces bit for bit."""
+    E = subray_energy(model, t, rho, cos_i, weight)
+    return detect_echoes(t, E, c, e, tr, cos_i, beam_index, pulse_length_ns=model.pulse_length_ns,
+                         detection_threshold=model.detection_threshold,
+                         max_returns=model.max_returns, range_min_m=model.range_min_m,
+                         range_max_m=model.range_max_m, echo_rule=model.echo_rule)
+
+
 def _energy(weight, rho, cos_i, range_m, r_ref_m: float) -> np.ndarray:
-    """E_j of :func:`~simlidar_mi.lidar.physical.subray_energy` for sub-rays with a finite
+    """E_j of :func:`subray_energy` for sub-rays with a finite
     range > 0, as float64, with its operations in its order (the same bits)."""
     r = np.asarray(range_m, np.float64)
     return (np.asarray(weight, np.float64) * np.asarray(rho, np.float64) * np.abs(np.asarray(cos_i, np.float64))
@@ -211,11 +232,8 @@ def _assemble(parts, flat, beam_index, cls, element_id, tree_id, cos_i, *, echo_
 
 
 def _reference_rows(model, rows, t, cos_i, rho, cls, element_id, tree_id, weight, beam_index) -> Echoes:
-    """:func:`~simlidar_mi.lidar.waveform.detect_echoes` of ``rows``, energies as the scan
-    computed them before (:func:`~simlidar_mi.lidar.physical.reference_echoes`)."""
-    from .physical import reference_echoes  # noqa: PLC0415  (physical imports this module)
-    r = np.asarray(t)[rows].astype(np.float64)
-    return reference_echoes(model, r, np.asarray(cls)[rows], np.asarray(element_id)[rows],
-                            None if tree_id is None else np.asarray(tree_id)[rows],
+    """:func:`reference_echoes` of ``rows``."""
+    return reference_echoes(model, np.asarray(t)[rows].astype(np.float64), np.asarray(cls)[rows],
+                            np.asarray(element_id)[rows], None if tree_id is None else np.asarray(tree_id)[rows],
                             np.asarray(cos_i)[rows].astype(np.float64), np.asarray(rho)[rows].astype(np.float64),
                             weight, beam_index[rows])

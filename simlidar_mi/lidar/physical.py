@@ -76,14 +76,16 @@ class PhysicalTracer:
             n = min(self.per_chunk, self.n_beams - b0)
             t1 = time.perf_counter()
             out = ahead
-            t = out["t"].numpy().reshape(n, n_sub)  # float32; the nearest-hit path reads float64
+            # Views of the kernel's arrays (``out`` lives until the next chunk): read, never edited.
+            # All taken before the next launch: .numpy() waits for every kernel queued.
+            host = {k: v.numpy().reshape(n, n_sub) for k, v in out.items()}
             # The next chunk traces while the host reads this one (the same kernels, the same bits).
             ahead = launch(firsts[i + 1]) if i + 1 < len(firsts) else None
             self.trace_s += time.perf_counter() - t1
-            c = out["class"].numpy().reshape(n, n_sub).astype(np.uint8)
-            # Views of the kernel's arrays (``out`` lives until the next chunk): read, never edited.
-            e = out["element_id"].numpy().reshape(n, n_sub)
-            tr = out["tree_id"].numpy().reshape(n, n_sub) if "tree_id" in out else None
+            t = host["t"]  # float32; the nearest-hit path reads float64
+            c = host["class"].astype(np.uint8)
+            e = host["element_id"]
+            tr = host.get("tree_id")
             veg = (c == CLASS_CODES["wood"]) | (c == CLASS_CODES["leaf"])
             part = {"range": np.full(n, escape, np.float32), "cls": np.zeros(n, np.uint8),
                     "elem": np.full(n, NO_ID, np.uint32), "frac": (veg.astype(np.float64) @ self._weight).astype(np.float32),
@@ -91,8 +93,7 @@ class PhysicalTracer:
                     "n_ret": np.zeros(n, np.uint8), "inten": None, "echoes": None}
             if self.energy:
                 # float32, as traced: the detector reads float64 where it needs it
-                cos_i = out["cos_incidence"].numpy().reshape(n, n_sub)
-                rho = out["reflectance"].numpy().reshape(n, n_sub)
+                cos_i, rho = host["cos_incidence"], host["reflectance"]
                 t1 = time.perf_counter()
                 g0 = self.beam0 + b0
                 echoes = _echoes(model, t, c, e, tr, cos_i, rho, self._weight,

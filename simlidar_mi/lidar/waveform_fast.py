@@ -36,7 +36,7 @@ _RANGE_BITS = 31
 #: Clusters of one (span, size) read together; smaller groups take the reference's reader.
 _BLOCK = 64
 #: Clusters per piece of the block reader (~1 MB of pulse terms at 19 sub-rays).
-_TILE = 256
+_TILE = 1024
 
 
 def subray_energy(model: SensorModel, range_m: np.ndarray, reflectance: np.ndarray,

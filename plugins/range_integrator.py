@@ -183,28 +183,7 @@ class RangeIntegrator(mi.SamplingIntegrator):
         ``reflectance`` (see :meth:`set_reflectance`).  No reduction: the waveform is built on
         the host.
         """
-        Q = (sensor.footprint + 1) ** 2
-        off = np.asarray(offsets_rad, np.float64).reshape(-1, 2)
-        S = len(off)
-        start, n_traced, skip = aligned_span(int(beam_start), int(beam_count), sensor.n_positions * sensor.n_angles,
-                                             sensor.first_beam)  # packet boundaries, as in trace()
-        idx = dr.arange(mi.UInt32, n_traced * Q * S)
-        rest = idx // S if S > 1 else idx
-        # opaque: one kernel for every chunk (a literal start compiled a new kernel per chunk,
-        # ~70 ms and a few MB each)
-        beam = dr.opaque(mi.UInt32, start) + (rest // Q if Q > 1 else rest)
-        ray = _beam_ray(sensor, beam, rest % Q if Q > 1 else None)
-        if S > 1 or np.any(off != 0):
-            j = idx % S
-            tan_u = dr.gather(mi.Float, mi.Float(np.tan(off[:, 0]).astype(np.float32)), j)
-            tan_v = dr.gather(mi.Float, mi.Float(np.tan(off[:, 1]).astype(np.float32)), j)
-            d = ray.d
-            # (u, v) ⟂ d: u horizontal unless d is near vertical; the spiral is round, so only
-            # its orientation depends on this choice.
-            helper = dr.select(dr.abs(d.z) < 0.9, mi.Vector3f(0, 0, 1), mi.Vector3f(1, 0, 0))
-            u = dr.normalize(dr.cross(helper, d))
-            v = dr.cross(d, u)
-            ray = mi.Ray3f(ray.o, dr.normalize(d + tan_u * u + tan_v * v), ray.time)
+        ray, Q, S, skip, n_traced = _subray_rays(sensor, offsets_rad, beam_start, beam_count)
         pi = scene.ray_intersect_preliminary(ray, coherent=True)
         hit = pi.is_valid()
         cls, elem, tree, sid, in_inst, row = self._classify(pi, hit)
@@ -231,13 +210,25 @@ class RangeIntegrator(mi.SamplingIntegrator):
             if normals:  # the ground's normal is +z
                 cos_i = dr.select(use_ground, dr.abs(ray.d.z), cos_i)
                 rho = dr.select(use_ground, dr.gather(mi.Float, self._class_rho, mi.UInt32(GROUND)), rho)
-        out.update({"t": t, "class": cls, "element_id": elem})
+        # class as uint8 from the kernel, as trace() gives it: a quarter of the bytes
+        out.update({"t": t, "class": dr.uint8_array_t(mi.UInt32)(cls), "element_id": elem})
         if tree is not None:
             out["tree_id"] = tree
         if normals:
             out["cos_incidence"], out["reflectance"] = cos_i, rho
         dr.eval(out)  # one kernel for every output
         return _kept(out, skip, int(beam_count), Q * S, n_traced)
+
+    def cast_subrays(self, scene: mi.Scene, sensor: mi.Sensor, offsets_rad: np.ndarray,
+                     beam_start: int, beam_count: int):
+        """The bare cast of :meth:`trace_subrays`' rays: ``pi.t`` and ``pi.is_valid()`` of
+        ``ray_intersect_preliminary``, evaluated, nothing else (the floor a benchmark
+        compares a scan with)."""
+        ray = _subray_rays(sensor, offsets_rad, beam_start, beam_count)[0]
+        pi = scene.ray_intersect_preliminary(ray, coherent=True)
+        t, valid = pi.t, pi.is_valid()
+        dr.eval(t, valid)
+        return t, valid
 
     def _ground(self, ray, t, cls, elem, tree):
         """The analytic ground plane after vegetation: a beam that passes every shape meets
@@ -306,6 +297,35 @@ def _kept(out: dict, skip: int, count: int, per_beam: int, traced: int) -> dict:
     out = {k: dr.gather(type(v), v, keep) for k, v in out.items()}
     dr.eval(out)
     return out
+
+
+
+def _subray_rays(sensor: mi.Sensor, offsets_rad: np.ndarray, beam_start: int, beam_count: int):
+    """The sub-rays of :meth:`RangeIntegrator.trace_subrays` (beams widened to packet
+    boundaries) and (Q, S, skip, traced beams)."""
+    Q = (sensor.footprint + 1) ** 2
+    off = np.asarray(offsets_rad, np.float64).reshape(-1, 2)
+    S = len(off)
+    start, n_traced, skip = aligned_span(int(beam_start), int(beam_count), sensor.n_positions * sensor.n_angles,
+                                         sensor.first_beam)  # packet boundaries, as in trace()
+    idx = dr.arange(mi.UInt32, n_traced * Q * S)
+    rest = idx // S if S > 1 else idx
+    # opaque: one kernel for every chunk (a literal start compiled a new kernel per chunk,
+    # ~70 ms and a few MB each)
+    beam = dr.opaque(mi.UInt32, start) + (rest // Q if Q > 1 else rest)
+    ray = _beam_ray(sensor, beam, rest % Q if Q > 1 else None)
+    if S > 1 or np.any(off != 0):
+        j = idx % S
+        tan_u = dr.gather(mi.Float, mi.Float(np.tan(off[:, 0]).astype(np.float32)), j)
+        tan_v = dr.gather(mi.Float, mi.Float(np.tan(off[:, 1]).astype(np.float32)), j)
+        d = ray.d
+        # (u, v) ⟂ d: u horizontal unless d is near vertical; the spiral is round, so only
+        # its orientation depends on this choice.
+        helper = dr.select(dr.abs(d.z) < 0.9, mi.Vector3f(0, 0, 1), mi.Vector3f(1, 0, 0))
+        u = dr.normalize(dr.cross(helper, d))
+        v = dr.cross(d, u)
+        ray = mi.Ray3f(ray.o, dr.normalize(d + tan_u * u + tan_v * v), ray.time)
+    return ray, Q, S, skip, n_traced
 
 
 def _beam_ray(sensor: mi.Sensor, beam, sub=None):

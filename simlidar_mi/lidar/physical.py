@@ -7,16 +7,17 @@ chunk_beams``) and ``chunk_rays`` sub-rays (at least one beam) at a time:
 1. the beam's S sub-rays (divergence × dot matrix, :func:`~simlidar_mi.lidar.sensor.subray_offsets`)
    are traced by the range integrator (``trace_subrays``);
 2. with energies (``model.needs_energy``), sub-ray j returns E_j = w_j·ρ_j·|cos i_j|·(R_ref/r_j)²
-   (:func:`subray_energy`, the law of :mod:`~simlidar_mi.lidar.sensor`), the echoes come from
-   :func:`~simlidar_mi.lidar.waveform.detect_echoes` and range noise from
-   :mod:`~simlidar_mi.lidar.noise`, keyed by (seed, leg, beam, return number); echo 1 gives the
-   first-return arrays;
+   (:func:`~simlidar_mi.lidar.waveform_fast.subray_energy`, the law of :mod:`~simlidar_mi.lidar.sensor`), the echoes come from
+   :func:`~simlidar_mi.lidar.waveform.detect_echoes` (read from the trace's float32 arrays by
+   :func:`~simlidar_mi.lidar.waveform_fast.detect_subray_echoes`, the same bits as
+   :func:`~simlidar_mi.lidar.waveform_fast.reference_echoes`) and range noise from :mod:`~simlidar_mi.lidar.noise`, keyed by
+   (seed, leg, beam, return number); echo 1 gives the first-return arrays;
 3. without (range limits alone, or divergence with ``detection = "nearest"``), a beam's first
    return is its nearest sub-ray inside [range_min_m, range_max_m] (under ``hit_rule =
    "any"`` its nearest vegetation sub-ray).
 
 ``hit_fraction`` is the profile-weighted share of the beam's sub-rays whose first hit is
-vegetation.
+vegetation.  The next chunk is traced (on Dr.Jit's threads) while the host reads this one.
 """
 from __future__ import annotations
 
@@ -27,7 +28,8 @@ import numpy as np
 from ..geometry import CLASS_CODES
 from .noise import apply_range_noise
 from .sensor import SensorModel, subray_offsets
-from .waveform import NO_ID, detect_echoes
+from .waveform import NO_ID
+from .waveform_fast import detect_subray_echoes, reference_echoes, subray_energy  # noqa: F401
 
 
 class PhysicalTracer:
@@ -61,26 +63,37 @@ class PhysicalTracer:
         energies; beams are global flat indices)."""
         model, pattern, escape = self.model, self.pattern, self.pattern.escape_m
         n_sub = self.n_sub
-        for b0 in range(0, self.n_beams, self.per_chunk):
+        firsts = list(range(0, self.n_beams, self.per_chunk))
+
+        def launch(b0):  # Dr.Jit runs the kernel on its threads; .numpy() waits for it
+            # A tile's sensor starts up to a packet before the tile (lidar.packets).
+            return self._integrator.trace_subrays(self._scene, self._lidar, self._offsets,
+                                                  self.beam0 - self._lidar.first_beam + b0,
+                                                  min(self.per_chunk, self.n_beams - b0), normals=self.energy)
+
+        ahead = launch(firsts[0]) if firsts else None
+        for i, b0 in enumerate(firsts):
             n = min(self.per_chunk, self.n_beams - b0)
             t1 = time.perf_counter()
-            # A tile's sensor starts up to a packet before the tile (lidar.packets).
-            out = self._integrator.trace_subrays(self._scene, self._lidar, self._offsets,
-                                                 self.beam0 - self._lidar.first_beam + b0, n, normals=self.energy)
-            t = out["t"].numpy().reshape(n, n_sub).astype(np.float64)
+            out = ahead
+            # Views of the kernel's arrays (``out`` lives until the next chunk): read, never edited.
+            # All taken before the next launch: .numpy() waits for every kernel queued.
+            host = {k: v.numpy().reshape(n, n_sub) for k, v in out.items()}
+            # The next chunk traces while the host reads this one (the same kernels, the same bits).
+            ahead = launch(firsts[i + 1]) if i + 1 < len(firsts) else None
             self.trace_s += time.perf_counter() - t1
-            c = out["class"].numpy().reshape(n, n_sub).astype(np.uint8)
-            e = out["element_id"].numpy().reshape(n, n_sub).copy()
-            tr = out["tree_id"].numpy().reshape(n, n_sub).copy() if "tree_id" in out else None
+            t = host["t"]  # float32; the nearest-hit path reads float64
+            c = host["class"].astype(np.uint8)
+            e = host["element_id"]
+            tr = host.get("tree_id")
             veg = (c == CLASS_CODES["wood"]) | (c == CLASS_CODES["leaf"])
             part = {"range": np.full(n, escape, np.float32), "cls": np.zeros(n, np.uint8),
                     "elem": np.full(n, NO_ID, np.uint32), "frac": (veg.astype(np.float64) @ self._weight).astype(np.float32),
                     "tree": None if tr is None else np.full(n, NO_ID, np.uint32),
                     "n_ret": np.zeros(n, np.uint8), "inten": None, "echoes": None}
             if self.energy:
-                cos_i = out["cos_incidence"].numpy().reshape(n, n_sub).astype(np.float64)
-                rho = out["reflectance"].numpy().reshape(n, n_sub).astype(np.float64)
-                del out
+                # float32, as traced: the detector reads float64 where it needs it
+                cos_i, rho = host["cos_incidence"], host["reflectance"]
                 t1 = time.perf_counter()
                 g0 = self.beam0 + b0
                 echoes = _echoes(model, t, c, e, tr, cos_i, rho, self._weight,
@@ -99,7 +112,7 @@ class PhysicalTracer:
                 part["n_ret"][beams] = echoes.number_of_returns[first]
                 part["echoes"] = echoes
             else:  # range limits alone: each beam's nearest sub-ray inside them
-                del out
+                t = t.astype(np.float64)
                 inside = (t >= model.range_min_m) & (t <= model.range_max_m)
                 r = np.where(inside, t, np.inf)
                 if pattern.hit_rule == "any" and n_sub > 1:
@@ -118,21 +131,8 @@ class PhysicalTracer:
             yield b0, n, part
 
 
-def subray_energy(model: SensorModel, range_m: np.ndarray, reflectance: np.ndarray,
-                  cos_incidence: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """E_j = w_j·ρ_j·|cos i_j|·(R_ref/r_j)² (Lambertian, :mod:`~simlidar_mi.lidar.sensor`);
-    0 where the sub-ray escaped."""
-    with np.errstate(divide="ignore"):
-        inv_r2 = np.where(np.isfinite(range_m) & (range_m > 0), 1.0 / np.square(range_m), 0.0)
-    return weight * reflectance * np.abs(cos_incidence) * model.r_ref_m ** 2 * inv_r2
-
-
 def _echoes(model: SensorModel, t, c, e, tr, cos_i, rho, weight, beam_index, *, seed: int, leg: int):
-    E = subray_energy(model, t, rho, cos_i, weight)
-    echoes = detect_echoes(t, E, c, e, tr, cos_i, beam_index, pulse_length_ns=model.pulse_length_ns,
-                           detection_threshold=model.detection_threshold,
-                           max_returns=model.max_returns, range_min_m=model.range_min_m,
-                           range_max_m=model.range_max_m, echo_rule=model.echo_rule)
+    echoes = detect_subray_echoes(model, t, cos_i, rho, c, e, tr, weight, beam_index)
     if model.noise:
         echoes = apply_range_noise(echoes, seed=seed, leg=leg, range_noise_m=model.range_noise_m,
                                    range_noise_per_m=model.range_noise_per_m, noise_model=model.noise_model,

@@ -106,7 +106,7 @@ def test_a_photo_and_a_virtual_image_give_the_same_lai(tmp_path):
     """Field photos go through the LAI methods by the code evaluate-photo runs on virtual images:
     a rendered image saved as a photo gives the same LAI by every method."""
     from simlidar_mi.canopy.lai_table import estimate_methods, method_rings
-    from simlidar_mi.canopy.photo_fisheye import photo_lai
+    from simlidar_mi.canopy.photo_fisheye import lai_spec, photo_lai
     from simlidar_mi.config.keys import SECTIONS
     from simlidar_mi.scene.build import build_scene
     rng = np.random.default_rng(5)
@@ -123,7 +123,7 @@ def test_a_photo_and_a_virtual_image_give_the_same_lai(tmp_path):
     rgb[img.coverage == 0.0] = 255
     photo = tmp_path / "virtual.png"
     Image.fromarray(rgb).save(photo)
-    got = photo_lai(fisheye_photo_gap(photo, "equidistant", circle=(120, 120, 120), keep_labels=True))
+    got = photo_lai(fisheye_photo_gap(photo, "equidistant", circle=(120, 120, 120), lai_spec=lai_spec()))
     assert 0.05 < virtual["miller"] < 5  # leaves were seen
     for m, v in virtual.items():
         assert got[m] == pytest.approx(v, rel=1e-9), m

@@ -56,6 +56,7 @@ class FisheyePhoto:
     n_inside: int              # pixels whose centre lies inside the circle
     gap_fraction: float        # gap share of the inside pixels (every pixel alike)
     labels: np.ndarray | None = None  # uint8 (H, W): 0 gap, 1 plant, 2 outside; with keep_labels
+    lai_table: GapTable | None = None  # on the LAI methods' rings (``lai_spec``), same pass
     lai: dict | None = None  # each method's LAI (run_fisheye_photos(..., lai=True))
 
 
@@ -139,13 +140,14 @@ def fisheye_photo_gap(path: str | os.PathLike[str], lens: str | Lens = "equidist
                       circle=None, format: str = "circular", method: str = "blue-otsu",
                       rings_deg=DEFAULT_RINGS_DEG, n_sectors: int = 8, heading_deg: float = 90.0,
                       looking: str = "up", downscale: int = 1, keep_labels: bool = False,
-                      mask_path: str | os.PathLike[str] | None = None) -> FisheyePhoto:
+                      mask_path: str | os.PathLike[str] | None = None, lai_spec=None) -> FisheyePhoto:
     """Classify a fisheye photo and tabulate its ring and sector gap fractions.
 
     ``lens``: a projection or named lens (:mod:`simlidar_mi.canopy.fisheye_lens`), or
     ``"polynomial"`` with ``coeffs``.  ``circle``: (xc, yc, r) pixels of the stored photo, or
     None to detect it (circular) / use the frame (fullframe).  ``mask_path``: also write the
-    binary image as a PNG (gap white, plant green, outside black)."""
+    binary image as a PNG (gap white, plant green, outside black).  ``lai_spec``: (rings,
+    sectors) of a second table tabulated in the same pass (:func:`lai_spec`, for :func:`photo_lai`)."""
     p = Path(path)
     ln = make_lens(lens, coeffs, key="lens")
     if format not in FORMATS:
@@ -169,6 +171,7 @@ def fisheye_photo_gap(path: str | os.PathLike[str], lens: str | Lens = "equidist
                             centre_px=(xc, yc), circle_radius_px=r)
         threshold = _blue_threshold(photo, cam, p) if method == "blue-otsu" else None
         acc = TableSums(rings_deg, n_sectors)
+        acc_lai = TableSums(*lai_spec) if lai_spec is not None else None
         labels = np.empty((h, w), np.uint8) if keep_labels or mask_path is not None else None
         n_in = n_gap = 0
         for a, b in _strips(h, w):
@@ -179,6 +182,8 @@ def fisheye_photo_gap(path: str | os.PathLike[str], lens: str | Lens = "equidist
             plant = rgb[..., 2] <= threshold if threshold is not None else _canopeo(rgb, 0.95, 0.95, 20.0)
             cov = np.where(ang.inside, plant.astype(np.float64), np.nan)
             acc.add(cov, ang)
+            if acc_lai is not None:
+                acc_lai.add(cov, ang)
             n_in += int(ang.inside.sum())
             n_gap += int((ang.inside & ~plant).sum())
             if labels is not None:
@@ -190,7 +195,8 @@ def fisheye_photo_gap(path: str | os.PathLike[str], lens: str | Lens = "equidist
         from ..io.png import write_label_png  # noqa: PLC0415
         write_label_png(mask_path, labels, (GAP_RGB, PLANT_RGB, OUTSIDE_RGB))
     return FisheyePhoto(p, acc.table(), cam, method, threshold, circle_full, detected, n_in,
-                        n_gap / n_in, labels if keep_labels else None)
+                        n_gap / n_in, labels if keep_labels else None,
+                        acc_lai.table() if acc_lai is not None else None)
 
 
 def _blue_threshold(photo, cam: FisheyeCamera, p: Path) -> float:
@@ -218,23 +224,32 @@ PHOTO_OUTPUTS = (r"fisheye_photo_gap\.csv", r"fisheye_photo_lai\.csv", r".+_fish
 LAI_CSV_COLUMNS = ("photo", "method", "lai", "lai2200_acf", "lai2200_le", "lai2200_difn")
 
 
+def _lai_settings(settings: dict | None) -> dict:
+    from ..config.keys import SECTIONS  # noqa: PLC0415
+    return {**{k: key.default for k, key in SECTIONS["lai_methods"].items()}, **(settings or {})}
+
+
+def lai_spec(settings: dict | None = None) -> tuple[list, int]:
+    """(rings, sectors) the LAI methods read, for ``fisheye_photo_gap(..., lai_spec=...)``."""
+    from .lai_table import method_rings  # noqa: PLC0415
+    s = _lai_settings(settings)
+    return method_rings(s["rings_deg"]), int(s["n_sectors"])
+
+
 def photo_lai(photo: FisheyePhoto, settings: dict | None = None) -> dict[str, float]:
-    """The gap-fraction LAI methods on one classified photo (kept with ``keep_labels``), by the
-    code ``evaluate-photo`` runs on virtual images (:mod:`simlidar_mi.canopy.lai_table`).
+    """The gap-fraction LAI methods on one classified photo (tabulated with ``lai_spec``), by
+    the code ``evaluate-photo`` runs on virtual images (:mod:`simlidar_mi.canopy.lai_table`).
 
     ``settings``: ``[lai_methods]`` keys; default the schema's defaults (rings 0–70° by 10°,
     8 sectors, the PAI-10 floor, no wood correction, the LAI-2200 without a view cap)."""
-    from ..config.keys import SECTIONS  # noqa: PLC0415
-    from .fisheye import gap_table  # noqa: PLC0415
-    from .lai_table import estimate_methods, lai2200_of, method_rings  # noqa: PLC0415
-    s = {k: key.default for k, key in SECTIONS["lai_methods"].items()}
-    s.update(settings or {})
-    if photo.labels is None:
-        raise PhotoError(f"{photo.path}: classify with keep_labels=True to run the LAI methods")
-    coverage = np.where(photo.labels == 2, np.nan, (photo.labels == 1).astype(np.float32))
-    table = gap_table(coverage, photo.camera.pixel_angles(), method_rings(s["rings_deg"]), int(s["n_sectors"]))
-    gaps, n = table.gap[None], table.n_pixels[None].astype(float)
-    est, readings, read_px = estimate_methods(gaps, n, s)
+    from .lai_table import estimate_methods, lai2200_of  # noqa: PLC0415
+    s = _lai_settings(settings)
+    table = photo.lai_table
+    want_rings, want_sectors = lai_spec(s)
+    if table is None or table.gap.shape != (len(want_rings), want_sectors) or not np.array_equal(
+            np.stack([table.ring_lo_deg, table.ring_hi_deg], 1), np.asarray(want_rings, float)):
+        raise PhotoError(f"{photo.path}: classify with lai_spec=lai_spec(settings) to run the LAI methods")
+    est, readings, read_px = estimate_methods(table.gap[None], table.n_pixels[None].astype(float), s)
     out = dict(est[0])
     ins = lai2200_of(readings, read_px, s)
     out.update(lai2200_acf=ins.acf, lai2200_le=ins.lai_effective, lai2200_difn=ins.difn)
@@ -249,7 +264,7 @@ def run_fisheye_photos(paths, out_dir: str | os.PathLike[str] | None = None, *, 
     ``write_masks``, ``<stem>_fisheye_mask.png`` per photo, atomically; with ``lai``,
     ``fisheye_photo_lai.csv``: each photo's LAI by each method (:func:`photo_lai`)."""
     if lai:
-        options["keep_labels"] = True
+        options["lai_spec"] = lai_spec()
     if out_dir is None:
         return [fisheye_photo_gap(p, **options) for p in paths]
     out, results = Path(out_dir), []
@@ -273,6 +288,5 @@ def run_fisheye_photos(paths, out_dir: str | os.PathLike[str] | None = None, *, 
                 lai_rows += [{"photo": r.path.name, "method": m, "lai": v,
                               **(extra if m == "lai2200" else {})} for m, v in est.items()]
                 r.lai = {**est, **extra}
-                r.labels = None  # the LAI is read: free the image-sized array
             write_csv(stage / "fisheye_photo_lai.csv", LAI_CSV_COLUMNS, lai_rows)
     return results

@@ -84,3 +84,24 @@ def test_cli_renders_every_position(tmp_path, capsys):
     rows = list(csv.DictReader(open(tmp_path / "fisheye_gap.csv")))
     totals = [float(r["gap"]) for r in rows if r["sector"] == "all"]
     assert min(totals) < 1.0  # under the leaf layer (camera at the ground), leaves are seen
+
+
+def test_fisheye_exr_reads_in_openimageio(tmp_path):
+    """An independent reader (OpenImageIO: iinfo, oiiotool, GIMP's loader) sees the channels,
+    their float32 values and the lens in the header, as we wrote them."""
+    oiio = pytest.importorskip("OpenImageIO")
+    from simlidar_mi.scene.build import build_scene
+    tri = np.array([[[-2.0, -2.0, 3.0], [2.0, -2.0, 3.0], [0.0, 2.0, 3.0]]])
+    built = build_scene(Branches.empty(), Leaves(tri, np.zeros(1, np.int32), np.zeros(1, np.int32)), [],
+                        origin_m=np.zeros(3))
+    cfg = _cfg('fisheye.layout="points"', "fisheye.points_m=[[0, 0]]", "fisheye.height_m=1.0",
+               "fisheye.resolution=32", "fisheye.spp=1", 'fisheye.projection="FC-E8"')
+    run = run_fisheye(cfg, built, (np.full(3, -2.0), np.full(3, 3.0)), tmp_path)
+    buf = oiio.ImageBuf(str(tmp_path / "fisheye_0.exr"))
+    spec = buf.spec()
+    names = list(spec.channelnames)
+    assert {"coverage", "theta_deg", "azimuth_deg"} <= set(names)
+    assert (spec.width, spec.height) == (32, 32) and spec.format == oiio.FLOAT
+    pixels = buf.get_pixels(oiio.FLOAT)  # (H, W, C)
+    np.testing.assert_array_equal(pixels[..., names.index("coverage")], run.images[0].coverage)
+    assert "FC-E8" in " ".join(str(a.value) for a in spec.extra_attribs)

@@ -209,20 +209,21 @@ def ray_sampler(built, positions_m, n_sectors: int, rays_per_cell: int, seed: in
 def fisheye_sampler(built, cameras, n_sectors: int, *, spp: int = 4, seed: int = 0, progress=None):
     """``sample(rings) -> (gaps, n_pixels)`` from one rendered fisheye image per camera.
 
-    ``gaps`` are the images' solid-angle-weighted cell gap fractions (``GapTable.gap``).
-    Images are rendered once, on the first call.
+    ``gaps`` are the images' solid-angle-weighted cell gap fractions (``GapTable.gap``). Each
+    image is tabulated as soon as it is rendered and dropped: memory holds one image, however
+    many positions.
     """
     from ..canopy.fisheye import render_fisheye  # noqa: PLC0415  (imports Mitsuba)
-    images = []
 
     def sample(rings):
-        if not images:
-            for k, cam in enumerate(cameras):
-                images.append(render_fisheye(built, cam, spp=spp, seed=seed))
-                if progress:
-                    progress(k + 1, len(cameras))
-        tables = [img.table(rings, n_sectors) for img in images]
-        return (np.stack([t.gap for t in tables]), np.stack([t.n_pixels for t in tables]).astype(float))
+        gaps, npix = [], []
+        for k, cam in enumerate(cameras):
+            t = render_fisheye(built, cam, spp=spp, seed=seed).table(rings, n_sectors)
+            gaps.append(t.gap)
+            npix.append(t.n_pixels)
+            if progress:
+                progress(k + 1, len(cameras))
+        return np.stack(gaps), np.stack(npix).astype(float)
     return sample
 
 

@@ -50,6 +50,7 @@ import mitsuba as mi
 import numpy as np
 
 from simlidar_mi.lidar.packets import aligned_span
+from simlidar_mi.plugins.waveform_reader import read_pulses
 
 PLUGIN_NAME = "lidar_range"
 ESCAPE, GROUND, WOOD, LEAF = 0, 1, 2, 3
@@ -218,6 +219,14 @@ class RangeIntegrator(mi.SamplingIntegrator):
             out["cos_incidence"], out["reflectance"] = cos_i, rho
         dr.eval(out)  # one kernel for every output
         return _kept(out, skip, int(beam_count), Q * S, n_traced)
+
+    def read_waveforms(self, traced: dict, n_sub: int, weight: np.ndarray, model) -> dict:
+        """Per beam of :meth:`trace_subrays`' arrays ``traced``: the echo of a beam whose
+        sub-rays meet one surface, read in one kernel (``waveform_reader.read_pulses``; the
+        ``model``'s pulse, threshold, range limits and echo rule), or state 2 for the host."""
+        return read_pulses(traced, n_sub, weight, r_ref_m=model.r_ref_m, pulse_length_ns=model.pulse_length_ns,
+                           detection_threshold=model.detection_threshold, range_min_m=model.range_min_m,
+                           range_max_m=model.range_max_m, echo_rule=model.echo_rule)
 
     def cast_subrays(self, scene: mi.Scene, sensor: mi.Sensor, offsets_rad: np.ndarray,
                      beam_start: int, beam_count: int):

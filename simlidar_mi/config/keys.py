@@ -211,6 +211,11 @@ SECTIONS: dict[str, dict[str, Key]] = {
                          "detection_threshold, later peaks within c·τ/2 of a trigger join it (a "
                          "receiver); 'basin' = peaks merged by single linkage within c·τ/2, kept "
                          "when their integrated energy reaches the threshold (the former rule)"),
+        "waveform_reader": Key(STR, "kernel", one_of("kernel", "numpy"),
+                               "who reads a beam whose sub-rays meet one surface: 'kernel' = a Dr.Jit "
+                               "kernel beside the trace (fast; range, width and amplitude may differ "
+                               "from 'numpy' in their last bits: Dr.Jit's exp and log); 'numpy' = the "
+                               "host detector for every beam (the bits before 0.1.0's kernel)"),
         "noise_model": Key(STR, "snr", one_of("snr", "range"),
                            "'snr': σ = range_noise_m·(width/τ)·sqrt(max(noise_ref_snr/SNR, 1)), SNR = "
                            "threshold_snr·E/detection_threshold (lidar/noise.py); 'range': σ = "

@@ -29,7 +29,7 @@ from ..geometry import CLASS_CODES
 from .noise import apply_range_noise
 from .sensor import SensorModel, subray_offsets
 from .waveform import NO_ID
-from .waveform_fast import detect_subray_echoes, reference_echoes, subray_energy  # noqa: F401
+from .waveform_fast import KERNEL_MAX_SUBRAYS, detect_subray_echoes, kernel_echoes, reference_echoes, subray_energy  # noqa: F401
 
 
 class PhysicalTracer:
@@ -52,6 +52,9 @@ class PhysicalTracer:
         self.n_beams = pattern.n_rows * pattern.n_cols
         self.beam0 = int(beam0)                               # a tile's first beam in the whole scan
         self.per_chunk = max(1, min(int(chunk_beams), int(chunk_rays) // self.n_sub))
+        # Single-surface beams read by the Dr.Jit kernel (plugins/waveform_reader.py) beside the trace
+        self.kernel_reader = (self.energy and model.waveform_reader == "kernel"
+                              and self.n_sub <= KERNEL_MAX_SUBRAYS and hasattr(integrator, "read_waveforms"))
         self.n_chunks = -(-self.n_beams // self.per_chunk)
         self.trace_s = self.echo_s = 0.0
         self.metadata = dict(metadata, sub_rays_per_beam=self.n_sub, seed=self.seed, leg=self.leg)
@@ -78,7 +81,11 @@ class PhysicalTracer:
             out = ahead
             # Views of the kernel's arrays (``out`` lives until the next chunk): read, never edited.
             # All taken before the next launch: .numpy() waits for every kernel queued.
+            read = (self._integrator.read_waveforms(out, n_sub, self._weight, model)
+                    if self.kernel_reader else None)
             host = {k: v.numpy().reshape(n, n_sub) for k, v in out.items()}
+            if read is not None:
+                host["read"] = {k: v.numpy() for k, v in read.items()}
             # The next chunk traces while the host reads this one (the same kernels, the same bits).
             ahead = launch(firsts[i + 1]) if i + 1 < len(firsts) else None
             self.trace_s += time.perf_counter() - t1
@@ -97,7 +104,8 @@ class PhysicalTracer:
                 t1 = time.perf_counter()
                 g0 = self.beam0 + b0
                 echoes = _echoes(model, t, c, e, tr, cos_i, rho, self._weight,
-                                 np.arange(g0, g0 + n, dtype=np.int64), seed=self.seed, leg=self.leg)
+                                 np.arange(g0, g0 + n, dtype=np.int64), seed=self.seed, leg=self.leg,
+                                 read=host.get("read"))
                 self.echo_s += time.perf_counter() - t1
                 first = echoes.return_number == 1
                 beams = echoes.beam[first] - g0
@@ -131,8 +139,12 @@ class PhysicalTracer:
             yield b0, n, part
 
 
-def _echoes(model: SensorModel, t, c, e, tr, cos_i, rho, weight, beam_index, *, seed: int, leg: int):
-    echoes = detect_subray_echoes(model, t, cos_i, rho, c, e, tr, weight, beam_index)
+def _echoes(model: SensorModel, t, c, e, tr, cos_i, rho, weight, beam_index, *, seed: int, leg: int,
+            read: dict | None = None):
+    if read is not None:
+        echoes = kernel_echoes(model, read, t, cos_i, rho, c, e, tr, weight, beam_index)
+    else:
+        echoes = detect_subray_echoes(model, t, cos_i, rho, c, e, tr, weight, beam_index)
     if model.noise:
         echoes = apply_range_noise(echoes, seed=seed, leg=leg, range_noise_m=model.range_noise_m,
                                    range_noise_per_m=model.range_noise_per_m, noise_model=model.noise_model,

@@ -63,6 +63,7 @@ class SensorModel:
     range_noise_m: float = 0.0
     range_noise_per_m: float = 0.0
     echo_rule: str = "amplitude"   # waveform.detect_echoes: "amplitude" or "basin"
+    waveform_reader: str = "kernel"  # single-surface beams read by the Dr.Jit kernel or numpy
     noise_model: str = "snr"       # noise.apply_range_noise: "snr" or "range"
     noise_ref_snr: float = 100.0
     threshold_snr: float = 10.0
@@ -179,7 +180,7 @@ def resolve_sensor(cfg, *, far_range_m: float | None = None,
         range_min_m=float(s["range_min_m"]),
         range_max_m=math.inf if s["range_max_m"] is None else float(s["range_max_m"]),
         range_noise_m=float(s["range_noise_m"]), range_noise_per_m=float(s["range_noise_per_m"]),
-        echo_rule=s["echo_rule"], noise_model=s["noise_model"], noise_ref_snr=float(s["noise_ref_snr"]),
+        echo_rule=s["echo_rule"], waveform_reader=s["waveform_reader"], noise_model=s["noise_model"], noise_ref_snr=float(s["noise_ref_snr"]),
         threshold_snr=float(s["threshold_snr"]), intensity=bool(s["intensity"]), pulse_rate_hz=float(s["pulse_rate_hz"]),
         range_at_10pct_m=float(s["range_at_10pct_m"]), wavelength_nm=s["wavelength_nm"],
         preset=s["preset"], reflectance_wood=float(m["wood"]), reflectance_leaf=float(m["leaf"]),

@@ -31,6 +31,8 @@ from . import waveform as wf
 from .sensor import SensorModel
 from .waveform import Echoes, detect_echoes
 
+#: Sub-rays a beam the Dr.Jit reader takes (plugins/waveform_reader.py ``MAX_SUBRAYS``).
+KERNEL_MAX_SUBRAYS = 32
 #: Key layout of the sort: row | float32 range bits (31) | column.
 _RANGE_BITS = 31
 #: Clusters of one (span, size) read together; smaller groups take the reference's reader.
@@ -229,6 +231,25 @@ def _assemble(parts, flat, beam_index, cls, element_id, tree_id, cos_i, *, echo_
                   (width_m * 2.0 / wf.C_M_S * 1e9).astype(np.float32), take(cls, np.uint8),
                   take(element_id, np.uint32), take(tree_id, np.uint32) if with_tree else None,
                   take(cos_i, np.float32))
+
+
+def kernel_echoes(model, read: dict, t, cos_i, rho, cls, element_id, tree_id, weight, beam_index) -> Echoes:
+    """Echoes of a chunk read by the Dr.Jit kernel (``read``: its per-beam host arrays,
+    ``plugins/waveform_reader.py``): state 1 beams give their one echo as read there, state 2
+    beams go to :func:`reference_echoes` on those rows alone (the detector's result for a beam
+    does not depend on the other beams of the call)."""
+    beam_index = np.asarray(beam_index, np.int64).reshape(-1)
+    state = read["state"]
+    one = np.flatnonzero(state == 1)
+    ones = np.ones(len(one), np.uint8)
+    fast = Echoes(beam_index[one], ones, ones.copy(), read["range_m"][one], read["energy"][one].astype(np.float32),
+                  read["width_ns"][one], read["cls"][one].astype(np.uint8), read["element_id"][one],
+                  read["tree_id"][one] if tree_id is not None else None, read["cos_incidence"][one])
+    slow = np.flatnonzero(state == 2)
+    if len(slow) == 0:
+        return fast
+    ref = _reference_rows(model, slow, t, cos_i, rho, cls, element_id, tree_id, weight, beam_index)
+    return Echoes.concat([fast, ref]) if len(fast) else ref
 
 
 def _reference_rows(model, rows, t, cos_i, rho, cls, element_id, tree_id, weight, beam_index) -> Echoes:

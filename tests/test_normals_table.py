@@ -42,3 +42,31 @@ def test_table_normals_match_surface_interaction(scene, sets, monkeypatch):
     np.testing.assert_array_equal(ref["t"].numpy(), got["t"].numpy())
     np.testing.assert_allclose(b[veg], a[veg], atol=2e-5)
     np.testing.assert_array_equal(a[~veg], b[~veg])  # ground and escapes untouched
+
+
+def test_table_normals_are_numpys_float64_normals():
+    """The Dr.Jit kernel of BuiltScene.prim_normals gives the bits of numpy's float64 cross
+    product and norm (its former code), degenerate triangles (zero normal) included."""
+    cfg = load_scene("scenes/apple_orchard.toml", ["orchard.n_trees=2"])
+    geo = generate(cfg)
+    lo, hi = geo.bounds_m()
+    built = build(cfg, geo, scan_patterns(cfg, lo, hi, geo.near_x_m))
+    mi = mitsuba(cfg["scene"]["variant"])
+    zero = mi.Mesh("zero", 3, 2)  # a degenerate triangle beside a real one
+    params = mi.traverse(zero)
+    params["vertex_positions"] = mi.Float(np.array([0, 0, 0, 1, 0, 0, 0, 1, 0], np.float32))
+    params["faces"] = mi.UInt32(np.array([0, 1, 1, 0, 1, 2], np.uint32))
+    params.update()
+    built.prim_shapes = [*built.prim_shapes, zero]
+    got = built.prim_normals()
+    parts = []
+    for mesh in built.prim_shapes:
+        p = mi.traverse(mesh)
+        v = p["vertex_positions"].numpy().reshape(-1, 3).astype(np.float64)
+        f = p["faces"].numpy().reshape(-1, 3)
+        n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        norm = np.linalg.norm(n, axis=1, keepdims=True)
+        parts.append(np.divide(n, norm, out=np.zeros_like(n), where=norm > 0).astype(np.float32))
+    ref = np.concatenate(parts)
+    assert len(ref) > 10_000 and np.array_equal(ref[-2:], [[0, 0, 0], [0, 0, 1]])
+    assert np.array_equal(got.view(np.uint32), ref.view(np.uint32))

@@ -121,15 +121,27 @@ class BuiltScene:
         compiles one function per instance (minutes for a forest of a thousand trees)."""
         if not self.prim_shapes or any(m is None for m in self.prim_shapes):
             return None
-        import mitsuba as mi  # noqa: PLC0415  (the variant is set: the scene exists)
+        import drjit as dr  # noqa: PLC0415  (the variant is set: the scene exists)
+        import mitsuba as mi  # noqa: PLC0415
         parts = []
         for mesh in self.prim_shapes:
+            # One Dr.Jit kernel a mesh (2.4 M triangles: ~0.05 s against numpy's ~0.7 s): the
+            # float64 cross product and norm of numpy's np.cross / np.linalg.norm, operation by
+            # operation (Dr.Jit contracts no a·b − c·d into an fma), so the same float32 bits
             params = mi.traverse(mesh)
-            v = params["vertex_positions"].numpy().reshape(-1, 3).astype(np.float64)
-            f = params["faces"].numpy().reshape(-1, 3)
-            n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-            norm = np.linalg.norm(n, axis=1, keepdims=True)
-            parts.append(np.divide(n, norm, out=np.zeros_like(n), where=norm > 0).astype(np.float32))
+            v, f = params["vertex_positions"], params["faces"]
+            idx = dr.arange(mi.UInt32, dr.width(f) // 3) * 3
+            corner = []
+            for k in range(3):
+                vi = dr.gather(mi.UInt32, f, idx + k) * 3
+                corner.append([mi.Float64(dr.gather(mi.Float, v, vi + j)) for j in range(3)])
+            a = [corner[1][j] - corner[0][j] for j in range(3)]
+            b = [corner[2][j] - corner[0][j] for j in range(3)]
+            n = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+            norm = dr.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+            unit = [mi.Float(dr.select(norm > 0, c / norm, 0.0)) for c in n]
+            dr.eval(unit)
+            parts.append(np.stack([c.numpy() for c in unit], axis=1))
         return np.concatenate(parts) if parts else np.zeros((1, 3), np.float32)
 
     def integrator_tables(self) -> dict:

@@ -17,9 +17,10 @@ the log-parabola vertex, the half-height walk and the echo rule.  Each beam gets
   several clusters or peaks, or a window reading that fails): the host's detector reads it.
 
 The arithmetic is the reference's, operation by operation, in float64, with two exceptions
-that change low bits only: ``exp`` and ``log`` are Dr.Jit's (not numpy's), so the range,
-width and amplitude of an echo can differ from the numpy reader's in their last bits (the
-energy, class, ids and incidence are exact: they use no exp).  The numpy reader stays
+that change low bits only: ``exp`` and ``log`` are Dr.Jit's (not numpy's), and a sub-ray's
+pulse term is stepped from bin to bin by products (two ``exp`` a sub-ray, not one a bin), so
+the range, width and amplitude of an echo can differ from the numpy reader's in their last
+bits (at most 1e-12 m; the energy, class, ids and incidence are exact: they use no exp).  The numpy reader stays
 selectable (``[sensor] waveform_reader = "numpy"``); ``tests/test_waveform_kernel.py``
 measures the difference.
 """

@@ -10,7 +10,10 @@ chunk_beams``) and ``chunk_rays`` sub-rays (at least one beam) at a time:
    (:func:`~simlidar_mi.lidar.waveform_fast.subray_energy`, the law of :mod:`~simlidar_mi.lidar.sensor`), the echoes come from
    :func:`~simlidar_mi.lidar.waveform.detect_echoes` (read from the trace's float32 arrays by
    :func:`~simlidar_mi.lidar.waveform_fast.detect_subray_echoes`, the same bits as
-   :func:`~simlidar_mi.lidar.waveform_fast.reference_echoes`) and range noise from :mod:`~simlidar_mi.lidar.noise`, keyed by
+   :func:`~simlidar_mi.lidar.waveform_fast.reference_echoes`; under ``waveform_reader =
+   "kernel"`` the beams whose sub-rays meet one surface are read by the Dr.Jit kernel of
+   ``plugins/waveform_reader.py`` right after the trace and only the others on the host,
+   :func:`~simlidar_mi.lidar.waveform_fast.kernel_echoes`) and range noise from :mod:`~simlidar_mi.lidar.noise`, keyed by
    (seed, leg, beam, return number); echo 1 gives the first-return arrays;
 3. without (range limits alone, or divergence with ``detection = "nearest"``), a beam's first
    return is its nearest sub-ray inside [range_min_m, range_max_m] (under ``hit_rule =

@@ -426,8 +426,9 @@ class _ScanStages:
                                      results if len(results) > 1 else results[0], stage / "points.las")
                     jobs.callback(las_job.close)
                 measures = self.measures()
-                self._write_images(stage, files, write_png=write_png,
-                                   threads=1 if las_job is not None and las_job.child is not None else 2)
+                # two EXR threads even beside the LAS child: a core is never idle when one writer
+                # ends first (fwf, 76 channels: 3.97 -> 2.44 s; single ray 0.41 -> 0.35 s, §8f)
+                self._write_images(stage, files, write_png=write_png, threads=2)
             if las_job is not None:
                 las_job.wait()
                 files["las"] = out_dir / "points.las"

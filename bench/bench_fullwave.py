@@ -80,8 +80,11 @@ def child(kind: str, rows: int | None) -> dict:
 
 def _spawn(repo: Path, args: list[str]) -> dict:
     py = repo / ".venv" / "bin" / "python"
+    # OpenBLAS with one thread, as the simlidar-mi command sets it (_runtime/signals.py): its idle
+    # workers spin after each hit-fraction product and took ~40 % of the scan from Dr.Jit's threads
+    env = dict(os.environ, PYTHONPATH=str(repo), OPENBLAS_NUM_THREADS=os.environ.get("OPENBLAS_NUM_THREADS", "1"))
     out = subprocess.run([str(py), str(Path(__file__).resolve()), *args], cwd=repo, check=True,
-                         capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(repo)))
+                         capture_output=True, text=True, env=env)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 

@@ -92,10 +92,26 @@ def read_pulses(out: dict, n_sub: int, weight, *, r_ref_m: float, pulse_length_n
     docstring), and for state 1 ``range_m`` (Float64), ``energy`` (Float64), ``width_ns``
     (Float32), ``height`` (Float64), ``cls`` (UInt32), ``element_id``, ``tree_id`` (UInt32) and
     ``cos_incidence`` (Float32) of the echo.  One kernel, evaluated."""
-    Float64, Float32, UInt32, Int32 = mi.Float64, mi.Float32, mi.UInt32, mi.Int32
     S = int(n_sub)
     if S > MAX_SUBRAYS:
         raise ValueError(f"the waveform kernel reads at most {MAX_SUBRAYS} sub-rays a beam, got {S}")
+    if echo_rule not in ("amplitude", "basin"):
+        raise ValueError(f"echo_rule must be 'amplitude' or 'basin', got {echo_rule!r}")
+    arrays = {k: out[k] for k in ("t", "reflectance", "cos_incidence", "class", "element_id", "tree_id") if k in out}
+    lane = dr.arange(mi.UInt32, dr.width(out["t"]) // S)
+    settings = (S, tuple(float(w) for w in weight), float(r_ref_m), float(pulse_length_ns),
+                float(detection_threshold), float(range_min_m), float(range_max_m), echo_rule)
+    res = _read(arrays, lane, settings)
+    dr.eval(res)
+    return res
+
+
+@dr.freeze
+def _read(out: dict, lane, settings: tuple) -> dict:
+    """The kernel of :func:`read_pulses`, frozen: traced once per settings and array types (~2,000
+    operations, ~10 ms of Python a chunk otherwise), then replayed on each chunk's arrays."""
+    S, weight, r_ref_m, pulse_length_ns, detection_threshold, range_min_m, range_max_m, echo_rule = settings
+    Float64, Float32, UInt32, Int32 = mi.Float64, mi.Float32, mi.UInt32, mi.Int32
     fwhm = C_M_S * float(pulse_length_ns) * 1e-9 / 2.0
     sigma = fwhm * (1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0))))
     h = fwhm / BINS_PER_FWHM
@@ -104,8 +120,6 @@ def read_pulses(out: dict, n_sub: int, weight, *, r_ref_m: float, pulse_length_n
     lead = (kb + 1) * h
     rref2 = float(r_ref_m) ** 2
     t32 = out["t"]
-    n = dr.width(t32) // S
-    lane = dr.arange(UInt32, n)
     base = lane * S
 
     # Valid sub-rays and their energies (waveform_fast._energy, the same operations).
@@ -183,7 +197,7 @@ def read_pulses(out: dict, n_sub: int, weight, *, r_ref_m: float, pulse_length_n
     for t in range(_T_MAX):
         inside = t < T
         last = T == t + 1
-        nxt_down = up[t + 1] < 0 if t + 1 < _T_MAX else dr.full(dr.mask_t(Int32), False, n)
+        nxt_down = up[t + 1] < 0 if t + 1 < _T_MAX else (up[t] != up[t])  # past the last bin: never
         is_max = inside & (up[t] > 0) & (last | nxt_down)
         p = dr.select(is_max & (count == 0), t, p)
         count += dr.select(is_max, 1, 0)
@@ -223,5 +237,4 @@ def read_pulses(out: dict, n_sub: int, weight, *, r_ref_m: float, pulse_length_n
     if "tree_id" in out:
         res["tree_id"] = dr.gather(UInt32, out["tree_id"], src)
     res["cos_incidence"] = dr.gather(Float32, out["cos_incidence"], src)
-    dr.eval(res)
     return res

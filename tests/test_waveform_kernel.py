@@ -92,6 +92,25 @@ def test_random_beams_read_as_numpy_reads_them(s, rule):
             assert np.count_nonzero(state == 1) > 0.3 * len(t)
 
 
+def test_the_frozen_kernel_follows_each_call():
+    """The kernel is frozen (traced once, replayed): calls of other widths, tree ids or no tree
+    ids, and other settings in one process read each beam as a call of its own does."""
+    t, cos_i, rho, cls, elem, tree, weight, beam = _random_case(19, seed=7)
+    model = SensorModel(divergence_mrad=1.0, beam_samples=19, max_returns=3)
+    whole = _read(model, t, cos_i, rho, cls, elem, tree, weight)
+    for a, b in ((0, 777), (777, len(t)), (5, 6), (0, 777)):
+        part = _read(model, t[a:b], cos_i[a:b], rho[a:b], cls[a:b], elem[a:b], tree[a:b], weight)
+        for k, v in part.items():
+            assert np.array_equal(v, whole[k][a:b]), (a, b, k)
+    basin = replace(model, echo_rule="basin", detection_threshold=0.05)
+    other = _read(basin, t[:500], cos_i[:500], rho[:500], cls[:500], elem[:500], None, weight)
+    ref = reference_echoes(basin, t[:500].astype(np.float64), cls[:500], elem[:500], None,
+                           cos_i[:500].astype(np.float64), rho[:500].astype(np.float64), weight, np.arange(500))
+    _assert_close(ref, kernel_echoes(basin, other, t[:500], cos_i[:500], rho[:500], cls[:500], elem[:500], None,
+                                     weight, np.arange(500)))
+    assert "tree_id" not in other
+
+
 def test_tied_energies_keep_the_nearest_sub_ray():
     """Equal energies (equal ranges, reflectances and incidences): the strongest is the nearest,
     then the lowest column (the reference's stable order)."""

@@ -131,8 +131,12 @@ def test_obj_holds_the_native_triangles(bh, ex):
 
 @pytest.mark.skipif(not os.environ.get("HELIOS"), reason="needs HELIOS=/path/to/helios++")
 def test_helios_fires_our_pulses(bh, ex):
-    assets = [os.environ["HELIOS_ASSETS"]] if os.environ.get("HELIOS_ASSETS") else []  # its spectra/
+    # its --assets folders (v2.0.2: the source tree, python/pyhelios and python/pyhelios/data), ':'-separated
+    assets = [p for p in os.environ.get("HELIOS_ASSETS", "").split(os.pathsep) if p]
     res = bh.run_helios(ex, "single", os.environ["HELIOS"], pulse_log=True, assets=assets)
     chk = res["pulse_check"]
     assert chk["helios_pulses"] == chk["our_pulses"] == 3 * 601
     assert chk["max_origin_gap_m"] < 1e-3 and chk["max_direction_gap"] < 1e-3
+    # from its scene cache (run_helios checks HELIOS's log says which): the same points
+    cached = bh.run_helios(ex, "single", os.environ["HELIOS"], assets=assets, cached=True)
+    assert {k: cached[k] for k in ("wood", "ground", "points")} == {k: res[k] for k in ("wood", "ground", "points")}

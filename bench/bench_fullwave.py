@@ -10,13 +10,18 @@ settings of the side-by-side with HELIOS++):
 - ``scan``: the held scan (sub-rays, energies, echoes, first-return arrays), with its set-up
   (the table of triangle normals; "loop" leaves it out); ``--other REPO`` also scans with another checkout's code
   (``REPO/.venv/bin/python``, e.g. the main branch) in the same rounds;
+- ``numpy`` (``--numpy-reader``): the held scan with ``[sensor] waveform_reader = "numpy"``
+  (every beam read by the host's numpy detector, the bits before the Dr.Jit reader);
 - ``single``: the single-ray scan of the same pulses without ``[sensor]`` (one ray a pulse);
-- ``--end-to-end``: the ``simlidar-mi scan`` command (every file), this checkout and ``--other``.
+- ``--end-to-end``: the ``simlidar-mi scan`` command (every file), this checkout (and with the
+  numpy reader) and ``--other``.
+
+Children run OpenBLAS on one thread, as the ``simlidar-mi`` command does.
 
 Each figure runs in its own process (peak RSS per process), after an untimed warm-up of a few
 rows in that process; kinds alternate round by round so ratios are taken pair by pair.
 
-    .venv/bin/python bench/bench_fullwave.py [--rows 416] [--repeat 3] [--other /work/main] [--end-to-end]
+    .venv/bin/python bench/bench_fullwave.py [--rows 416] [--repeat 3] [--numpy-reader] [--other /work/main] [--end-to-end]
 """
 from __future__ import annotations
 
@@ -35,6 +40,7 @@ SCENE = "scenes/simlidar_table3_7x4.toml"
 SETS = ["scan.theta_min_deg=-70.25", "scan.theta_max_deg=80.0", "scan.y_start_m=-1.5", "scan.y_end_m=6.9",
         "sensor.divergence_mrad=0.3", "sensor.beam_samples=19", "sensor.max_returns=5", "sensor.intensity=true"]
 SINGLE_SETS = SETS[:4]
+NUMPY_SETS = [*SETS, 'sensor.waveform_reader="numpy"']  # every beam read on the host (--numpy-reader)
 WARM_ROWS = 8
 
 
@@ -47,7 +53,7 @@ def child(kind: str, rows: int | None) -> dict:
     from simlidar_mi.config import load_scene  # noqa: PLC0415
     from simlidar_mi.lidar.scan import physical_tracer, scan  # noqa: PLC0415
     from simlidar_mi.lidar.survey import build, generate, scan_patterns, scene_sensor  # noqa: PLC0415
-    cfg = load_scene(SCENE, SINGLE_SETS if kind == "single" else SETS)
+    cfg = load_scene(SCENE, {"single": SINGLE_SETS, "numpy": NUMPY_SETS}.get(kind, SETS))
     g = generate(cfg)
     lo, hi = g.bounds_m()
     pats = scan_patterns(cfg, lo, hi, g.near_x_m)
@@ -58,7 +64,7 @@ def child(kind: str, rows: int | None) -> dict:
     tracer = physical_tracer(built, pats[0], model, rows=(0, n_rows)) if kind == "raw" else None
 
     def run(r):
-        if kind != "raw":
+        if kind != "raw":  # scan, numpy, single
             res = scan(built, pats[0], sensor=model, seed=cfg.seed, rows=(0, r))
             return res.range_m.size, (len(res.echoes) if res.echoes is not None else None), res.seconds
         tr = tracer  # made before the clock starts (its normal table is the scan's set-up)
@@ -88,9 +94,9 @@ def _spawn(repo: Path, args: list[str]) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def _end_to_end(repo: Path, out_dir: Path) -> dict:
+def _end_to_end(repo: Path, out_dir: Path, sets: list[str] = SETS) -> dict:
     exe = repo / ".venv" / "bin" / "simlidar-mi"
-    cmd = [str(exe), "scan", SCENE, "--out", str(out_dir)] + [a for s in SETS for a in ("--set", s)]
+    cmd = [str(exe), "scan", SCENE, "--out", str(out_dir)] + [a for s in sets for a in ("--set", s)]
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, cwd=repo, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     _, status, usage = os.wait4(proc.pid, 0)
@@ -107,12 +113,14 @@ def _load() -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--one", choices=("raw", "scan", "single"), help=argparse.SUPPRESS)
+    ap.add_argument("--one", choices=("raw", "scan", "numpy", "single"), help=argparse.SUPPRESS)
     ap.add_argument("--rows", type=int, default=None, help="sweeps to scan (default: all 4200)")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--other", type=Path, default=None, help="another checkout to scan with (its .venv)")
     ap.add_argument("--end-to-end", action="store_true", help="also time the simlidar-mi scan command")
     ap.add_argument("--no-single", action="store_true")
+    ap.add_argument("--numpy-reader", action="store_true",
+                    help="also scan with [sensor] waveform_reader = \"numpy\" (every beam read on the host)")
     a = ap.parse_args()
     if a.one:
         print(json.dumps(child(a.one, a.rows)))
@@ -121,7 +129,8 @@ def main() -> None:
     from _machine import machine  # noqa: PLC0415
     print(machine())
     rows = ["--rows", str(a.rows)] if a.rows else []
-    kinds = [("raw", REPO), ("scan", REPO)] + ([("scan", a.other)] if a.other else [])
+    kinds = ([("raw", REPO), ("scan", REPO)] + ([("numpy", REPO)] if a.numpy_reader else [])
+             + ([("scan", a.other)] if a.other else []))
     if not a.no_single:
         kinds += [("single", REPO)] + ([("single", a.other)] if a.other else [])
     figs: dict[tuple, list] = {}
@@ -149,12 +158,14 @@ def main() -> None:
     if a.end_to_end:
         e2e: dict[str, list] = {}
         with tempfile.TemporaryDirectory() as tmp:
+            runs = ([(REPO.name, REPO, SETS)] + ([(f"{REPO.name} (numpy reader)", REPO, NUMPY_SETS)] if a.numpy_reader else [])
+                    + ([(a.other.name, a.other, SETS)] if a.other else []))
             for r in range(a.repeat):
-                for repo in [REPO] + ([a.other] if a.other else []):
+                for name, repo, sets in runs:
                     load = _load()
-                    f = _end_to_end(repo, Path(tmp) / f"{repo.name}{r}")
-                    e2e.setdefault(repo.name, []).append(f)
-                    print(f"end to end round {r}: {repo.name:10s} {f['seconds']:7.2f} s  rss {f['rss_mb']:6.0f} MB  "
+                    f = _end_to_end(repo, Path(tmp) / f"{len(e2e)}_{r}", sets)
+                    e2e.setdefault(name, []).append(f)
+                    print(f"end to end round {r}: {name:10s} {f['seconds']:7.2f} s  rss {f['rss_mb']:6.0f} MB  "
                           f"echoes {f['echoes']}  load {load}", flush=True)
         print("\n| end to end (simlidar-mi scan, every file) | seconds (median) | peak RSS MB | echoes |")
         print("|---|---|---|---|")

@@ -50,7 +50,7 @@ import mitsuba as mi
 import numpy as np
 
 from simlidar_mi.lidar.packets import aligned_span
-from simlidar_mi.plugins.waveform_reader import read_pulses
+from simlidar_mi.plugins.waveform_reader import MAX_SUBRAYS, read_pulses
 
 PLUGIN_NAME = "lidar_range"
 ESCAPE, GROUND, WOOD, LEAF = 0, 1, 2, 3
@@ -219,6 +219,9 @@ class RangeIntegrator(mi.SamplingIntegrator):
             out["cos_incidence"], out["reflectance"] = cos_i, rho
         dr.eval(out)  # one kernel for every output
         return _kept(out, skip, int(beam_count), Q * S, n_traced)
+
+    #: Sub-rays a beam :meth:`read_waveforms` takes (wider beams: the host reads them).
+    read_max_subrays = MAX_SUBRAYS
 
     def read_waveforms(self, traced: dict, n_sub: int, weight: np.ndarray, model) -> dict:
         """Per beam of :meth:`trace_subrays`' arrays ``traced``: the echo of a beam whose

@@ -143,17 +143,15 @@ def _read(out: dict, lane, settings: tuple) -> dict:
         e[a], e[b] = dr.select(swap, e[b], e[a]), dr.select(swap, e[a], e[b])
         col[a], col[b] = dr.select(swap, col[b], col[a]), dr.select(swap, col[a], col[b])
     valid = [dr.isfinite(x) for x in r]
-    n_valid = UInt32(0)
     c_energy = Float64(0.0)
     r_max = Float64(-dr.inf)
     best, best_e = UInt32(0), Float64(-1.0)
     for m in range(S):
-        n_valid += dr.select(valid[m], 1, 0)
         c_energy = dr.select(valid[m], c_energy + e[m], c_energy)
         r_max = dr.select(valid[m], r[m], r_max)
         top = valid[m] & (e[m] > best_e)  # the first of the most energy: ties keep the nearest
         best, best_e = dr.select(top, col[m], best), dr.select(top, e[m], best_e)
-    alive = (n_valid > 0) & (c_energy >= detection_threshold) & (c_energy > 0)
+    alive = (c_energy >= detection_threshold) & (c_energy > 0)  # > 0: some sub-ray is valid
 
     lo = r[0] - lead
     nj, frac = [], []

@@ -32,7 +32,7 @@ from ..geometry import CLASS_CODES
 from .noise import apply_range_noise
 from .sensor import SensorModel, subray_offsets
 from .waveform import NO_ID
-from .waveform_fast import KERNEL_MAX_SUBRAYS, detect_subray_echoes, kernel_echoes, reference_echoes, subray_energy  # noqa: F401
+from .waveform_fast import detect_subray_echoes, kernel_echoes, reference_echoes, subray_energy  # noqa: F401
 
 
 class PhysicalTracer:
@@ -57,7 +57,7 @@ class PhysicalTracer:
         self.per_chunk = max(1, min(int(chunk_beams), int(chunk_rays) // self.n_sub))
         # Single-surface beams read by the Dr.Jit kernel (plugins/waveform_reader.py) beside the trace
         self.kernel_reader = (self.energy and model.waveform_reader == "kernel"
-                              and self.n_sub <= KERNEL_MAX_SUBRAYS and hasattr(integrator, "read_waveforms"))
+                              and self.n_sub <= getattr(integrator, "read_max_subrays", 0))
         self.n_chunks = -(-self.n_beams // self.per_chunk)
         self.trace_s = self.echo_s = 0.0
         self.metadata = dict(metadata, sub_rays_per_beam=self.n_sub, seed=self.seed, leg=self.leg)
@@ -87,8 +87,7 @@ class PhysicalTracer:
             read = (self._integrator.read_waveforms(out, n_sub, self._weight, model)
                     if self.kernel_reader else None)
             host = {k: v.numpy().reshape(n, n_sub) for k, v in out.items()}
-            if read is not None:
-                host["read"] = {k: v.numpy() for k, v in read.items()}
+            read_h = None if read is None else {k: v.numpy() for k, v in read.items()}
             # The next chunk traces while the host reads this one (the same kernels, the same bits).
             ahead = launch(firsts[i + 1]) if i + 1 < len(firsts) else None
             self.trace_s += time.perf_counter() - t1
@@ -108,7 +107,7 @@ class PhysicalTracer:
                 g0 = self.beam0 + b0
                 echoes = _echoes(model, t, c, e, tr, cos_i, rho, self._weight,
                                  np.arange(g0, g0 + n, dtype=np.int64), seed=self.seed, leg=self.leg,
-                                 read=host.get("read"))
+                                 read=read_h)
                 self.echo_s += time.perf_counter() - t1
                 first = echoes.return_number == 1
                 beams = echoes.beam[first] - g0

@@ -31,8 +31,6 @@ from . import waveform as wf
 from .sensor import SensorModel
 from .waveform import Echoes, detect_echoes
 
-#: Sub-rays a beam the Dr.Jit reader takes (plugins/waveform_reader.py ``MAX_SUBRAYS``).
-KERNEL_MAX_SUBRAYS = 32
 #: Key layout of the sort: row | float32 range bits (31) | column.
 _RANGE_BITS = 31
 #: Clusters of one (span, size) read together; smaller groups take the reference's reader.

@@ -532,6 +532,11 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:  # the program itself, not a caller's main([...]): process-wide settings
         start_program()
     args = build_parser().parse_args(argv)
+    for dest in ("out", "mask_dir"):  # an empty path would silently mean the current folder
+        if isinstance(getattr(args, dest, None), str) and not getattr(args, dest).strip():
+            print(f"simlidar-mi {args.command}: error: --{dest.replace('_', '-')} {getattr(args, dest)!r} "
+                  "names no output: give a path ('.' for the current folder)", file=sys.stderr)
+            return 2
     raise_on_interrupt()  # from here Ctrl-C and SIGTERM unwind, so staging folders and locks go
     try:
         with warnings.catch_warnings():

@@ -147,6 +147,9 @@ def parse_override(item: str) -> tuple[str, Any]:
     """'scan.dtheta_deg=0.5' → ('scan.dtheta_deg', 0.5); values are TOML, bare words strings."""
     if "=" not in item:
         raise ConfigError("an override must look like section.key=value", key="--set", value=item)
+    if "\n" in item or "\r" in item:  # TOML ends the value there and reads the rest as more lines
+        raise ConfigError("an override is one line: it holds a line break, and what follows it would be "
+                          "dropped; give each key its own --set", key="--set", value=item)
     key, raw = item.split("=", 1)
     key, raw = key.strip(), raw.strip()
     try:

@@ -18,6 +18,17 @@ their copy of the lock (:func:`forget_claims_after_fork`); a lock still held alt
 the process it names on this host is gone (an orphan that inherited it) is taken over,
 with a warning.
 
+Links are never followed in the folder: the lock file is opened with ``O_NOFOLLOW`` and
+must be a regular file with one link (else :class:`OutputError`, one line), temporary files
+are made with ``O_EXCL`` and renamed over whatever name is there (a symbolic link at an
+output's name is replaced, never written through), and removals unlink names.  Only
+outputs that an earlier run here recorded as its own are removed: each file or folder a run
+moves into place carries the extended attribute ``user.simlidar-mi.output`` with its size
+and modification time; one whose record is missing or no longer matches (a user's file of
+the same name, one changed since, a file system without extended attributes) is left where
+it is, with a one-line note.  (The output folder given by the user may itself be a link: it
+is resolved once, when claimed.)
+
 A write that fails for want of space (``ENOSPC``, a quota, or a library's own words for
 it, such as HDF5's "NetCDF: HDF error" on a full disk) raises :class:`OutputError`
 saying "no space left" and naming the folder; the earlier outputs stay as they were.
@@ -35,6 +46,7 @@ import os
 import re
 import shutil
 import socket
+import stat
 import sys
 import tempfile
 import threading
@@ -49,6 +61,9 @@ from ..errors import OutputError, SimlidarError, SimlidarWarning
 log = logging.getLogger(__name__)
 
 LOCK_NAME = ".simlidar-mi.lock"
+#: The extended attribute that marks a file or folder as an output a run moved into place
+#: (its size and modification time then, as JSON): the record that lets a later run remove it.
+OUTPUT_XATTR = "user.simlidar-mi.output"
 _STAGE_RE = re.compile(r"\.partial-(\d+)-[^/]*")       # staged_dir's folders
 _TMP_RE = re.compile(r"\..+\.(\d+)-[^./]*\.partial")  # atomic_file's temporary files
 _claims: dict[Path, list] = {}  # resolved folder -> [lock fd, depth, created]: reentrant per process
@@ -58,8 +73,16 @@ _claims_lock = threading.Lock()
 # --- checking and claiming a folder ------------------------------------------------------
 
 
+def _check_named(where: str | Path, what: str) -> None:
+    """An empty name (``Path("")`` is ``.``) would silently mean the current folder: refuse it."""
+    if isinstance(where, (str, bytes)) and not where.strip():
+        raise OutputError(f"the output {what} is given as {where!r}, which names nothing: give a path "
+                          "('.' for the current folder)")
+
+
 def check_output_dir(out_dir: str | Path) -> None:
     """Raise :class:`OutputError` unless ``out_dir`` is a writable folder or can be made one."""
+    _check_named(out_dir, "folder")
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise OutputError(f"output folder {out} exists and is not a folder")
@@ -77,6 +100,7 @@ def check_output_dir(out_dir: str | Path) -> None:
 
 def check_output_file(path: str | Path) -> None:
     """Raise :class:`OutputError` unless ``path`` can be written as a file."""
+    _check_named(path, "file")
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"output file {path} is a folder")
@@ -93,9 +117,21 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def _read_nofollow(path: Path, limit: int = 1 << 16) -> bytes:
+    """The first ``limit`` bytes of the regular file ``path``, its last component never
+    followed as a link (OSError when it is one, or not a regular file)."""
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise OSError(errno.EINVAL, "not a regular file", str(path))
+        return os.read(fd, limit)
+    finally:
+        os.close(fd)
+
+
 def _owner_text(lock_path: Path) -> str:
     try:
-        info = json.loads(lock_path.read_text(encoding="utf-8"))
+        info = json.loads(_read_nofollow(lock_path).decode("utf-8"))
         return (f"process {info['pid']} on {info['host']} ({info['command']}, "
                 f"since {info['started']})")
     except (OSError, ValueError, KeyError, TypeError):
@@ -125,7 +161,7 @@ def _take_over(out: Path, path: Path, fd: int) -> bool:
         fcntl.flock(dir_fd, fcntl.LOCK_EX)
         pid = _stale_owner(fd)
         try:
-            same = pid is not None and os.fstat(fd).st_ino == os.stat(path).st_ino
+            same = pid is not None and os.fstat(fd).st_ino == os.lstat(path).st_ino
         except FileNotFoundError:
             return True  # its holder removed it meanwhile: try again
         if not same:
@@ -138,15 +174,35 @@ def _take_over(out: Path, path: Path, fd: int) -> bool:
     return True
 
 
+def _open_lock_file(out: Path, path: Path) -> int:
+    """Open (or make) the lock file without following a link; refuse one that is a link, not
+    a regular file, or a hard link to another name (writing it would change that file)."""
+    try:  # O_NONBLOCK: a FIFO planted at the name must not hang the open
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, 0o644)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise OutputError(f"lock file {path} is a symbolic link: refusing to follow it (it is not "
+                              "this program's); remove it, or use another output folder") from None
+        if exc.errno in (errno.EISDIR, errno.ENXIO):
+            raise OutputError(f"lock file {path} is not a regular file: remove it, or use another "
+                              "output folder") from None
+        raise OutputError(f"output folder {out} is not writable ({exc.strerror})") from exc
+    st = os.fstat(fd)
+    why = ("is not a regular file" if not stat.S_ISREG(st.st_mode) else
+           f"has {st.st_nlink} hard links (another name shares it)" if st.st_nlink != 1 else None)
+    if why is not None:
+        os.close(fd)
+        raise OutputError(f"lock file {path} {why}: refusing to write it; remove it, or use "
+                          "another output folder")
+    return fd
+
+
 def _take_lock(out: Path) -> int:
     """flock ``out/LOCK_NAME`` for this process; its fd.  Refuses when another holds it,
     unless the process the lock names is gone (:func:`_take_over`)."""
     path = out / LOCK_NAME
     while True:
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise OutputError(f"output folder {out} is not writable ({exc.strerror})") from exc
+        fd = _open_lock_file(out, path)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
@@ -160,7 +216,7 @@ def _take_lock(out: Path) -> int:
             raise OutputError(f"output folder {out} is in use by {_owner_text(path)}; wait for "
                               f"it to finish or use another folder (lock file {path})") from None
         try:  # the holder before us may have removed the file as we opened it: retry
-            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+            same = os.fstat(fd).st_ino == os.lstat(path).st_ino
         except FileNotFoundError:
             same = False
         if same:
@@ -260,6 +316,7 @@ def claim_output(out_dir: str | Path) -> Iterator[Path]:
     Reentrant within a process (a run calling another run, or :func:`staged_dir`, on the
     same folder).  On exit the lock file goes; a folder this claim created is removed
     again if it is still empty."""
+    _check_named(out_dir, "folder")
     out = Path(out_dir)
     check_output_dir(out)
     key = out.resolve()
@@ -268,9 +325,14 @@ def claim_output(out_dir: str | Path) -> Iterator[Path]:
         if held is not None:
             held[1] += 1
         else:
-            created = not out.exists()
+            created = False
             try:
-                out.mkdir(parents=True, exist_ok=True)
+                out.parent.mkdir(parents=True, exist_ok=True)
+                os.mkdir(out)  # not exist_ok: a name that appeared meanwhile is not taken for ours
+                created = True
+            except FileExistsError:
+                if not out.is_dir():
+                    raise OutputError(f"output folder {out} exists and is not a folder") from None
             except OSError as exc:
                 raise OutputError(f"cannot make output folder {out} ({exc.strerror})") from exc
             try:
@@ -291,8 +353,9 @@ def claim_output(out_dir: str | Path) -> Iterator[Path]:
             held[1] -= 1
             if held[1] == 0:
                 del _claims[key]
-                with contextlib.suppress(OSError):
-                    (out / LOCK_NAME).unlink()  # while still locked: see _take_lock's retry
+                with contextlib.suppress(OSError):  # while still locked: see _take_lock's retry
+                    if os.lstat(out / LOCK_NAME).st_ino == os.fstat(held[0]).st_ino:  # ours, not a swapped name
+                        (out / LOCK_NAME).unlink()
                 os.close(held[0])
                 if held[2]:
                     with contextlib.suppress(OSError):
@@ -334,10 +397,13 @@ def staged_dir(out_dir: str | Path, owns: Iterable[str] = ()) -> Iterator[Path]:
     """Yield a staging folder; on success move its files into ``out_dir``.
 
     ``owns``: regular expressions (whole names) of the files and folders this run's kind
-    writes in ``out_dir``; those it did not write this time are removed (and logged).
-    A sub-folder replaces the earlier one of its name as a whole."""
+    writes in ``out_dir``; those it did not write this time are removed (and logged) when an
+    earlier run recorded them as its outputs (:data:`OUTPUT_XATTR`), else left with a note.
+    A sub-folder replaces the earlier output folder of its name as a whole; a folder of that
+    name that no run recorded is refused (:class:`OutputError`), never removed."""
     owns = tuple(owns)
-    with claim_output(out_dir) as out:
+    with claim_output(out_dir) as claimed:
+        out = claimed.resolve()  # once: a link swapped during the run does not move the files
         try:
             stage = Path(tempfile.mkdtemp(prefix=f".partial-{os.getpid()}-", dir=out))
         except OSError as exc:
@@ -351,16 +417,59 @@ def staged_dir(out_dir: str | Path, owns: Iterable[str] = ()) -> Iterator[Path]:
             shutil.rmtree(stage, ignore_errors=True)
 
 
+def _identity(st: os.stat_result) -> dict | None:
+    """What :data:`OUTPUT_XATTR` records of a file or folder (None: neither, e.g. a link)."""
+    kind = "file" if stat.S_ISREG(st.st_mode) else "folder" if stat.S_ISDIR(st.st_mode) else None
+    return None if kind is None else {"kind": kind, "size": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+def _record_output(path: Path) -> None:
+    """Mark ``path`` (a staged output, about to be moved into place: a rename keeps its size,
+    time and attributes) as this program's output.  A file system without user extended
+    attributes records nothing: a later run then leaves the file rather than remove it."""
+    try:
+        ident = _identity(os.lstat(path))
+        if ident is not None:
+            os.setxattr(path, OUTPUT_XATTR, json.dumps(ident, sort_keys=True).encode(),
+                        follow_symlinks=False)
+    except OSError as exc:
+        log.debug("cannot record %s as an output (%s): a later run will leave it", path, exc.strerror)
+
+
+def recorded_output(path: str | Path) -> bool:
+    """Whether ``path`` is an output an earlier run moved into place, unchanged since: its
+    :data:`OUTPUT_XATTR` record matches its kind, size and modification time (a link, a
+    user's file of the same name or one rewritten since: False)."""
+    try:
+        st = os.lstat(path)
+        rec = json.loads(os.getxattr(path, OUTPUT_XATTR, follow_symlinks=False))
+    except (OSError, ValueError):
+        return False
+    ident = _identity(st)
+    return ident is not None and rec == ident
+
+
 def _commit(stage: Path, out: Path, owns: tuple[str, ...]) -> None:
+    items = sorted(stage.iterdir())
+    for item in items:  # first, before anything moves: a folder in the way that is not ours
+        dest = out / item.name
+        if dest.is_dir() and not dest.is_symlink() and not recorded_output(dest):
+            raise OutputError(f"output folder {out} holds a folder {item.name!r} that no earlier run "
+                              "wrote: move it away (it is not removed), or use another output folder")
     written = set()
-    for item in sorted(stage.iterdir()):
+    for item in items:
         dest = out / item.name
         if dest.is_dir() and not dest.is_symlink():  # os.replace cannot replace a folder
             os.replace(dest, stage / f".old-{item.name}")
-        os.replace(item, dest)
+        _record_output(item)
+        os.replace(item, dest)  # over a link at that name: the link goes, nothing is written through it
         written.add(item.name)
     for p in sorted(out.iterdir()):
         if p.name in written or not _owned(p.name, owns):
+            continue
+        if not recorded_output(p):
+            log.warning("left %s: an output name of this run that it does not write, but no earlier run "
+                        "recorded it as its output (another program's, or changed since)", p)
             continue
         if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p)
@@ -374,20 +483,23 @@ def atomic_file(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it to ``path`` on success.
 
     The temporary name carries the pid (``.<name>.<pid>-*.partial``), so that a claimed
-    folder's next run can tell one left by a killed process."""
+    folder's next run can tell one left by a killed process.  It is made with ``O_EXCL``
+    (never through a link) and renamed over ``path`` (a link there is replaced, not followed)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}-", suffix=".partial",
                                dir=path.parent)
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; outputs are ordinary files
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)  # mkstemp makes 0600; outputs are ordinary files (by fd: no name lookup)
+    finally:
+        os.close(fd)
     try:
         yield Path(tmp)
         os.replace(tmp, path)
     finally:
-        if os.path.exists(tmp):
+        with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
 
 

@@ -37,6 +37,24 @@ MAX_MESH_BYTES = 256 * 2**20  # a 2.4 M-triangle OBJ is 115 MB (its read peaks a
 LABELED = ("wood", "leaf", "ground")  # classes a label key may name
 
 
+#: The largest coordinate a mesh may hold: float32's largest value (the scene is traced in
+#: float32; beyond it a vertex is infinite).  Finite coordinates far from the rest of the scene
+#: are then caught by the float32 precision check of scene.build (a warning).
+MAX_COORD_M = float(np.finfo(np.float32).max)
+
+
+def _obj_vertex_line(path, row: int) -> int | None:
+    """The 1-based line of the OBJ file that holds vertex ``row`` (0-based); None if not found."""
+    seen = 0
+    with open(path, "rb") as fh:
+        for n, line in enumerate(fh, 1):
+            if line.lstrip()[:2] in (b"v ", b"v\t"):
+                if seen == row:
+                    return n
+                seen += 1
+    return None
+
+
 def _bad(kind: str, path, source, index, why: str) -> ConfigError:
     key = "primitive.path" if index is None else f"primitive[{index}].path"
     what = f"{kind.upper()} mesh" + ("" if index is None else f" of primitive {index}")
@@ -61,7 +79,8 @@ def read_mesh(path, kind: str, *, label: str = "wood", labels: dict | None = Non
     ------
     ConfigError
         naming the file (``primitive[index].path``) for a bad name, a missing, unreadable,
-        malformed or empty mesh, a non-finite vertex or a face index out of range.
+        malformed or empty mesh, a non-finite vertex or one beyond float32's range
+        (:data:`MAX_COORD_M`), or a face index out of range.
     """
     def bad(why: str) -> ConfigError:
         return _bad(kind, path, source, index, why)
@@ -91,8 +110,12 @@ def read_mesh(path, kind: str, *, label: str = "wood", labels: dict | None = Non
         raise bad(str(exc)) from exc
     if len(f) == 0:
         raise bad("no faces")
-    if not np.isfinite(v).all():
-        raise bad(f"a non-finite vertex (row {int(np.argmin(np.isfinite(v).all(1)))}, 0-based)")
+    out_of_range = ~(np.abs(v) <= MAX_COORD_M).all(1)  # NaN too
+    if out_of_range.any():
+        row = int(np.argmax(out_of_range))
+        where = f"vertex {row} (0-based)" + (f", line {_obj_vertex_line(path, row)}" if kind == "obj" else "")
+        what = "non-finite" if not np.isfinite(v[row]).all() else f"beyond float32's range (|x| > {MAX_COORD_M:.3g} m)"
+        raise bad(f"a {what} coordinate at {where}: {v[row].tolist()}")
     if f.min() < 0 or f.max() >= len(v):
         j = int(np.argmax((f < 0).any(1) | (f >= len(v)).any(1)))
         raise bad(f"a face index out of range (face {j}, 0-based, of {len(v)} vertices)")

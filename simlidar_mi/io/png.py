@@ -223,8 +223,8 @@ def _save_png(path: str | os.PathLike[str], image: Image.Image) -> Path:
             image.save(fh, format="PNG")
             fh.flush()
             os.fsync(fh.fileno())
-        # mkstemp creates 0600; give the PNG ordinary read permissions
-        os.chmod(tmp, 0o644)
+            # mkstemp creates 0600; give the PNG ordinary read permissions (by fd: no name lookup)
+            os.fchmod(fh.fileno(), 0o644)
         os.replace(tmp, path)
     except BaseException as exc:
         try:

@@ -324,7 +324,7 @@ def _scene_origin(kept: Branches, leaves: Leaves, primitives, prim_meshes, insta
         if origin.shape != (3,) or not np.isfinite(origin).all():
             raise ConfigError("origin_m must be three finite numbers", file=source,
                               key="scene.origin_m", value=origin_m)
-    _check_float32(corners, origin, _smallest_feature(kept, leaves, primitives, instances))
+    _check_float32(corners, origin, _smallest_feature(kept, leaves, primitives, instances, prim_meshes))
     return origin
 
 
@@ -496,11 +496,15 @@ def _plant_ids(key: str, elems: np.ndarray, branches: Branches, leaves: Leaves,
     return np.full(len(elems), 0xFFFFFFFF, np.uint32)
 
 
-def _smallest_feature(kept: Branches, leaves: Leaves, primitives, instances) -> tuple[float, str]:
+def _smallest_feature(kept: Branches, leaves: Leaves, primitives, instances,
+                      prim_meshes=None) -> tuple[float, str]:
     """The smallest size float32 rounding must resolve, and what it is: the thinnest
-    branch or cylinder, the shortest box side, or the shortest leaf-triangle edge."""
+    branch or cylinder, the shortest box side, or the shortest leaf-triangle or imported
+    mesh edge (``prim_meshes``: :func:`primitive_mesh` of each primitive)."""
     sizes = [(float(kept.diameter.min()) if len(kept) else np.inf, "branch diameter")]
     sizes += [(_primitive_feature_m(p), f"primitive {j}") for j, p in enumerate(primitives)]
+    sizes += [(_mesh_shortest_edge(m[0], m[1]), f"primitive {j}'s shortest mesh edge")  # imported meshes
+              for j, m in enumerate(prim_meshes or ()) if primitives[j].kind in ("obj", "ply")]
     sizes.append((_shortest_edge(leaves.vertices), "leaf edge"))
     if instances is not None and len(instances):
         s = float(np.min(instances.scale))
@@ -510,6 +514,12 @@ def _smallest_feature(kept: Branches, leaves: Leaves, primitives, instances) -> 
             if lv is not None and len(lv):
                 sizes.append((_shortest_edge(lv.vertices), "leaf edge"))
     return min(sizes, key=lambda t: t[0])
+
+
+def _mesh_shortest_edge(vertices: np.ndarray, faces: np.ndarray, chunk: int = 1_000_000) -> float:
+    """Shortest edge of an indexed triangle mesh, ``chunk`` faces at a time (bounded memory)."""
+    return min((_shortest_edge(vertices[faces[a:a + chunk]]) for a in range(0, len(faces), chunk)),
+               default=np.inf)
 
 
 def _shortest_edge(tri: np.ndarray, chunk: int = 1_000_000) -> float:

@@ -114,8 +114,9 @@ def read_mesh(path, kind: str, *, label: str = "wood", labels: dict | None = Non
     if out_of_range.any():
         row = int(np.argmax(out_of_range))
         where = f"vertex {row} (0-based)" + (f", line {_obj_vertex_line(path, row)}" if kind == "obj" else "")
-        what = "non-finite" if not np.isfinite(v[row]).all() else f"beyond float32's range (|x| > {MAX_COORD_M:.3g} m)"
-        raise bad(f"a {what} coordinate at {where}: {v[row].tolist()}")
+        what = ("a non-finite vertex" if not np.isfinite(v[row]).all() else
+                f"a vertex beyond float32's range (|x| > {MAX_COORD_M:.3g} m)")
+        raise bad(f"{what}: {where}, {v[row].tolist()}")
     if f.min() < 0 or f.max() >= len(v):
         j = int(np.argmax((f < 0).any(1) | (f >= len(v)).any(1)))
         raise bad(f"a face index out of range (face {j}, 0-based, of {len(v)} vertices)")

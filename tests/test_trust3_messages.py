@@ -264,9 +264,11 @@ def test_inproc_and_ucx_addresses_are_one_clear_line(address, words):
         assert internal not in msg
 
 
+@pytest.mark.parametrize("command", ["study", "scan"])
 @pytest.mark.parametrize("form", ["tcp", "bare", "inproc", "ucx", "garbage"])
-def test_an_unreachable_scheduler_leaves_no_study_folder(tmp_path, capsys, monkeypatch, form):
-    """study made out/rows/ before it asked the scheduler; nothing is made until one answers."""
+def test_an_unreachable_scheduler_leaves_no_study_folder(tmp_path, capsys, monkeypatch, form, command):
+    """study made out/rows/ before it asked the scheduler; nothing is made until one answers
+    (scan, whose row tiles go to the cluster, already made nothing: kept so)."""
     pytest.importorskip("distributed")
     monkeypatch.setenv(_dask.TIMEOUT_ENV, "2")
     port = _closed_port()
@@ -275,12 +277,13 @@ def test_an_unreachable_scheduler_leaves_no_study_folder(tmp_path, capsys, monke
     out = tmp_path / "o"
 
     def study() -> str:
-        argv = [str(SCENES / "apple_orchard.toml"), "--out", str(out), "--scheduler", address]
+        scene = SCENES / ("apple_orchard.toml" if command == "study" else "calibration_cylinder.toml")
+        argv = [str(scene), "--out", str(out), "--scheduler", address]
         if form not in ("tcp", "bare"):
-            return _one_line(capsys, "study", argv)
+            return _one_line(capsys, command, argv)
         # a Client that tried a port keeps threads that complain when the interpreter ends: the
         # program's own exit skips that, so run the program
-        proc = subprocess.run([str(CLI), "study", *argv], capture_output=True, text=True, timeout=300,
+        proc = subprocess.run([str(CLI), command, *argv], capture_output=True, text=True, timeout=300,
                               env={**os.environ, _dask.TIMEOUT_ENV: "2"})
         lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("simlidar-mi ")]
         assert proc.returncode == 2 and len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr

@@ -165,6 +165,9 @@ def _connect(address: str, timeout_s: float) -> Any:
         scheme, _ = parse_address(address)
     except ValueError as exc:
         raise error(f"not an address: {exc}") from None
+    why = _unusable_scheme(scheme, address)
+    if why:
+        raise error(why)
     if scheme == "tls" and Security().get_connection_args("client").get("ssl_context") is None:
         raise error("a tls:// address needs Dask's TLS settings: distributed.comm.tls.ca-file, "
                     ".client.cert and .client.key")
@@ -192,6 +195,37 @@ def _connect(address: str, timeout_s: float) -> Any:
         words = (str(exc).strip().splitlines() or [""])[0]
         raise error(f"{type(exc).__name__}: {words}" if words else type(exc).__name__)
     raise error(f"no answer as a Dask scheduler within {timeout_s:g} s; {TIMEOUT_ENV} sets the wait")
+
+
+def _unusable_scheme(scheme: str, address: str) -> str | None:
+    """Why ``address`` cannot name a scheduler we could reach, before distributed tries (its
+    own errors for these are Python internals: an unpacking error, an abstract class)."""
+    from distributed.comm.addressing import parse_address, parse_host_port  # noqa: PLC0415
+    from distributed.comm.registry import get_backend  # noqa: PLC0415
+    try:
+        get_backend(scheme)
+    except ValueError as exc:  # "unknown address scheme 'http' (known schemes: [...])"
+        return str(exc)
+    if scheme in ("tcp", "tls", "ws", "wss"):
+        try:
+            parse_host_port(parse_address(address)[1])
+        except ValueError as exc:  # "missing port number in address 'garbage!!'"
+            return f"not an address: {exc}"
+    if scheme == "inproc":
+        from distributed.comm.inproc import global_manager  # noqa: PLC0415
+        try:
+            listening = global_manager.get_listener_for(address.split("://", 1)[1]) is not None
+        except ValueError:
+            listening = False
+        if not listening:
+            return ("an inproc:// address names a scheduler inside this same Python process, and none "
+                    "listens there; give the tcp:// address of a running scheduler")
+    if scheme == "ucx":
+        import importlib.util  # noqa: PLC0415
+        if importlib.util.find_spec("distributed_ucxx") is None:
+            return ("the ucx:// protocol needs the distributed-ucxx package (Distributed no longer "
+                    "ships UCX), which is not installed; give a tcp:// address")
+    return None
 
 
 def worker_name() -> str:

@@ -187,15 +187,17 @@ def _polynomial(coeffs, name: str, key: str) -> Lens:
     return Lens("polynomial", k, name, edge, (tt, tmp.rho(tt)))
 
 
-def lens(spec: str | Lens = "equidistant", coeffs=None, *, key: str = "fisheye.projection") -> Lens:
+def lens(spec: str | Lens = "equidistant", coeffs=None, *, key: str = "fisheye.projection",
+         coeffs_key: str = "fisheye.coeffs") -> Lens:
     """A :class:`Lens` from a projection name, a named lens (:data:`LENSES`) or
-    ``"polynomial"`` with ``coeffs`` (k_1 … k_n, θ in radians)."""
+    ``"polynomial"`` with ``coeffs`` (k_1 … k_n, θ in radians).  Errors name ``key`` (the
+    projection's) or ``coeffs_key`` (bad coefficients)."""
     if isinstance(spec, Lens):
         return spec
     if spec == "polynomial":
         if coeffs is None:
             raise ConfigError("projection 'polynomial' needs coefficients", key=key, value=spec)
-        return _polynomial(coeffs, "", key)
+        return _polynomial(coeffs, "", coeffs_key)
     if spec in LENSES:
         return _polynomial(LENSES[spec], spec, key)
     if spec in PROJECTIONS:

@@ -93,7 +93,7 @@ def fisheye_cameras(cfg: SceneConfig, lo_m, hi_m) -> list[FisheyeCamera]:
                              tilt_azimuth_deg=f["tilt_azimuth_deg"], heading_deg=f["heading_deg"])
                 for p in fisheye_positions(cfg, lo_m, hi_m)]
     except ConfigError as exc:
-        raise ConfigError(exc.reason, file=cfg.source, key=exc.key, value=exc.value) from None
+        raise cfg.relabel(ConfigError(exc.reason, file=cfg.source, key=exc.key, value=exc.value)) from None
 
 
 @dataclass

@@ -23,6 +23,7 @@ Photos are read and classified in strips (:data:`~simlidar_mi.canopy.photo.TILE_
 """
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -115,7 +116,10 @@ def detect_circle(path: str | os.PathLike[str], *, downscale: int = 1, level: fl
             pts.append((x + 0.5, float(first_c[x])))
         if last_c[x] < h - 1:
             pts.append((x + 0.5, last_c[x] + 1.0))
-    p = np.asarray(pts, np.float64)
+    p = np.asarray(pts, np.float64).reshape(-1, 2)
+    if len(p) < 8:  # every lit row and column touches the frame: a photo without a dark surround
+        raise PhotoError(f"{path}: no image circle found (the photo is lit up to its frame, with no dark "
+                         "surround); give the circle (--circle XC,YC,R), or --format fullframe")
     keep = np.ones(len(p), bool)
     for _ in range(6):
         xc, yc, r = _kasa(p[keep])
@@ -124,6 +128,9 @@ def detect_circle(path: str | os.PathLike[str], *, downscale: int = 1, level: fl
         if new.sum() < 8 or np.array_equal(new, keep):
             break
         keep = new
+    if not (math.isfinite(xc) and math.isfinite(yc) and math.isfinite(r) and r > 0):
+        raise PhotoError(f"{path}: no image circle found (the lit pixels' edges fit no circle); give the "
+                         "circle (--circle XC,YC,R)")
     return xc * f, yc * f, r * f
 
 
@@ -149,7 +156,7 @@ def fisheye_photo_gap(path: str | os.PathLike[str], lens: str | Lens = "equidist
     binary image as a PNG (gap white, plant green, outside black).  ``lai_spec``: (rings,
     sectors) of a second table tabulated in the same pass (:func:`lai_spec`, for :func:`photo_lai`)."""
     p = Path(path)
-    ln = make_lens(lens, coeffs, key="lens")
+    ln = make_lens(lens, coeffs, key="lens", coeffs_key="coeffs")
     if format not in FORMATS:
         raise PhotoError(f"{p}: format {format!r} must be one of {', '.join(FORMATS)}")
     if method not in PHOTO_METHODS:
@@ -164,8 +171,9 @@ def fisheye_photo_gap(path: str | os.PathLike[str], lens: str | Lens = "equidist
             circle_full = (photo.full_size[0] / 2, photo.full_size[1] / 2, 0.5 * np.hypot(*photo.full_size))
         else:
             circle_full = tuple(float(v) for v in circle)
-            if len(circle_full) != 3 or not circle_full[2] > 0:
-                raise PhotoError(f"{p}: circle must be (xc, yc, r) in pixels with r > 0, got {circle!r}")
+            if len(circle_full) != 3 or not all(map(math.isfinite, circle_full)) or not circle_full[2] > 0:
+                raise PhotoError(f"{p}: circle (--circle XC,YC,R) must be three finite numbers xc, yc, r in "
+                                 f"pixels with r > 0, got {list(circle)!r}")
         xc, yc, r = (v / f for v in circle_full)
         cam = FisheyeCamera(ln, w, h, np.zeros(3), format, looking, heading_deg=float(heading_deg),
                             centre_px=(xc, yc), circle_radius_px=r)

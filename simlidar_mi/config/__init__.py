@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .checks import parse_toml, tomllib  # noqa: F401  (tomllib: tomli on Python 3.10, for callers)
+from .checks import decode_toml, parse_toml, tomllib  # noqa: F401  (tomllib: tomli on Python 3.10, for callers)
 from .keys import ARRAY_SECTIONS, FLOAT, PRIMITIVE_NEEDS, SECTIONS, Key
 from ..errors import ConfigError, SimlidarWarning
 from .presets import apply_preset
@@ -182,10 +182,7 @@ def load_scene(path: str | Path | None = None, overrides: list[str] | tuple = ()
             raw_bytes = Path(path).read_bytes()
         except OSError as exc:
             raise ConfigError(f"cannot read scene file: {exc.strerror or exc}", file=src) from exc
-        try:
-            text = raw_bytes.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise ConfigError("scene file is not UTF-8 text", file=src) from exc
+        text = decode_toml(raw_bytes, src)
     data = parse_toml(text, src)
 
     arrays_raw = {name: data.pop(name) for name in list(data) if name in ARRAY_SECTIONS}

@@ -51,12 +51,29 @@ def seed_sequence(seed, key: str = "seed") -> np.random.SeedSequence:
 MAX_TOML_DEPTH = 32
 
 
+_UTF16_32_BOMS = {b"\xff\xfe\x00\x00": "UTF-32", b"\x00\x00\xfe\xff": "UTF-32",
+                  b"\xff\xfe": "UTF-16", b"\xfe\xff": "UTF-16"}
+
+
+def decode_toml(raw: bytes, src: str, what: str = "scene file") -> str:
+    """The text of a TOML file's bytes: UTF-8, with or without the byte-order mark some Windows
+    editors write (TOML itself forbids it; dropped here); one ConfigError line otherwise."""
+    for bom, name in _UTF16_32_BOMS.items():
+        if raw.startswith(bom):
+            raise ConfigError(f"{what} is {name} text (it starts with a {name} byte-order mark); "
+                              "save it as UTF-8", file=src)
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{what} is not UTF-8 text", file=src) from exc
+
+
 def parse_toml(text: str, src: str, key: str | None = None, value=None) -> dict:
     """``tomllib.loads(text)``, every failure one ConfigError naming ``src`` (and ``key``,
     ``value``): invalid TOML, and arrays or tables nested deeper than :data:`MAX_TOML_DEPTH`
     (a RecursionError in the parser, or later in code that walks the values)."""
     try:
-        data = tomllib.loads(text)
+        data = tomllib.loads(text.removeprefix("\ufeff"))  # a byte-order mark: see decode_toml
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"not valid TOML: {exc}", file=src, key=key, value=value) from None
     except RecursionError:

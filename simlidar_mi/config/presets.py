@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from .checks import parse_toml
+from .checks import decode_toml, parse_toml
 from ..errors import ConfigError
 
 # [platform] / [scan] keys a sensor implies; the rest (positions, paths, speeds) belong to the scene
@@ -314,11 +314,9 @@ def load_preset_file(path: str | Path, *, sections: dict, check: Callable) -> Se
             raw = fh.read(MAX_PRESET_BYTES + 1)
         if len(raw) > MAX_PRESET_BYTES:
             raise ConfigError(f"a sensor preset file holds at most {MAX_PRESET_BYTES} bytes", file=src)
-        text = raw.decode("utf-8")
     except OSError as exc:
         raise ConfigError(f"cannot read sensor preset file: {exc.strerror or exc}", file=src) from exc
-    except UnicodeDecodeError as exc:
-        raise ConfigError("sensor preset file is not UTF-8 text", file=src) from exc
+    text = decode_toml(raw, src, "sensor preset file")
     data = parse_toml(text, src)
     allowed = {"sensor": [k for k in sections["sensor"]], "platform": list(PLATFORM_KEYS),
                "scan": list(SCAN_KEYS)}

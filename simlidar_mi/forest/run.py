@@ -83,7 +83,8 @@ class ForestRun:
     summary: dict[str, Any]
 
 
-def _resolve_modes(forest: Forest, f: dict, src: str) -> tuple[str, str]:
+def _resolve_modes(forest: Forest, f: dict, src: str, where=None) -> tuple[str, str]:
+    where = where or (lambda key: src)  # where a key's value came from (SceneConfig.source_of)
     leaf_mode = f["leaf_table"]
     n_leaves = int(forest.n_leaves.sum())
     if leaf_mode == "auto":
@@ -99,6 +100,15 @@ def _resolve_modes(forest: Forest, f: dict, src: str) -> tuple[str, str]:
     if export == "prototypes" and not forest.instancing:
         raise ConfigError("needs instancing = true (without it there are no prototypes)", file=src,
                           key="forest.export", value="prototypes")
+    if export in ("stand", "prototypes") and f["export_format"] == "ply":
+        # a PLY's int32 indices: refuse before any file is written, naming the key that sizes it
+        per_tree = 2 * k * forest.n_branches + 3 * forest.n_leaf_triangles  # a mesh's vertices
+        n_v = int(per_tree.sum()) if export == "stand" else int(per_tree.max(initial=0))
+        if n_v >= 2**31:
+            raise ConfigError(f"the {'stand' if export == 'stand' else 'largest prototype'}'s PLY would hold "
+                              f"{n_v:.3g} vertices ({k} per branch end), past the 2^31 − 1 that its "
+                              "int32 indices reach; lower it", file=where("forest.export_facets"),
+                              key="forest.export_facets", value=k)
     return leaf_mode, export
 
 
@@ -150,7 +160,7 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
     f = cfg["forest"]
     ext = leaf_table_format(f["leaf_table_format"], cfg.source)
     forest = make_forest(cfg, progress=progress)
-    leaf_mode, export = _resolve_modes(forest, f, cfg.source)
+    leaf_mode, export = _resolve_modes(forest, f, cfg.source, cfg.source_of)
     seconds = dict(forest.seconds)
     files: dict[str, Path] = {}
     out = Path(out_dir)

@@ -122,9 +122,21 @@ def read_mesh(path, kind: str, *, label: str = "wood", labels: dict | None = Non
         raise bad(f"a face index out of range (face {j}, 0-based, of {len(v)} vertices)")
     if ((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])).all():
         raise bad("every face is degenerate (a vertex used twice)")
+    if not _any_area(v, f):
+        raise bad("every face is degenerate (zero area: its three vertices on one line), so "
+                  "nothing can hit the mesh")
     if code is not None and (code == code[0]).all():
         code = None if code[0] == CLASS_CODES[label] else code  # one class: the shape's own
     return Mesh(v, f.astype(np.uint32), code)
+
+
+def _any_area(v: np.ndarray, f: np.ndarray, chunk: int = 1 << 16) -> bool:
+    """Whether some triangle has a non-zero area (in chunks: usually the first decides)."""
+    for a in range(0, len(f), chunk):
+        t = v[f[a:a + chunk]]
+        if np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]).any():
+            return True
+    return False
 
 
 def primitive_mesh_data(prim: Primitive, source: str | None = None, index: int | None = None) -> Mesh:
@@ -467,13 +479,17 @@ def read_ply_arrays(path):
     """Vertices (n, 3) float64, triangles (m, 3) of an integer type and the other scalar face properties
     of a PLY file (binary little/big endian or ASCII) through ``plyfile``."""
     import plyfile  # noqa: PLC0415
+    counts = _ply_counts(path)
     try:
         try:  # fast path: triangles read (memory-mapped when binary) as one record array
             data = plyfile.PlyData.read(path, known_list_len={"face": {"vertex_indices": 3}})
         except plyfile.PlyElementParseError:
             data = plyfile.PlyData.read(path)  # polygons of other sizes (or the error, worded for them)
     except plyfile.PlyParseError as exc:
-        raise ValueError(f"not a readable PLY file ({exc})") from exc
+        said = " and ".join(f"{n} {name}" for name, n in counts.items()) + " rows"
+        hint = (f"; its header announces {said}: a count larger than the data reads one element's rows "
+                "as another's or runs past the end" if isinstance(exc, plyfile.PlyElementParseError) else "")
+        raise ValueError(f"not a readable PLY file ({exc}){hint}") from exc
     if "vertex" not in data or "face" not in data:
         raise ValueError("a PLY mesh needs 'vertex' and 'face' elements")
     vert = data["vertex"].data
@@ -499,6 +515,35 @@ def read_ply_arrays(path):
     props = {n: (np.asarray(face[n]) if t_face is None else np.asarray(face[n])[t_face])
              for n in face.dtype.names if n not in lists and face.dtype[n] != object}
     return v, f, props
+
+
+_PLY_HEADER_MAX = 1 << 20  # bytes searched for 'end_header'
+
+
+def _ply_counts(path) -> dict[str, int]:
+    """The element counts of a PLY header ({'vertex': 3, 'face': 1}), each checked: a whole
+    number ≥ 0, and no more rows than the bytes after the header could hold (each row of an
+    element with properties takes at least one byte), before plyfile sizes arrays by them."""
+    with open(path, "rb") as fh:
+        head = fh.read(_PLY_HEADER_MAX)
+        size = os.fstat(fh.fileno()).st_size
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        return {}  # plyfile says what is wrong
+    body = size - (head.find(b"\n", end) + 1 if head.find(b"\n", end) >= 0 else size)
+    counts: dict[str, int] = {}
+    name = None
+    for raw in head[:end].split(b"\n"):
+        words = raw.decode("ascii", "replace").split()
+        if words[:1] == ["element"]:
+            if len(words) != 3 or not words[2].isdigit():
+                raise ValueError(f"header line {' '.join(words)!r}: an element count must be a whole "
+                                 "number ≥ 0")
+            name, counts[words[1]] = words[1], int(words[2])
+        elif words[:1] == ["property"] and name is not None and counts[name] > max(body, 0):
+            raise ValueError(f"header line 'element {name} {counts[name]}': the file holds only {max(body, 0)} "
+                             f"bytes after its header, too few for {counts[name]} {name} rows")
+    return counts
 
 
 def _ply_classes(props: dict, labels: dict, prop: str | None, label: str, bad) -> np.ndarray:

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..config import SceneConfig
 from ..errors import ConfigError
+from .platforms import AIRBORNE_PULSE_RATE_HZ, AIRBORNE_SPEED_M_S  # noqa: F401  (survey imports them here)
 
 
 def scanner_positions_m(pattern) -> np.ndarray:
@@ -86,7 +87,3 @@ def _patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m) -> list:
                              speed, pulse_rate(AIRBORNE_PULSE_RATE_HZ), pf["pulses_per_line"],
                              escape_m=escape, **common)]
 
-
-#: Airborne defaults (the [platform] keys are shared by every kind, so their defaults depend on it).
-AIRBORNE_SPEED_M_S = 30.0
-AIRBORNE_PULSE_RATE_HZ = 300_000.0

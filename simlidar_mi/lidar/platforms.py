@@ -318,6 +318,11 @@ def path_patterns(waypoints_m, step_m: float, elevation_deg: tuple[float, float,
     return legs
 
 
+#: Airborne defaults (the [platform] keys are shared by every kind, so their defaults depend on it).
+AIRBORNE_SPEED_M_S = 30.0
+AIRBORNE_PULSE_RATE_HZ = 300_000.0
+
+
 def airborne_pattern(start_xy_m, end_xy_m, altitude_m: float, swath_deg: float, speed_m_s: float,
                      pulse_rate_hz: float, pulses_per_line: int, *, footprint: int = 0,
                      escape_m: float = 10000.0, ground: bool = True, ground_z_m: float = 0.0,
@@ -343,9 +348,15 @@ def airborne_pattern(start_xy_m, end_xy_m, altitude_m: float, swath_deg: float, 
     M = int(pulses_per_line)
     line_rate = pulse_rate_hz / M
     step = speed_m_s / line_rate
-    if length < step:
-        raise ConfigError(f"the flight line ({length:.3g} m) is shorter than one line step ({step:.3g} m)",
-                          file=source, key="platform.end_xy_m", value=list(end_xy_m))
+    if length < step:  # blame the first key whose default gives a step that fits, else the line
+        terms = (("pulses_per_line", M, M, SECTIONS["platform"]["pulses_per_line"].default),
+                 ("speed_m_s", speed_m_s, speed_m_s, AIRBORNE_SPEED_M_S),
+                 ("pulse_rate_hz", pulse_rate_hz, 1 / pulse_rate_hz, 1 / AIRBORNE_PULSE_RATE_HZ))
+        key, value = next(((f"platform.{k}", v) for k, v, q, d in terms if q != d and step * d / q <= length),
+                          ("platform.end_xy_m", list(end_xy_m)))
+        raise ConfigError(f"the flight line ({length:.3g} m) is shorter than one line step, speed_m_s · "
+                          f"pulses_per_line / pulse_rate_hz = {speed_m_s:g} · {M} / {pulse_rate_hz:g} = "
+                          f"{step:.3g} m", file=source, key=key, value=value)
     unit = (b - a) / length
     _check_beams({"lines": (_n_steps(0.0, length, step, "platform.speed_m_s", source), "platform.speed_m_s",
                             speed_m_s),
@@ -505,6 +516,10 @@ def rotating_patterns(channels_deg=VLP16_CHANNELS_DEG, channel_offsets_us=VLP16_
             keep = np.mod(phi - a0, 360.0) <= a1 - a0
             t, phi = t[keep], phi[keep]
         if not len(t):
+            if (turned := abs(deg_per_s) * (t1 - t0)) < 360.0:  # a head too slow to reach the sector
+                raise ConfigError(f"the head turns only {turned:.3g}° during leg {j} ({t1 - t0:.3g} s), "
+                                  f"never into the sector azimuth_range_deg = {list(azimuth_range_deg)}",
+                                  file=source, key="platform.rotation_hz", value=rotation_hz)
             raise ConfigError(f"no firing block of leg {j} falls in the sector", file=source,
                               key="platform.azimuth_range_deg", value=list(azimuth_range_deg))
         vel = unit * v if unit is not None else None

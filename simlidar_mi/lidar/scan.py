@@ -184,13 +184,19 @@ def resolve_settings(scan: dict, ground: dict, bbox_min_m, bbox_max_m,
     y0 = scan["y_start_m"] if scan["y_start_m"] is not None else float(lo[1])
     y1 = scan["y_end_m"] if scan["y_end_m"] is not None else float(hi[1])
     if y1 <= y0:
-        raise ConfigError(f"y_end_m must be beyond y_start_m ({y0} m)", file=source,
-                          key="scan.y_end_m", value=y1)
+        if scan["y_start_m"] is None and scan["y_end_m"] is None:  # both from the geometry
+            raise ConfigError(f"the scene's geometry spans no y (from {y0} to {y1} m): the tractor's "
+                              "line has no length; give scan.y_start_m and scan.y_end_m", file=source)
+        key, value = ("scan.y_end_m", y1) if scan["y_end_m"] is not None else ("scan.y_start_m", y0)
+        raise ConfigError(f"y_end_m ({y1} m) must be beyond y_start_m ({y0} m)", file=source,
+                          key=key, value=value)
     # Eqs. 6 and 7: N = Int(span/Δy), M = Int(span/Δθ); the 1e-9 guards 0.3/0.1 = 2.9999.
     n_pos = _count((y1 - y0) / ((gap + 1) * dy))
     if n_pos < 1:
-        raise ConfigError(f"y span {y1 - y0:.4g} m is shorter than one step {(gap + 1) * dy:.4g} m",
-                          file=source, key="scan.dy_m", value=dy)
+        # blame the gap when the step fits without it, else the step itself
+        key, value = ("scan.gap", gap) if gap > 0 and _count((y1 - y0) / dy) >= 1 else ("scan.dy_m", dy)
+        raise ConfigError(f"y span {y1 - y0:.4g} m is shorter than one step (gap + 1)·dy_m = "
+                          f"{(gap + 1) * dy:.4g} m", file=source, key=key, value=value)
     th_min, th_max = scan["theta_min_deg"], scan["theta_max_deg"]
     if th_min is None or th_max is None:
         # Wood whose y meets the beams' footprints [y_1 − Δy/2, y_N + Δy/2].
@@ -214,8 +220,15 @@ def resolve_settings(scan: dict, ground: dict, bbox_min_m, bbox_max_m,
         if not -90.0 <= th <= 90.0:
             raise ConfigError("elevation angles must lie in [-90, 90] degrees", file=source, key=key, value=th)
     if th_min >= th_max:
-        raise ConfigError(f"theta_min_deg must be below theta_max_deg ({th_max:.4f}°)",
-                          file=source, key="scan.theta_min_deg", value=th_min)
+        given_min, given_max = scan["theta_min_deg"] is not None, scan["theta_max_deg"] is not None
+        if not (given_min or given_max):  # both derived (eq. 8) from the geometry
+            raise ConfigError(f"eq. 8 derives θ limits {th_min:.4f}° … {th_max:.4f}° from the geometry: its top "
+                              f"(z = {float(hi[2]):.4g} m) is not above the ground (z = {ground_z} m), so "
+                              "there is nothing to sweep; check the meshes' heights "
+                              "or give theta_min_deg and theta_max_deg", file=source)
+        key, value = ("scan.theta_min_deg", th_min) if given_min else ("scan.theta_max_deg", th_max)
+        raise ConfigError(f"theta_min_deg ({th_min:.4f}°) must be below theta_max_deg ({th_max:.4f}°)",
+                          file=source, key=key, value=value)
     n_ang = _count((th_max - th_min) / dtheta)
     if n_ang < 1:
         raise ConfigError(f"θ span {th_max - th_min:.4g}° is shorter than one step", file=source,

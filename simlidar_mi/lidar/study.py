@@ -569,11 +569,12 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
                         rows_dir, n, len(grid), what)
         if n_other:
             log.warning("study: %s also holds %d rows of other grids or options, unused", rows_dir, n_other)
-    rows_dir.mkdir(parents=True, exist_ok=True)
     todo = [(o, k) for o, k in zip(grid, keys) if _read_row(rows_dir / f"{k}.json") is None]
     if todo:
         from .._runtime.cluster import cluster_client, run_on_client  # noqa: PLC0415
         with cluster_client(scheduler) as client:
+            # only once the scheduler (if any) answered: an unreachable one leaves no folder behind
+            rows_dir.mkdir(parents=True, exist_ok=True)
             if client is None:
                 _run_local(scene, todo, rows_dir, readings, version, workers, progress)
             else:

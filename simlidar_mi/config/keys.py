@@ -429,3 +429,9 @@ _merge(_VINEYARD)
 _merge(_TRUTH)
 _merge(_FISHEYE)
 _merge(_LAI)
+
+# Every number-valued key's range (config/bounds.py), stored in its Key: checked at load, printed
+# by the docs' key reference.
+from .bounds import apply as _apply_bounds  # noqa: E402
+
+_apply_bounds(SECTIONS, ARRAY_SECTIONS)

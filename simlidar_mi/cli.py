@@ -537,6 +537,7 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("always", SimlidarWarning)
             warnings.showwarning = _one_line_warning(args.command)
+            _check_work(args)
             rc = args._run(args)
     except KeyboardInterrupt as exc:
         return _interrupted(args.command, exc, argv)
@@ -554,6 +555,23 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:
         _exit_now(int(rc or 0))
     return int(rc or 0)
+
+
+def _check_work(args: argparse.Namespace) -> None:
+    """Refuse, before anything is built, a command whose work estimated from its scene's keys
+    exceeds the budget (:func:`simlidar_mi.config.work.check_work`). A scene that does not
+    load is left to the command, which reports it as it always has."""
+    from .config.work import COMMAND_WORK, check_work
+    if args.command not in COMMAND_WORK or getattr(args, "scene", None) is None:
+        return
+    from .config import load_scene
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the command's own load shows them once
+            cfg = load_scene(args.scene, _overrides(args))
+    except SimlidarError:
+        return
+    check_work(cfg, args.command)
 
 
 def _silence_stdout() -> None:

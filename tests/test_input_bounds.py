@@ -105,7 +105,7 @@ def test_beam_samples_are_bounded_when_the_scene_is_read(value, words):
 
 
 def test_sub_rays_and_sub_beams_count_in_the_ray_budget(monkeypatch):
-    # 90,000 beams × 9 dot-matrix sub-beams × 4096 sub-rays = 3.3e9 rays > the default 2e9
+    # 90,000 beams × 9 dot-matrix sub-beams × 4096 sub-rays = 3.3e9 rays > the default 1e9
     cfg = load_scene(CYLINDER, ["sensor.divergence_mrad=2.0", "sensor.beam_samples=4096", "scan.footprint=2"])
     monkeypatch.setattr(survey, "scene_sensor", lambda *a: pytest.fail("not before the count"), raising=True)
     with pytest.raises(ConfigError) as e:

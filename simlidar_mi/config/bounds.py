@@ -332,3 +332,50 @@ def apply(sections: dict, array_sections: dict) -> None:
         if leaf not in tables.get(section, {}):
             raise RuntimeError(f"bounds for an unknown key {dotted}")
         tables[section][leaf] = dataclasses.replace(tables[section][leaf], range=parse(text, why))
+
+
+# --- command-line options ------------------------------------------------------------------
+def option(kind: type, interval: str, why: str = ""):
+    """An argparse ``type=`` that reads an ``int`` or ``float`` and refuses a value outside
+    ``interval`` (NaN and infinity included): argparse then names the option in one line."""
+    import argparse
+    bounds = parse(interval, why)
+
+    def convert(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected {'an integer' if kind is int else 'a number'} in {bounds.text()}, got {text!r}") from None
+        problem = bounds.complaint(v)
+        if problem:
+            raise argparse.ArgumentTypeError(f"{problem}, got {text!r}")
+        return v
+
+    convert.__name__ = kind.__name__  # argparse's "invalid int value" names the type
+    convert.bounds = bounds
+    return convert
+
+
+def option_list(interval: str, why: str = "", sizes: tuple[int, ...] = ()):
+    """An argparse ``type=`` for comma-separated numbers, each inside ``interval``, their count
+    one of ``sizes`` (any count ≥ 1 when empty)."""
+    import argparse
+    bounds = parse(interval, why)
+
+    def convert(text: str) -> list[float]:
+        try:
+            vs = [float(t) for t in text.split(",")]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+        if sizes and len(vs) not in sizes:
+            raise argparse.ArgumentTypeError(
+                f"expected {' or '.join(map(str, sizes))} comma-separated numbers, got {text!r}")
+        problem = bounds.complaint(vs)
+        if problem:
+            raise argparse.ArgumentTypeError(problem)
+        return vs
+
+    convert.__name__ = "numbers"
+    convert.bounds = bounds
+    return convert

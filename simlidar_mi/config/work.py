@@ -28,10 +28,13 @@ from ..errors import ConfigError
 BYTES_PER_TRIANGLE = 256
 #: Bytes a branch segment holds besides its triangles (p0, p1, diameter, order, ids; float64).
 BYTES_PER_SEGMENT = 128
-#: Bytes of a render's wavefront per sample in flight (ray, hit record, RNG state, film sample).
-BYTES_PER_SAMPLE = 96
-#: Bytes per sample of a path-traced photo: the sample's state per bounce of max_depth.
-BYTES_PER_PATH_VERTEX = 64
+#: Bytes a render holds per pixel: the film's planes, the coverage and numpy copies (float32 and
+#: float64); measured: 512² pixels of `gapfraction`, `fisheye` and `synthetic-photo` peak at
+#: 140-190 MB whole processes, whatever the samples (BENCHMARKS §15).
+BYTES_PER_PIXEL = 64
+#: Bytes per sample: samples are drawn in passes, not held (4 → 64 spp at 512²: +26 MB, 1.7 B a
+#: sample; 8 → 128 spp of a photo: +0 MB); kept on the high side.
+BYTES_PER_SAMPLE = 4
 #: Bytes per sub-ray of a scan chunk on the host (range, class, ids, normals, energies: float32)
 #: and the echo reader's per-sub-ray arrays.
 BYTES_PER_SUBRAY = 200
@@ -146,13 +149,13 @@ def geometry(cfg, b: Budget) -> None:
 
 
 def _render(b: Budget, what: str, views: float, pixels: float, spp: int, factors: list[str],
-            per_sample: int = BYTES_PER_SAMPLE, depth: int = 1, kept: float = 0.0) -> None:
-    """A series of ``views`` images of ``pixels`` pixels at ``spp`` samples: rays traced
-    (× path ``depth``), one image's samples in flight, ``kept`` bytes of results."""
-    b.memory(f"{what}: {pixels:.3g} pixels × {spp} samples" + (f" × {depth} bounces" if depth > 1 else "")
-             + f" in flight, {kept / 1e9:.3g} GB of results kept", pixels * spp * per_sample * depth + kept, factors)
-    b.trace(f"{what}: {views:.3g} images × {pixels:.3g} pixels × {spp} samples", views * pixels * spp * depth,
-            factors)
+            depth: int = 1, kept: float = 0.0) -> None:
+    """A series of ``views`` images of ``pixels`` pixels at ``spp`` samples: rays traced (× the
+    path ``depth``), one image's pixels and samples held, ``kept`` bytes of results."""
+    b.memory(f"{what}: {pixels:.3g} pixels × {spp} samples, {kept / 1e9:.3g} GB of results kept",
+             pixels * (BYTES_PER_PIXEL + spp * BYTES_PER_SAMPLE) + kept, factors)
+    b.trace(f"{what}: {views:.3g} images × {pixels:.3g} pixels × {spp} samples"
+            + (f" × {depth} bounces" if depth > 1 else ""), views * pixels * spp * depth, factors)
 
 
 def gapfraction(cfg, b: Budget) -> None:
@@ -170,7 +173,7 @@ def synthetic_photo(cfg, b: Budget) -> None:
     px = float(g["resolution"]) ** 2
     _render(b, "synthetic photos", views, px, p["spp"],
             ["photo_render.spp", "photo_render.max_depth", "gapfraction.resolution"],
-            per_sample=BYTES_PER_PATH_VERTEX, depth=p["max_depth"], kept=views * px * 16)
+            depth=p["max_depth"], kept=views * px * 16)
 
 
 def _positions(cfg) -> tuple[int, str]:
@@ -190,7 +193,7 @@ def fisheye(cfg, b: Budget, sampler: str = "fisheye") -> None:
     if sampler == "rays":
         lm = cfg["lai_methods"]
         rays = len(lm["rings_deg"]) * lm["n_sectors"] * lm["rays_per_cell"]
-        b.memory("ray fans", rays * BYTES_PER_SAMPLE + tables, ["lai_methods.rays_per_cell", "lai_methods.n_sectors"])
+        b.memory("ray fans", rays * BYTES_PER_PIXEL + tables, ["lai_methods.rays_per_cell", "lai_methods.n_sectors"])
         b.trace("ray fans", n * rays, ["lai_methods.rays_per_cell", "lai_methods.n_sectors", pos_key])
         return
     px = float(f["resolution"]) ** 2 / (1.5 if f["format"] == "fullframe" else 1.0)

@@ -59,9 +59,11 @@ class Bounds:
 
 
 def _num(x: float) -> str:
-    if float(x).is_integer() and abs(x) < 1e6:
+    """1, 0.5, 1e9, 9e18, 1073741824: exact, and short where that is exact."""
+    short = f"{x:g}"
+    if float(x).is_integer() and (abs(x) < 1e6 or float(short) != x):
         return str(int(x))
-    return f"{x:g}".replace("e+0", "e").replace("e+", "e").replace("e-0", "e-")
+    return short.replace("e+0", "e").replace("e+", "e").replace("e-0", "e-")
 
 
 def numbers(v, path: str = ""):
@@ -103,8 +105,8 @@ SMALL = ("(0, 10]", "metres: larger than any stem, leaf or wire")
 SD = ("[0, 1000]", "a spread no plant layout reaches")
 SHARE = ("[0, 1]", "a share")
 REFL = ("[0, 1]", "a reflectance")
-SPP = ("[1, 4096]", "samples per pixel: past 4096 the sampling error of a coverage is below "
-                    "float32's resolution of a share")
+SPP = ("[1, 4096]", "samples per pixel: 4096 resolve a pixel's coverage to 1/4096, finer than "
+                    "an 8-bit image's 1/255")
 PIXELS = ("[8, 16384]", "16384² float32 pixels are 1 GiB per image")
 SEED = ("[0, 9e18]", "TOML integers are 64-bit, below 2⁶³ ≈ 9.2e18")
 KNOB_COUNT = ("[1, 1e13]", "a count no machine traces")

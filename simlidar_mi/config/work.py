@@ -216,6 +216,7 @@ def scan_subrays(cfg, b: Budget) -> None:
 #: What each command's run builds: a list of estimates.
 COMMAND_WORK = {
     "scan": (geometry, scan_subrays), "evaluate": (geometry, scan_subrays), "measure": (geometry,),
+    "study": (geometry, scan_subrays),  # its base scene, with the --set every orchard gets
     "preview": (geometry,), "truth": (geometry,), "forest": (geometry,),
     "gapfraction": (geometry, gapfraction), "synthetic-photo": (geometry, synthetic_photo),
     "fisheye": (geometry, fisheye),

@@ -53,7 +53,7 @@ def _scan_args(p: argparse.ArgumentParser) -> None:
                    help="scan in row tiles on the Dask cluster whose scheduler is ADDRESS (e.g. "
                         "tcp://host:8786; default: $DASK_SCHEDULER_ADDRESS if set, else this process; "
                         "'local' forces this process); the same files; each worker needs this simlidar-mi")
-    p.add_argument("--tile-rows", type=int, default=None, metavar="N",
+    p.add_argument("--tile-rows", type=_opt(int, "[1, 1e9]", "rows per task"), default=None, metavar="N",
                    help="rows (scan lines, sweeps, positions) per cluster task (default: about 1 M "
                         "beams a tile)")
 
@@ -84,7 +84,8 @@ def _study_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", metavar="SCENE.toml", help="base orchard scene (e.g. scenes/apple_orchard.toml)")
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output folder: study.csv, regression.json, correlations.png, rows/")
-    p.add_argument("--workers", type=int, default=1, help="local Dask worker processes (default 1)")
+    p.add_argument("--workers", type=_opt(int, "[1, 1024]", "local processes"), default=1,
+                   help="local Dask worker processes (default 1)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="scan on the Dask cluster whose scheduler is ADDRESS (e.g. tcp://host:8786; "
                         "default: $DASK_SCHEDULER_ADDRESS if set, else the local processes of "
@@ -95,7 +96,7 @@ def _study_args(p: argparse.ArgumentParser) -> None:
                    help="'any' (default, the paper's §3.1): a beam hits when any point of its dot "
                         "matrix does; 'fraction': A_IM weights a beam by its share of sub-beams "
                         "that hit, with the scene's own footprint (the study before this option)")
-    p.add_argument("--footprint", type=int, default=None, metavar="P",
+    p.add_argument("--footprint", type=_opt(int, "scan.footprint"), default=None, metavar="P",
                    help="dot-matrix precision P, (P+1)² sub-beams (default: 2, the paper's, with "
                         "--hit-rule any; the scene's with --hit-rule fraction)")
     p.add_argument("--no-readings", dest="readings", action="store_false",
@@ -112,14 +113,26 @@ def _study_args(p: argparse.ArgumentParser) -> None:
                         "and why; 'refuse' stops before any scan, saying the same")
 
 
+def _opt(kind: type, bound: str, why: str = ""):
+    """A checked ``int``/``float`` option type (:func:`simlidar_mi.config.bounds.option`): the
+    range of scene key ``bound`` ("scan.footprint"), else the interval ``bound`` and ``why``.
+    Imported when the parser is built, not with this module (that would load numpy first)."""
+    from .config.bounds import BOUNDS, option
+    return option(kind, *BOUNDS[bound]) if bound in BOUNDS else option(kind, bound, why)
+
+
+#: L-system generations of --preset and derive: each multiplies the segments about 3-fold.
+GENERATIONS = ("[1, 12]", "each generation multiplies the segments")
+
+
 def _distances(text: str) -> list[float]:
     """``--trunk-distances 1.5,2,2.5`` → [1.5, 2.0, 2.5] (argparse names the option on error)."""
     try:
         ds = [float(t) for t in text.split(",")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a comma-separated list of metres: {text!r}") from None
-    if not ds or not all(math.isfinite(d) and d > 0 for d in ds):
-        raise argparse.ArgumentTypeError(f"every distance must be a number of metres > 0: {text!r}")
+    if not ds or not all(math.isfinite(d) and 0 < d <= 1000 for d in ds):
+        raise argparse.ArgumentTypeError(f"every distance must be a number of metres in (0, 1000]: {text!r}")
     return ds
 
 
@@ -167,9 +180,10 @@ def _measure_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", default=None, metavar="NAME",
                    help="measure one plant of a named L-system preset instead of a scene "
                         "(honda-a, ternary, conifer-whorl, ...; an unknown name lists them)")
-    p.add_argument("--generations", "-n", type=int, default=None, metavar="N",
+    p.add_argument("--generations", "-n", type=_opt(int, *GENERATIONS), default=None, metavar="N",
                    help="with --preset: number of generations (default: the preset's)")
-    p.add_argument("--seed", type=int, default=0, help="with --preset: seed (default 0)")
+    p.add_argument("--seed", type=_opt(int, "scene.seed"), default=0,
+                   help="with --preset: seed (default 0)")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 
@@ -243,8 +257,9 @@ def _sensors_run(args: argparse.Namespace) -> int:
 def _preview_args(p: argparse.ArgumentParser) -> None:
     _scene_args(p)
     p.add_argument("--out", default="preview.png", metavar="PNG", help="output PNG (default preview.png)")
-    p.add_argument("--width", type=int, default=1024, help="image width in pixels")
-    p.add_argument("--spp", type=int, default=16, help="samples per pixel")
+    p.add_argument("--width", type=_opt(int, "fisheye.resolution"), default=1024,
+                   help="image width in pixels")
+    p.add_argument("--spp", type=_opt(int, "photo_render.spp"), default=16, help="samples per pixel")
 
 
 @command("preview", "Shaded side view of a scene, looking along +x like the scanner, to PNG",
@@ -313,11 +328,12 @@ def _photo_gap_run(args: argparse.Namespace) -> int:
 
 
 def _derive_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--generations", "-n", type=int, required=True, metavar="N",
+    p.add_argument("--generations", "-n", type=_opt(int, *GENERATIONS), required=True, metavar="N",
                    help="number of rewrites of the axiom F (the paper uses 4-7)")
     p.add_argument("--stochastic", action="store_true",
                    help="use the three-successor stochastic grammar (0.33/0.33/0.34)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the stochastic choices (default 0)")
+    p.add_argument("--seed", type=_opt(int, "scene.seed"), default=0,
+                   help="seed of the stochastic choices (default 0)")
 
 
 @command("derive", "Print the SIMLIDAR apple L-system derivation in the paper's Table 1 notation",
@@ -439,7 +455,7 @@ def _truth_args(p: argparse.ArgumentParser) -> None:
     _scene_args(p)
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output folder: truth.nc, truth_summary.csv, truth_profiles.png")
-    p.add_argument("--voxel", type=float, default=None, metavar="M",
+    p.add_argument("--voxel", type=_opt(float, "truth.voxel_m"), default=None, metavar="M",
                    help="voxel side in metres (same as --set truth.voxel_m=M; default 0.1)")
 
 
@@ -474,15 +490,15 @@ def _evaluate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--estimator-cmd", action="append", default=[], metavar="CMD",
                    help='also score a command writing a grid NetCDF, e.g. "python my.py {las} {grid} {out}" '
                         "(placeholders {las} {exr} {grid} {out}; repeatable)")
-    p.add_argument("--voxel", type=float, default=None, metavar="M",
+    p.add_argument("--voxel", type=_opt(float, "truth.voxel_m"), default=None, metavar="M",
                    help="voxel side in metres (default [truth] voxel_m, 0.1)")
-    p.add_argument("--row-spacing", type=float, default=None, metavar="M",
+    p.add_argument("--row-spacing", type=_opt(float, "truth.row_spacing_m"), default=None, metavar="M",
                    help="row spacing in metres: adds TRV and LWA (truth and point cloud) to scores.json")
     p.add_argument("--weights", choices=("equal", "energy"), default="equal",
                    help="echo weights of the multi-return estimators (scans with a [sensor])")
-    p.add_argument("--min-beams", type=float, default=5.0, metavar="N",
+    p.add_argument("--min-beams", type=_opt(float, "[0, 1e9]", "beams per voxel"), default=5.0, metavar="N",
                    help="beams that must enter a voxel for it to be scored and for a beam-based estimate (default 5)")
-    p.add_argument("--G", dest="G", type=float, default=0.5, metavar="G",
+    p.add_argument("--G", dest="G", type=_opt(float, "(0, 1]", "a mean projection"), default=0.5, metavar="G",
                    help="mean projection of unit plant area along the beams (default 0.5: spherical leaf angles)")
 
 
@@ -506,9 +522,17 @@ def _evaluate_run(args: argparse.Namespace) -> int:
 _register_canopy(command, _scene_args, _overrides)  # gapfraction, fisheye, evaluate-photo (cli_canopy.py)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one line on a usage error, ``simlidar-mi CMD: error: argument --x: ...``
+    (exit 2), like every other error; ``--help`` shows the usage."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from ._version import __version__
-    p = argparse.ArgumentParser(prog="simlidar-mi", description=__doc__.splitlines()[0])
+    p = _Parser(prog="simlidar-mi", description=__doc__.splitlines()[0])
     p.add_argument("--version", action="version", version=f"simlidar-mi {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
     for name, help_, add_args, run in COMMANDS:
@@ -542,6 +566,7 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("always", SimlidarWarning)
             warnings.showwarning = _one_line_warning(args.command)
+            _check_work(args)
             rc = args._run(args)
     except KeyboardInterrupt as exc:
         return _interrupted(args.command, exc, argv)
@@ -559,6 +584,23 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:
         _exit_now(int(rc or 0))
     return int(rc or 0)
+
+
+def _check_work(args: argparse.Namespace) -> None:
+    """Refuse, before anything is built, a command whose work estimated from its scene's keys
+    exceeds the budget (:func:`simlidar_mi.config.work.check_work`). A scene that does not
+    load is left to the command, which reports it as it always has."""
+    from .config.work import COMMAND_WORK, check_work
+    if args.command not in COMMAND_WORK or getattr(args, "scene", None) is None:
+        return
+    from .config import load_scene
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the command's own load shows them once
+            cfg = load_scene(args.scene, _overrides(args))
+    except SimlidarError:
+        return
+    check_work(cfg, args.command)
 
 
 def _silence_stdout() -> None:

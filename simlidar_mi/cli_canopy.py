@@ -66,32 +66,28 @@ def register(command, scene_args, overrides) -> None:
         print(f"{len(run.images)} images, {run.seconds:.2f} s; wrote {run.files['csv']}")
         return 0
 
-    def _numbers(text: str) -> list[float]:
-        try:
-            return [float(v) for v in text.split(",")]
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-
     def _fisheye_photo_args(p: argparse.ArgumentParser) -> None:
+        from .config.bounds import BOUNDS, option, option_list  # not on import: it loads numpy
         p.add_argument("photos", nargs="+", metavar="PHOTO", help="fisheye photographs (JPEG, PNG, TIFF)")
         p.add_argument("--out", required=True, metavar="DIR",
                        help="output folder: fisheye_photo_gap.csv and a binary PNG per photo")
         p.add_argument("--lens", default="equidistant",
                        help="projection (equidistant, equisolid, orthographic, stereographic), a named "
                             "lens (FC-E8, Nikkor-10.5, Sigma-4.5, Sigma-8, FC-E9, Nikkor-8) or polynomial")
-        p.add_argument("--coeffs", type=_numbers, default=None, metavar="K1,K2,...",
+        p.add_argument("--coeffs", type=option_list(*BOUNDS["fisheye.coeffs"]), default=None, metavar="K1,K2,...",
                        help="polynomial lens: rho = sum k_i theta^i, theta in radians, rho relative to the circle")
-        p.add_argument("--circle", type=_numbers, default=None, metavar="XC,YC,R",
+        p.add_argument("--circle", type=option_list("[0, 1e6]", "pixels", sizes=(3,)), default=None, metavar="XC,YC,R",
                        help="image circle in pixels from the top-left corner (default: detected; "
                             "full frame: the half-diagonal)")
         p.add_argument("--format", default="circular", choices=("circular", "fullframe"),
                        help="circular image or full-frame (diagonal spans 180 degrees)")
         p.add_argument("--method", default="blue-otsu", choices=("blue-otsu", "canopeo"),
                        help="blue-otsu: sky vs canopy looking up; canopeo: green plants looking down")
-        p.add_argument("--rings", type=_numbers, default=None, metavar="DEG,...",
+        p.add_argument("--rings", type=option_list(*BOUNDS["fisheye.rings_deg"]), default=None, metavar="DEG,...",
                        help="zenith ring edges in degrees (default 0,15,30,45,60,75,90)")
-        p.add_argument("--sectors", type=int, default=8, metavar="N", help="azimuth sectors (default 8)")
-        p.add_argument("--heading", type=float, default=90.0, metavar="DEG",
+        p.add_argument("--sectors", type=option(int, *BOUNDS["fisheye.n_sectors"]), default=8, metavar="N",
+                       help="azimuth sectors (default 8)")
+        p.add_argument("--heading", type=option(float, *BOUNDS["fisheye.heading_deg"]), default=90.0, metavar="DEG",
                        help="scene azimuth at the photo's top, counter-clockwise from +x (default 90: +y)")
         p.add_argument("--downscale", type=int, default=1, choices=(1, 2, 4, 8),
                        help="analyse the photo at 1/N of its size")

@@ -50,7 +50,7 @@ def test_file_errors_still_name_the_file(tmp_path):
     ("scan.dtheta_deg=1e-6", "scan.dtheta_deg"),   # 90° / 1e-6 = 9e7 angles × 250 positions
     ("scan.dtheta_deg=5e-324", "scan.dtheta_deg"),  # 90° / 5e-324 overflows a float
     ("scan.dy_m=1e-9", "scan.dy_m"),
-    ("scan.footprint=1000", "scan.footprint"),
+    ("scan.footprint=64", "scan.footprint"),  # within its range [0, 64], 3.8e8 sub-beams past max_beams
 ])
 def test_too_many_beams_names_the_key_the_user_changed(item, key):
     """A tiny dtheta_deg used to be reported as a bad scan.dy_m."""

@@ -155,14 +155,19 @@ def test_schema_check_finds_what_a_key_lacks(monkeypatch):
         "closure": ck.Key(ck.INT, 1, closes_over, "a check closing over an unknown value"),
     })
     found = simlidar_ref.problems()
+    no_range = ("a number-valued key with no range: add it to simlidar_mi/config/bounds.py BOUNDS")
     assert found == [
         "[extra] height: a number with no unit: end its name with the unit (_m, _deg, ...) or, if "
         "it has none, add it to NO_UNIT",
+        f"[extra] height: {no_range}",
         "[extra] count: no description (Key's doc)",
+        f"[extra] count: {no_range}",
         "[extra] odd: check test_schema_check_finds_what_a_key_lacks.<locals>.<lambda> has no "
         "docstring and no 'must ...' text",
+        f"[extra] odd: {no_range}",
         "[extra] closure: check test_schema_check_finds_what_a_key_lacks.<locals>.<lambda> closes "
-        "over ['n']"]
+        "over ['n']",
+        f"[extra] closure: {no_range}"]
 
 
 @pytest.mark.parametrize(("check", "text"), [

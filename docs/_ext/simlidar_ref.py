@@ -3,8 +3,9 @@
 The scene-file schema (:data:`simlidar_mi.config.keys.SECTIONS` and ``ARRAY_SECTIONS``) is the one
 source of the key reference: each :class:`~simlidar_mi.config.keys_base.Key` gives the type, the
 default and the one-line meaning; the unit is read from the key's name (the project names every
-quantity with its unit: ``_m``, ``_deg``, ``_hz`` ...); the allowed range is the check's own
-complaint, the text a user sees when a value is refused. :func:`problems` lists what the schema
+quantity with its unit: ``_m``, ``_deg``, ``_hz`` ...); the allowed range is the key's
+``Key.range`` (:mod:`simlidar_mi.config.bounds`, the interval checked at load) and what its check
+adds, read from the check's own complaint, the text a user sees when a value is refused. :func:`problems` lists what the schema
 lacks (``tests/test_docs.py`` fails on any).
 
 Directives (usable from MyST pages as ```` ```{scene-keys} ````):
@@ -172,7 +173,7 @@ def key_rows() -> list[KeyRow]:
         for section, keys in tables.items():
             for name, key in keys.items():
                 try:
-                    rng = key_range(key.check)
+                    rng = range_text(key)
                 except UndescribedCheck as exc:
                     rng = f"?? {exc}"
                 rows.append(KeyRow(section, name, array, type_name(key), unit(section, name),
@@ -198,7 +199,34 @@ def problems() -> list[str]:
                     key_range(key.check)
                 except UndescribedCheck as exc:
                     out.append(f"{where}: {exc}")
+                if _numeric(section, name, key) and key.range is None:
+                    out.append(f"{where}: a number-valued key with no range: add it to "
+                               "simlidar_mi/config/bounds.py BOUNDS")
     return out
+
+
+def _numeric(section: str, name: str, key) -> bool:
+    from simlidar_mi.config.bounds import NOT_NUMERIC, numeric
+    return f"{section}.{name}" not in NOT_NUMERIC and numeric(key.types, key.default)
+
+
+#: Checks that say no more than a key's range (its sign, its finiteness, its interval): a key
+#: with a range shows the range alone.
+_RANGE_ONLY = ("positive", "nonneg", "unit_interval", "_finite", "at_least", "within", "_angle",
+               "_below_one", "_opening")
+
+
+def range_text(key) -> str:
+    """What the reference shows as a key's allowed values: its range (``Key.range``, each
+    element's for a list) and what its check adds to it, else the check alone."""
+    if key.range is None:
+        return key_range(key.check)
+    rng = key.range.text()
+    if list in key.types and not any(t in key.types for t in (int, float)):
+        rng = "each " + rng
+    if key.check is None or key.check.__qualname__.split(".<locals>")[0] in _RANGE_ONLY:
+        return rng
+    return f"{rng}; {key_range(key.check)}"
 
 
 # --- docutils tables ----------------------------------------------------------------------

@@ -99,6 +99,10 @@ def _check_value(spec: Key, value: Any, src: str, dotted: str) -> Any:
                           file=src, key=dotted, value=value)
     if spec.types == FLOAT:
         value = float(value)
+    if spec.range is not None:
+        problem = spec.range.complaint(value)
+        if problem:
+            raise ConfigError(problem, file=src, key=dotted, value=value)
     if spec.check is not None:
         problem = spec.check(value)
         if problem:

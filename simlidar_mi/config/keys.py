@@ -118,8 +118,10 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "escape_m": Key(FLOAT, 1000.0, positive, "range reported for beams that hit nothing"),
         "max_beams": Key(INT, 200_000_000, at_least(1), "refuse scans of more beams (dot-matrix "
                          "sub-beams counted) than this", knob=True),
-        "max_rays": Key(INT, 2_000_000_000, at_least(1), "refuse scans of more rays than this: beams "
-                        "× dot-matrix sub-beams × [sensor] sub-rays per beam", knob=True),
+        "max_rays": Key(INT, 1_000_000_000, at_least(1), "refuse scans of more rays than this: beams "
+                        "× dot-matrix sub-beams × [sensor] sub-rays per beam; and renders of more "
+                        "(images × pixels × samples; BENCHMARKS §15: about 20 min of tracing on 2 cores)",
+                        knob=True),
         "chunk_beams": Key(INT, 1 << 22, at_least(1),
                            "beams traced and written per chunk (memory stays flat as scans grow; "
                            "results do not depend on it)", knob=True),
@@ -429,3 +431,9 @@ _merge(_VINEYARD)
 _merge(_TRUTH)
 _merge(_FISHEYE)
 _merge(_LAI)
+
+# Every number-valued key's range (config/bounds.py), stored in its Key: checked at load, printed
+# by the docs' key reference.
+from .bounds import apply as _apply_bounds  # noqa: E402
+
+_apply_bounds(SECTIONS, ARRAY_SECTIONS)

@@ -19,13 +19,18 @@ class Key:
     """One scene-file key: accepted Python types, default, and an extra check.
 
     ``knob``: an execution setting (a chunk size, a size limit) that no result depends on:
-    left out of the scene's ``sha256`` and of the study's row keys."""
+    left out of the scene's ``sha256`` and of the study's row keys.
+
+    ``range``: the finite interval a number-valued key's value (each number of a list's) lies
+    in, a :class:`~simlidar_mi.config.bounds.Bounds`; set for every such key from
+    :data:`simlidar_mi.config.bounds.BOUNDS` and checked before ``check``."""
 
     types: tuple
     default: Any = None
     check: Check | None = None
     doc: str = ""
     knob: bool = False
+    range: Any = None
 
 
 def _finite(v):

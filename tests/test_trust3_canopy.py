@@ -1,0 +1,46 @@
+"""Trust round 3 (issue 29 §2), canopies and cameras: n_sides used, fisheye.points_m only with
+layout 'points', evaluate-photo refuses positions outside the canopy, fisheye tiles a periodic
+plot like evaluate-photo, a lens in the leaf layer is warned about and the default lens sits
+below it."""
+import math
+
+import numpy as np
+import pytest
+
+from simlidar_mi.canopy.canopy import canopies_from_config, expected_p0
+from simlidar_mi.config import load_scene
+
+SCENE = "scenes/random_leaves_spherical.toml"
+
+
+# ------------------------------------------------------------------ random_leaves.n_sides
+@pytest.mark.parametrize("k", [3, 5, 16])
+def test_disc_leaves_have_n_sides_and_the_exact_area(k):
+    cfg = load_scene(SCENE, ["random_leaves.shape='disc'", f"random_leaves.n_sides={k}",
+                             "random_leaves.n_leaves=50"])
+    leaves = canopies_from_config(cfg)[0].leaves
+    assert len(leaves) == 50 * k  # a fan of k triangles per leaf
+    v = leaves.vertices.reshape(50, k, 3, 3)
+    centre = v[:, :, 0].mean(axis=1)  # every triangle of a fan starts at the centre
+    r = np.linalg.norm(v[:, :, 1] - centre[:, None], axis=2)
+    # The circumradius is the one that makes the k-gon's area (k/2) r² sin(2π/k) exactly a.
+    r_exact = math.sqrt(2 * 0.001 / (k * math.sin(2 * math.pi / k)))
+    np.testing.assert_allclose(r, r_exact, rtol=1e-12)
+    area = leaves.triangle_area.reshape(50, k).sum(axis=1)
+    np.testing.assert_allclose(area, 0.5 * k * r_exact ** 2 * math.sin(2 * math.pi / k), rtol=1e-12)
+    np.testing.assert_allclose(area, 0.001, rtol=1e-12)
+
+
+def test_n_sides_changes_the_rendered_gap_fraction_not_its_expectation():
+    from simlidar_mi.canopy.gapfraction import run_gapfraction
+    p0 = {}
+    for k in (3, 16):
+        run = run_gapfraction(SCENE, None, [
+            "random_leaves.shape='disc'", f"random_leaves.n_sides={k}", "gapfraction.cameras=['orthographic']",
+            "gapfraction.zeniths_deg=[0.0]", "gapfraction.resolution=256", "gapfraction.replicates=4",
+            "gapfraction.spp=1"], write_images=False)
+        (s,) = run.summary
+        p0[k] = s.p0
+        # Area-preserving discs: the exact E[P0] = (1 − a G/A)^N is the same for every k.
+        assert s.p0 == pytest.approx(float(expected_p0(1000, 0.001, 1.0, 0.0)), abs=0.01)
+    assert p0[3] != p0[16]  # the triangles differ, so one plot's pixels do too

@@ -44,3 +44,28 @@ def test_n_sides_changes_the_rendered_gap_fraction_not_its_expectation():
         # Area-preserving discs: the exact E[P0] = (1 − a G/A)^N is the same for every k.
         assert s.p0 == pytest.approx(float(expected_p0(1000, 0.001, 1.0, 0.0)), abs=0.01)
     assert p0[3] != p0[16]  # the triangles differ, so one plot's pixels do too
+
+
+# ------------------------------------------------------------------ fisheye.points_m
+@pytest.mark.parametrize("sets,key,layout", [
+    (["fisheye.points_m=[[0.2, 0.2]]"], "fisheye.points_m", "grid"),
+    (["fisheye.layout='transect'", "fisheye.points_m=[[0.2, 0.2]]"], "fisheye.points_m", "transect"),
+    (["fisheye.transect_m=[0, 0.5, 1, 0.5]"], "fisheye.transect_m", "grid"),
+])
+def test_a_position_key_of_another_layout_is_refused(sets, key, layout):
+    from simlidar_mi.canopy.fisheye_run import fisheye_positions
+    from simlidar_mi.errors import ConfigError
+    cfg = load_scene(SCENE, sets)
+    with pytest.raises(ConfigError) as err:
+        fisheye_positions(cfg, np.zeros(3), np.ones(3))
+    assert err.value.key == key and f"layout is '{layout}'" in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_fisheye_cli_refuses_points_m_without_the_points_layout(tmp_path, capsys):
+    from simlidar_mi import cli
+    rc = cli.main(["fisheye", SCENE, "--out", str(tmp_path / "o"), "--set", "fisheye.points_m=[[0.2, 0.2]]",
+                   "--set", "fisheye.resolution=16"])
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and "fisheye.points_m" in line and "layout" in line, line
+    assert not (tmp_path / "o" / "fisheye_gap.csv").exists()

@@ -54,6 +54,12 @@ def fisheye_positions(cfg: SceneConfig, lo_m, hi_m) -> np.ndarray:
     """(n, 3) camera positions (x, y, z), metres, from ``[fisheye]`` and the geometry's bounds."""
     f = cfg["fisheye"]
     lo, hi = np.asarray(lo_m, np.float64), np.asarray(hi_m, np.float64)
+    # A key of another layout would be silently ignored: refuse it.
+    for key, layout in (("points_m", "points"), ("transect_m", "transect")):
+        if f[key] is not None and f["layout"] != layout:
+            raise ConfigError(f"is used only with fisheye.layout = '{layout}', and the layout is "
+                              f"'{f['layout']}': set the layout or drop fisheye.{key}",
+                              file=cfg.source, key=f"fisheye.{key}", value=f[key])
     x0, y0, x1, y1 = f["area_m"] if f["area_m"] is not None else (lo[0], lo[1], hi[0], hi[1])
     if f["layout"] == "grid":
         nx, ny = f["grid_n"]

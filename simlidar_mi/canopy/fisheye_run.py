@@ -3,11 +3,11 @@
 ::
 
     from simlidar_mi.config import load_scene
-    from simlidar_mi.lidar.survey import generate, build
-    from simlidar_mi.canopy.fisheye_run import run_fisheye
+    from simlidar_mi.truth.run import truth_geometry
+    from simlidar_mi.canopy.fisheye_run import fisheye_scene, run_fisheye
     cfg = load_scene("scenes/orchard_leafy.toml")
-    geometry = generate(cfg)
-    run = run_fisheye(cfg, build(cfg, geometry), geometry.bounds_m(), "out/fisheye")
+    geometry, _ = truth_geometry(cfg)
+    run = run_fisheye(cfg, fisheye_scene(cfg, geometry), geometry.bounds_m(), "out/fisheye")
 
 (``simlidar-mi fisheye`` does exactly this.)  Keys and the placement protocol:
 :mod:`simlidar_mi.config.keys_fisheye`; conventions: :mod:`simlidar_mi.canopy.fisheye`.
@@ -40,7 +40,7 @@ from ..io.atomic import staged_dir, write_csv, writes_output
 from ..io.exr import header_value, read_exr
 from .fisheye import TABLE_COLUMNS, FisheyeCamera, FisheyeImage, GapTable, make_fisheye, render_fisheye
 
-__all__ = ["CSV_COLUMNS", "FisheyeRun", "fisheye_positions", "fisheye_cameras", "run_fisheye",
+__all__ = ["CSV_COLUMNS", "FisheyeRun", "fisheye_positions", "fisheye_cameras", "fisheye_scene", "run_fisheye",
            "write_fisheye_exr", "read_fisheye_exr"]
 
 CSV_COLUMNS = ("position", "x_m", "y_m", "z_m") + TABLE_COLUMNS
@@ -48,6 +48,9 @@ POSITION_COLUMNS = ("position", "x_m", "y_m", "z_m", "looking", "width", "height
 FISHEYE_OUTPUTS = (r"fisheye_gap\.csv", r"fisheye_positions\.csv", r"fisheye_\d+\.(exr|png)")
 PLANT_RGB, GAP_RGB, OUTSIDE_RGB = (0, 128, 0), (255, 255, 255), (0, 0, 0)
 DEFAULT_HEIGHT_M = 1.0  # lens above the ground looking up; above the highest plant looking down
+# A periodic plot is tiled for rays to this zenith (or the outermost ring edge below 90°, if
+# larger): beyond it a ray leaves the copies and sees open sky (the 85–90° band).
+TILE_ZENITH_DEG = 85.0
 
 
 def fisheye_positions(cfg: SceneConfig, lo_m, hi_m) -> np.ndarray:
@@ -102,6 +105,22 @@ def fisheye_cameras(cfg: SceneConfig, lo_m, hi_m) -> list[FisheyeCamera]:
         raise ConfigError(exc.reason, file=cfg.source, key=exc.key, value=exc.value) from None
 
 
+def fisheye_scene(cfg: SceneConfig, geometry):
+    """The scene the cameras see: a ``[random_leaves]`` plot tiled around the lenses (the
+    tiling of ``evaluate-photo``, :func:`~simlidar_mi.canopy.gapfraction.tiled_sky_scene`),
+    otherwise ``geometry`` (the scene's plants and primitives) as it stands."""
+    if cfg.has("random_leaves"):
+        from .canopy import canopies_from_config  # noqa: PLC0415
+        from .gapfraction import tiled_sky_scene  # noqa: PLC0415
+        f = cfg["fisheye"]
+        lenses = fisheye_positions(cfg, *geometry.bounds_m())
+        theta = max([TILE_ZENITH_DEG] + [e for e in f["rings_deg"] if e < 90.0])
+        return tiled_sky_scene(canopies_from_config(cfg)[0], lenses, theta, key="fisheye.rings_deg",
+                               variant=cfg["scene"]["variant"])
+    from ..lidar.survey import build  # noqa: PLC0415
+    return build(cfg, geometry, patterns=[])
+
+
 @dataclass
 class FisheyeRun:
     """Every rendered image of a scene, its gap table and the files written."""
@@ -132,7 +151,7 @@ def run_fisheye(cfg: SceneConfig, built, bounds_m, out_dir: str | Path | None = 
     t0 = time.perf_counter()
     images, tables = [], []
     for cam in prog.iter(cameras, "fisheye: rendering", unit="image"):
-        img = render_fisheye(built, cam, spp=f["spp"], variant=cfg["scene"]["variant"])
+        img = render_fisheye(built, cam, spp=f["spp"], seed=cfg.seed or 0, variant=cfg["scene"]["variant"])
         images.append(img)
         tables.append(img.table(f["rings_deg"], f["n_sectors"]))
     run = FisheyeRun(images, tables, seconds=time.perf_counter() - t0)

@@ -366,8 +366,7 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
     from .._runtime.progress import make_progress  # noqa: PLC0415
     from ..canopy.fisheye_run import fisheye_cameras, fisheye_positions  # noqa: PLC0415
     from ..canopy.canopy import canopies_from_config  # noqa: PLC0415
-    from ..canopy.gapfraction import build_canopy_scene  # noqa: PLC0415
-    from ..canopy.windows import tile_offsets  # noqa: PLC0415
+    from ..canopy.gapfraction import tiled_sky_scene  # noqa: PLC0415
     from ..config import SceneConfig, load_scene  # noqa: PLC0415
     from ..lidar.survey import build  # noqa: PLC0415
     from .compute import compute_truth  # noqa: PLC0415
@@ -392,11 +391,8 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
     if periodic:
         canopy = canopies_from_config(cfg)[0]
         bounds = canopy.plot_bounds_m
-        reach = (hi[2] - z_s) * math.tan(math.radians(max(li.RING_BOUNDS_DEG[-1][1],
-                                                          float(s["rings_deg"][-1]))))
-        x0, y0, x1, y1 = bounds
-        offsets, _ = tile_offsets(canopy, [(x0 - reach, y0 - reach, x1 + reach, y1 + reach)])
-        built = build_canopy_scene(canopy, offsets)
+        built = tiled_sky_scene(canopy, positions, max(li.RING_BOUNDS_DEG[-1][1], float(s["rings_deg"][-1])),
+                                key="lai_methods.rings_deg")
         above = grid.corner_m[2] + (np.arange(grid.shape[2]) + 0.5) * grid.voxel_m > z_s
         plot_lai = float(leaf[:, :, above].sum() / canopy.plot_area_m2)
         plot_pai = float(plant[:, :, above].sum() / canopy.plot_area_m2)

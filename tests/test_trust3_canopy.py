@@ -98,3 +98,24 @@ def test_fisheye_and_evaluate_photo_read_the_same_sky_of_a_periodic_plot(tmp_pat
     # The 45–60° ring sees the tiled canopy, not open sky beyond one plot: near the Poisson
     # value exp(−G·L/cos θ) at 52.5° (G = 0.5, L = 1), 0.44, not 0.70.
     assert rings[(45, 60)] == pytest.approx(math.exp(-0.5 / math.cos(math.radians(52.5))), abs=0.12)
+
+
+# ------------------------------------------------------------------ evaluate-photo outside the canopy
+@pytest.mark.parametrize("scene,sets,key", [
+    (SCENE, ["fisheye.layout='points'", "fisheye.points_m=[[0.5, 0.5], [5.0, 5.0]]"], "fisheye.points_m"),
+    ("scenes/strawberry_plot.toml", ["fisheye.layout='points'", "fisheye.points_m=[[50.0, 50.0]]"],
+     "fisheye.points_m"),
+    ("scenes/strawberry_plot.toml", ["fisheye.layout='transect'", "fisheye.transect_m=[-30, 0, -20, 0]"],
+     "fisheye.transect_m"),
+    (SCENE, ["fisheye.area_m=[2, 2, 3, 3]"], "fisheye.area_m"),
+])
+def test_evaluate_photo_refuses_sensors_outside_the_canopy(tmp_path, capsys, scene, sets, key):
+    from simlidar_mi import cli
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "photo_scores.csv").write_text("earlier\n")
+    rc = cli.main(["evaluate-photo", scene, "--out", str(out), "--set", "lai_methods.sampler='rays'",
+                   "--set", "lai_methods.rays_per_cell=8", *[a for s in sets for a in ("--set", s)]])
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and key in line and "outside" in line, line
+    assert (out / "photo_scores.csv").read_text() == "earlier\n"  # nothing written, nothing lost

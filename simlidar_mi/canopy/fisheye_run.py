@@ -41,6 +41,7 @@ from ..io.exr import header_value, read_exr
 from .fisheye import TABLE_COLUMNS, FisheyeCamera, FisheyeImage, GapTable, make_fisheye, render_fisheye
 
 __all__ = ["CSV_COLUMNS", "FisheyeRun", "fisheye_positions", "fisheye_cameras", "fisheye_scene", "run_fisheye",
+           "leaf_length_m", "warn_leaves_near_lenses",
            "write_fisheye_exr", "read_fisheye_exr"]
 
 CSV_COLUMNS = ("position", "x_m", "y_m", "z_m") + TABLE_COLUMNS
@@ -51,6 +52,10 @@ DEFAULT_HEIGHT_M = 1.0  # lens above the ground looking up; above the highest pl
 # A periodic plot is tiled for rays to this zenith (or the outermost ring edge below 90°, if
 # larger): beyond it a ray leaves the copies and sees open sky (the 85–90° band).
 TILE_ZENITH_DEG = 85.0
+# A leaf this many leaf lengths or nearer to a lens fills whole rings (its gap 0): warned.
+NEAR_LEAF_LENGTHS = 2.0
+# The default lens under a [random_leaves] layer: this many leaf lengths below its lowest leaf.
+BELOW_LEAF_LENGTHS = 3.0
 
 
 def fisheye_positions(cfg: SceneConfig, lo_m, hi_m) -> np.ndarray:
@@ -87,6 +92,14 @@ def fisheye_positions(cfg: SceneConfig, lo_m, hi_m) -> np.ndarray:
         # looking up: 1 m above the ground under a canopy taller than 2 m, else at the ground (a crop)
         up = DEFAULT_HEIGHT_M if hi[2] - ground >= 2 * DEFAULT_HEIGHT_M else 0.0
         z = ground + up if f["looking"] == "up" else float(hi[2]) + DEFAULT_HEIGHT_M
+        if f["looking"] == "up" and cfg.has("random_leaves"):
+            # A lens inside the leaf layer has leaves millimetres above it (whole rings dark):
+            # the default sits below the layer, as a lens in the field goes below the lowest leaves.
+            from ..plants.random_leaves import RandomLeavesParams  # noqa: PLC0415
+            r = cfg["random_leaves"]
+            p = RandomLeavesParams(r["n_leaves"], r["leaf_area_m2"], tuple(r["plot_size_m"]),
+                                   tuple(r["height_range_m"]), r["angle_law"], r["shape"], r["n_sides"])
+            z = min(z, float(lo[2]) - BELOW_LEAF_LENGTHS * 2.0 * p.leaf_radius_m)
     return np.column_stack([xy, np.full(len(xy), z)])
 
 
@@ -105,19 +118,74 @@ def fisheye_cameras(cfg: SceneConfig, lo_m, hi_m) -> list[FisheyeCamera]:
         raise ConfigError(exc.reason, file=cfg.source, key=exc.key, value=exc.value) from None
 
 
+def leaf_length_m(leaves) -> float:
+    """Median leaf length: twice the largest distance from a leaf's mean vertex to its vertices
+    (the diagonal of a square leaf, the circumdiameter of a regular disc), metres."""
+    if not len(leaves):
+        return 0.0
+    key = leaves.plant_id.astype(np.int64) * (2**32) + leaves.leaf_id.astype(np.int64)
+    order = np.argsort(key, kind="stable")
+    k = key[order]
+    starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
+    v = leaves.vertices[order]
+    n = np.diff(np.r_[starts, len(k)])
+    mean = np.add.reduceat(v.sum(axis=1), starts, axis=0) / (3 * n)[:, None]
+    d = np.linalg.norm(v - np.repeat(mean, n, axis=0)[:, None, :], axis=2).max(axis=1)
+    return float(2.0 * np.median(np.maximum.reduceat(d, starts)))
+
+
+def warn_leaves_near_lenses(cfg: SceneConfig, leaves, lenses_m, period_m=None) -> int:
+    """Warn (one :class:`~simlidar_mi.errors.SimlidarWarning` line) when leaves lie within
+    :data:`NEAR_LEAF_LENGTHS` leaf lengths of a lens on the side it looks to; returns how many
+    lenses have one.  ``period_m``: (w, l) of a periodic plot (distances across its edges)."""
+    import warnings  # noqa: PLC0415
+    from ..errors import SimlidarWarning  # noqa: PLC0415
+    lenses = np.asarray(lenses_m, np.float64).reshape(-1, 3)
+    if not len(leaves) or not len(lenses):
+        return 0
+    near = NEAR_LEAF_LENGTHS * leaf_length_m(leaves)
+    v = leaves.vertices.reshape(-1, 3)
+    sign = 1.0 if cfg["fisheye"]["looking"] == "up" else -1.0
+    dist = np.full(len(lenses), np.inf)
+    for i, p in enumerate(lenses):
+        d = v - p
+        if period_m is not None:  # the nearest periodic copy of every vertex
+            w = np.asarray(period_m, np.float64)
+            d[:, :2] -= np.round(d[:, :2] / w) * w
+        ahead = sign * d[:, 2] >= 0.0
+        if ahead.any():
+            dist[i] = float(np.sqrt((d[ahead] ** 2).sum(axis=1)).min())
+    hit = np.flatnonzero(dist < near)
+    if len(hit):
+        k = int(hit[np.argmin(dist[hit])])
+        x, y, z = lenses[k]
+        side = "above" if sign > 0 else "below"
+        edge = float(v[:, 2].min()) if sign > 0 else float(v[:, 2].max())
+        warnings.warn(SimlidarWarning(
+            f"fisheye.height_m: {len(hit)} of {len(lenses)} lenses have leaves within {NEAR_LEAF_LENGTHS:g} leaf "
+            f"lengths ({near:.3g} m) {side} them, the nearest {dist[k]:.3g} m from lens {k} at ({x:.3g}, {y:.3g}, "
+            f"{z:.3g}) m: such a leaf fills whole rings and the LAI read is too high; place the lenses "
+            f"{'below' if sign > 0 else 'above'} the leaves (the {'lowest' if sign > 0 else 'highest'} at z = {edge:.3g} m)"), stacklevel=2)
+    return len(hit)
+
+
 def fisheye_scene(cfg: SceneConfig, geometry):
     """The scene the cameras see: a ``[random_leaves]`` plot tiled around the lenses (the
     tiling of ``evaluate-photo``, :func:`~simlidar_mi.canopy.gapfraction.tiled_sky_scene`),
-    otherwise ``geometry`` (the scene's plants and primitives) as it stands."""
+    otherwise ``geometry`` (the scene's plants and primitives) as it stands.  Warns when
+    leaves lie close to a lens (:func:`warn_leaves_near_lenses`)."""
+    lenses = fisheye_positions(cfg, *geometry.bounds_m())
     if cfg.has("random_leaves"):
         from .canopy import canopies_from_config  # noqa: PLC0415
         from .gapfraction import tiled_sky_scene  # noqa: PLC0415
         f = cfg["fisheye"]
-        lenses = fisheye_positions(cfg, *geometry.bounds_m())
+        canopy = canopies_from_config(cfg)[0]
+        x0, y0, x1, y1 = canopy.plot_bounds_m
+        warn_leaves_near_lenses(cfg, geometry.leaves, lenses, (x1 - x0, y1 - y0))
         theta = max([TILE_ZENITH_DEG] + [e for e in f["rings_deg"] if e < 90.0])
-        return tiled_sky_scene(canopies_from_config(cfg)[0], lenses, theta, key="fisheye.rings_deg",
-                               variant=cfg["scene"]["variant"])
+        return tiled_sky_scene(canopy, lenses, theta, key="fisheye.rings_deg", variant=cfg["scene"]["variant"])
     from ..lidar.survey import build  # noqa: PLC0415
+    warn_leaves_near_lenses(cfg, geometry.leaves, lenses)
     return build(cfg, geometry, patterns=[])
 
 

@@ -383,7 +383,7 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
     """Compute ``scene``'s truth, run the LAI methods at the ``[fisheye]`` positions with the
     ``[lai_methods]`` settings and write the files of the module docstring to ``out_dir``."""
     from .._runtime.progress import make_progress  # noqa: PLC0415
-    from ..canopy.fisheye_run import fisheye_cameras, fisheye_positions  # noqa: PLC0415
+    from ..canopy.fisheye_run import fisheye_cameras, fisheye_positions, warn_leaves_near_lenses  # noqa: PLC0415
     from ..canopy.canopy import canopies_from_config  # noqa: PLC0415
     from ..canopy.gapfraction import tiled_sky_scene  # noqa: PLC0415
     from ..config import SceneConfig, load_scene  # noqa: PLC0415
@@ -403,6 +403,8 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
     canopy = canopies_from_config(cfg)[0] if periodic else None
     bounds = canopy.plot_bounds_m if periodic else (lo[0], lo[1], hi[0], hi[1])
     _refuse_outside(cfg, positions, bounds, "plot" if periodic else "plants' horizontal extent")
+    warn_leaves_near_lenses(cfg, geometry.leaves, positions,
+                            (bounds[2] - bounds[0], bounds[3] - bounds[1]) if periodic else None)
     grid = truth_grid(cfg, geometry)
     shown = make_progress(progress)
     truth = compute_truth(geometry, grid, progress=shown,

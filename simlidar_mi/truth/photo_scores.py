@@ -32,7 +32,7 @@ beyond the grid there is no plant. PAI the same with plant area (leaf + wood/2).
 are homogeneous by construction: their footprint truth is the plot's LAI above the sensor
 (voxel layers whose centre is higher). Plot scale: the
 mean footprint truth over the positions. Sensors outside the plants' horizontal extent (outside the
-plot of a periodic scene) are refused, naming the ``[fisheye]`` key that placed them: they would
+plot of a periodic scene) or above the highest plant are refused, naming the ``[fisheye]`` key that placed them: they would
 score the empty sky beside the canopy.
 
 The JSON adds the truth's woody share of the plant area (``wood_to_total_truth``, the α of
@@ -361,15 +361,19 @@ def _plot(run: PhotoRun, stage: Path, title: str) -> None:
     plt.close(fig)
 
 
-def _refuse_outside(cfg, positions: np.ndarray, bounds, what: str) -> None:
-    """Refuse sensor positions outside the canopy: their estimates and footprint truths would
-    score the empty sky beside it (once NaN scores and exit 0)."""
+def _refuse_outside(cfg, positions: np.ndarray, bounds, what: str, top_m: float) -> None:
+    """Refuse sensor positions outside the canopy, beside it or above its top ``top_m``: their
+    estimates and footprint truths would score the empty sky (once NaN scores and exit 0)."""
+    f = cfg["fisheye"]
+    if len(positions) and float(positions[:, 2].min()) >= top_m:
+        raise ConfigError(f"puts the lenses at z = {positions[0, 2]:.4g} m, above the highest plant (z = "
+                          f"{top_m:.4g} m): no canopy above them to score; evaluate-photo scores sensors "
+                          "under the canopy", file=cfg.source, key="fisheye.height_m", value=f["height_m"])
     x0, y0, x1, y1 = (float(b) for b in bounds)
     out = np.flatnonzero((positions[:, 0] < x0) | (positions[:, 0] > x1) |
                          (positions[:, 1] < y0) | (positions[:, 1] > y1))
     if not len(out):
         return
-    f = cfg["fisheye"]
     key = {"grid": "fisheye.area_m", "transect": "fisheye.transect_m"}.get(f["layout"], "fisheye.points_m")
     k = int(out[0])
     raise ConfigError(f"{len(out)} of {len(positions)} sensor positions lie outside the {what}, x {x0:.4g} to "
@@ -402,7 +406,7 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
     periodic = cfg.has("random_leaves")
     canopy = canopies_from_config(cfg)[0] if periodic else None
     bounds = canopy.plot_bounds_m if periodic else (lo[0], lo[1], hi[0], hi[1])
-    _refuse_outside(cfg, positions, bounds, "plot" if periodic else "plants' horizontal extent")
+    _refuse_outside(cfg, positions, bounds, "plot" if periodic else "plants' horizontal extent", float(hi[2]))
     warn_leaves_near_lenses(cfg, geometry.leaves, positions,
                             (bounds[2] - bounds[0], bounds[3] - bounds[1]) if periodic else None)
     grid = truth_grid(cfg, geometry)

@@ -143,18 +143,29 @@ def warn_leaves_near_lenses(cfg: SceneConfig, leaves, lenses_m, period_m=None) -
     lenses = np.asarray(lenses_m, np.float64).reshape(-1, 3)
     if not len(leaves) or not len(lenses):
         return 0
+    from scipy.spatial import cKDTree  # noqa: PLC0415
     near = NEAR_LEAF_LENGTHS * leaf_length_m(leaves)
     v = leaves.vertices.reshape(-1, 3)
     sign = 1.0 if cfg["fisheye"]["looking"] == "up" else -1.0
+    zl = lenses[:, 2]
+    # Only vertices in the slab a lens could see within `near` on its side (bounded work).
+    lo_z, hi_z = (zl.min(), zl.max() + near) if sign > 0 else (zl.min() - near, zl.max())
+    cand = v[(v[:, 2] >= lo_z) & (v[:, 2] <= hi_z)].copy()
+    pts = lenses.copy()
+    if period_m is not None and len(cand):  # distances across a periodic plot's edges
+        w = np.asarray(period_m, np.float64)
+        cand[:, :2] %= w
+        pts[:, :2] %= w
+        shifts = np.array([(i, j, 0.0) for i in (-1, 0, 1) for j in (-1, 0, 1)]) * np.r_[w, 0.0]
+        cand = (cand[None] + shifts[:, None]).reshape(-1, 3)
     dist = np.full(len(lenses), np.inf)
-    for i, p in enumerate(lenses):
-        d = v - p
-        if period_m is not None:  # the nearest periodic copy of every vertex
-            w = np.asarray(period_m, np.float64)
-            d[:, :2] -= np.round(d[:, :2] / w) * w
-        ahead = sign * d[:, 2] >= 0.0
-        if ahead.any():
-            dist[i] = float(np.sqrt((d[ahead] ** 2).sum(axis=1)).min())
+    if len(cand):
+        tree = cKDTree(cand)
+        for i, (p, idx) in enumerate(zip(pts, tree.query_ball_point(pts, near))):
+            d = cand[np.asarray(idx, np.int64)] - p
+            d = d[sign * d[:, 2] >= 0.0]
+            if len(d):
+                dist[i] = float(np.sqrt((d * d).sum(axis=1)).min())
     hit = np.flatnonzero(dist < near)
     if len(hit):
         k = int(hit[np.argmin(dist[hit])])

@@ -48,14 +48,13 @@ def register(command, scene_args, overrides) -> None:
              "transect of positions: ring/sector gap-fraction table, coverage EXRs, binary PNGs",
              _fisheye_args)
     def _fisheye_run(args: argparse.Namespace) -> int:
-        from .canopy.fisheye_run import run_fisheye
+        from .canopy.fisheye_run import fisheye_scene, run_fisheye
         from .config import load_scene
-        from .lidar.survey import build
         from .truth.run import truth_geometry
 
         cfg = load_scene(args.scene, overrides(args))
         geometry, _ = truth_geometry(cfg)  # plants and primitives; a gap-fraction scene's canopy
-        run = run_fisheye(cfg, build(cfg, geometry, patterns=[]), geometry.bounds_m(), args.out,
+        run = run_fisheye(cfg, fisheye_scene(cfg, geometry), geometry.bounds_m(), args.out,
                           write_images=not args.no_images, progress=True)
         lo, hi = run.tables[0].ring_lo_deg, run.tables[0].ring_hi_deg
         print("ring gap fraction (solid-angle weighted) per position")

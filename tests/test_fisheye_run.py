@@ -27,11 +27,12 @@ def test_projection_key_lists_every_lens():
 
 def test_grid_transect_and_points():
     lo, hi = np.array([0.0, 0.0, 0.0]), np.array([6.0, 3.0, 5.0])
-    p = fisheye_positions(_cfg(), lo, hi)  # default 3 × 3 at cell centres, 1 m up under a tall canopy
+    plants = load_scene(REPO / "scenes" / "strawberry_plot.toml")  # not a [random_leaves] layer
+    p = fisheye_positions(plants, lo, hi)  # default 3 × 3 at cell centres, 1 m up under a tall canopy
     np.testing.assert_allclose(p[:3, 0], [1.0, 3.0, 5.0])
     np.testing.assert_allclose(p[::3, 1], [0.5, 1.5, 2.5])
     np.testing.assert_array_equal(p[:, 2], 1.0)
-    assert fisheye_positions(_cfg(), lo, np.array([6.0, 3.0, 0.4]))[0, 2] == 0.0  # a crop: at the ground
+    assert fisheye_positions(plants, lo, np.array([6.0, 3.0, 0.4]))[0, 2] == 0.0  # a crop: at the ground
     t = fisheye_positions(_cfg('fisheye.layout="transect"', "fisheye.transect_m=[0, 1, 4, 1]",
                                "fisheye.transect_n=3", "fisheye.height_m=0.5"), lo, hi)
     np.testing.assert_allclose(t, [[0, 1, 0.5], [2, 1, 0.5], [4, 1, 0.5]])

@@ -159,7 +159,7 @@ def canopies_from_config(cfg: SceneConfig, replicate: int = 0) -> list[Canopy]:
         try:
             rl = random_leaves(r["n_leaves"], r["leaf_area_m2"], plot_size_m=tuple(r["plot_size_m"]),
                                height_range_m=tuple(r["height_range_m"]),
-                               angle_law=r["angle_law"], shape=r["shape"],
+                               angle_law=r["angle_law"], shape=r["shape"], n_sides=r["n_sides"],
                                seed=replicate_seed(cfg.seed, replicate))
         except ConfigError as exc:
             raise ConfigError(str(exc), file=cfg.source) from exc

@@ -48,7 +48,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "GapImage", "GapFractionRun", "GapSummary", "CSV_COLUMNS", "REPLICATE_COLUMNS",
-    "build_canopy_scene", "render_gap", "gap_views", "gap_images", "run_gapfraction",
+    "build_canopy_scene", "tiled_sky_scene", "render_gap", "gap_views", "gap_images", "run_gapfraction",
     "replicate_sd", "summarise", "write_gap_exr", "read_gap_exr",
 ]
 
@@ -87,6 +87,33 @@ def build_canopy_scene(canopy: Canopy, offsets: np.ndarray | None = None, *,
         branches = Branches.concat(parts)
     origin = np.round(np.r_[canopy.plot_centre_m, 0.0])
     return build_scene(branches, leaves, [], origin_m=origin, variant=variant)
+
+
+def tiled_sky_scene(canopy: Canopy, lenses_m, theta_max_deg: float, *, key: str,
+                    variant: str | None = None):
+    """A periodic ``canopy`` tiled for hemispherical views from ``lenses_m`` ((n, 3) metres).
+
+    Every ray from a lens within ``theta_max_deg`` of the vertical meets the periodic canopy
+    until it leaves the leaf layer: the plot and the lenses are covered out to the reach
+    ``Δz·tan θ_max``, Δz the largest height from a lens to the far side of the layer (the top
+    leaf looking up, the lowest looking down).  ``simlidar-mi fisheye`` and ``evaluate-photo``
+    both see a ``[random_leaves]`` plot through this, so the two read the same sky.  ``key``:
+    the scene key that sets ``theta_max_deg`` (named if the tiling grows too large).
+    """
+    lenses = np.asarray(lenses_m, np.float64).reshape(-1, 3)
+    z = canopy.leaves.vertices[..., 2] if len(canopy.leaves) else np.zeros(1)
+    dz = max(float(z.max()) - float(lenses[:, 2].min()), float(lenses[:, 2].max()) - float(z.min()), 0.0)
+    reach = dz * math.tan(math.radians(theta_max_deg))
+    x0, y0, x1, y1 = canopy.plot_bounds_m
+    lo = np.minimum([x0, y0], lenses[:, :2].min(axis=0)) - reach
+    hi = np.maximum([x1, y1], lenses[:, :2].max(axis=0)) + reach
+    try:
+        offsets, _ = tile_offsets(canopy, [(lo[0], lo[1], hi[0], hi[1])])
+    except ConfigError as exc:
+        raise ConfigError(f"views to {theta_max_deg:g}° from the lenses need too many copies of the "
+                          f"periodic plot: {exc.reason.split(';')[0]}; lower the lenses' distance below "
+                          "the leaves or the outermost ring", key=key, value=theta_max_deg) from None
+    return build_canopy_scene(canopy, offsets, variant=variant)
 
 
 # -------------------------------------------------------------------------- image

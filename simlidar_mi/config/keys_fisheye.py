@@ -72,7 +72,8 @@ SECTIONS = {
         "spp": Key(INT, 4, at_least(1), "samples (rays) per pixel; a pixel's coverage is their hit share"),
         "looking": Key(STR, "up", one_of("up", "down"), "up: a DHP from under the canopy; down: from above"),
         "height_m": Key(FLOAT, None, nonneg, "lens height above the ground (ground.z_m, else z = 0), "
-                        "metres (default looking up: 1.0 under plants taller than 2 m, else 0 (a crop); looking down: "
+                        "metres (default looking up: 1.0 under plants taller than 2 m, else 0 (a crop), and a "
+                        "[random_leaves] plot's lens 3 leaf lengths below its lowest leaf; looking down: "
                         "1.0 above the highest plant)"),
         "tilt_deg": Key(FLOAT, 0.0, within(0, 90), "optical axis lean from the vertical, degrees"),
         "tilt_azimuth_deg": Key(FLOAT, 0.0, within(-360, 360), "scene azimuth the axis leans toward "

@@ -31,7 +31,9 @@ by their share of the disc (8 × 8 sample points a voxel);
 beyond the grid there is no plant. PAI the same with plant area (leaf + wood/2). Periodic plots (``[random_leaves]``)
 are homogeneous by construction: their footprint truth is the plot's LAI above the sensor
 (voxel layers whose centre is higher). Plot scale: the
-mean footprint truth over the positions.
+mean footprint truth over the positions. Sensors outside the plants' horizontal extent (outside the
+plot of a periodic scene) or above the highest plant are refused, naming the ``[fisheye]`` key that placed them: they would
+score the empty sky beside the canopy.
 
 The JSON adds the truth's woody share of the plant area (``wood_to_total_truth``, the α of
 the true-LAI correction) and, per ring, the canopy's exact G(θ) (azimuth mean of Σ a_i|n_i·Ω|/Σ a_i over
@@ -359,15 +361,35 @@ def _plot(run: PhotoRun, stage: Path, title: str) -> None:
     plt.close(fig)
 
 
+def _refuse_outside(cfg, positions: np.ndarray, bounds, what: str, top_m: float) -> None:
+    """Refuse sensor positions outside the canopy, beside it or above its top ``top_m``: their
+    estimates and footprint truths would score the empty sky (once NaN scores and exit 0)."""
+    f = cfg["fisheye"]
+    if len(positions) and float(positions[:, 2].min()) >= top_m:
+        raise ConfigError(f"puts the lenses at z = {positions[0, 2]:.4g} m, above the highest plant (z = "
+                          f"{top_m:.4g} m): no canopy above them to score; evaluate-photo scores sensors "
+                          "under the canopy", file=cfg.source, key="fisheye.height_m", value=f["height_m"])
+    x0, y0, x1, y1 = (float(b) for b in bounds)
+    out = np.flatnonzero((positions[:, 0] < x0) | (positions[:, 0] > x1) |
+                         (positions[:, 1] < y0) | (positions[:, 1] > y1))
+    if not len(out):
+        return
+    key = {"grid": "fisheye.area_m", "transect": "fisheye.transect_m"}.get(f["layout"], "fisheye.points_m")
+    k = int(out[0])
+    raise ConfigError(f"{len(out)} of {len(positions)} sensor positions lie outside the {what}, x {x0:.4g} to "
+                      f"{x1:.4g} m, y {y0:.4g} to {y1:.4g} m (position {k} at x {positions[k, 0]:.4g}, "
+                      f"y {positions[k, 1]:.4g} m); evaluate-photo scores sensors under the canopy",
+                      file=cfg.source, key=key, value=f[key.split(".")[1]])
+
+
 @writes_output("out_dir")
 def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
     """Compute ``scene``'s truth, run the LAI methods at the ``[fisheye]`` positions with the
     ``[lai_methods]`` settings and write the files of the module docstring to ``out_dir``."""
     from .._runtime.progress import make_progress  # noqa: PLC0415
-    from ..canopy.fisheye_run import fisheye_cameras, fisheye_positions  # noqa: PLC0415
+    from ..canopy.fisheye_run import fisheye_cameras, fisheye_positions, warn_leaves_near_lenses  # noqa: PLC0415
     from ..canopy.canopy import canopies_from_config  # noqa: PLC0415
-    from ..canopy.gapfraction import build_canopy_scene  # noqa: PLC0415
-    from ..canopy.windows import tile_offsets  # noqa: PLC0415
+    from ..canopy.gapfraction import tiled_sky_scene  # noqa: PLC0415
     from ..config import SceneConfig, load_scene  # noqa: PLC0415
     from ..lidar.survey import build  # noqa: PLC0415
     from .compute import compute_truth  # noqa: PLC0415
@@ -375,13 +397,6 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
     cfg = scene if isinstance(scene, SceneConfig) else load_scene(scene, overrides)
     s = dict(cfg["lai_methods"])
     geometry, ground_area = truth_geometry(cfg)
-    grid = truth_grid(cfg, geometry)
-    shown = make_progress(progress)
-    truth = compute_truth(geometry, grid, progress=shown,
-                          ground_area_m2=cfg["truth"]["ground_area_m2"] or ground_area,
-                          ground_z_m=cfg["ground"]["z_m"])
-    leaf = grid_values(truth, "leaf_area_m2")
-    plant = grid_values(truth, "plant_area_m2")
     lo, hi = geometry.bounds_m()
     if cfg["fisheye"]["looking"] != "up":
         raise ConfigError("the LAI methods read sensors looking up", file=cfg.source,
@@ -389,14 +404,21 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
     positions = fisheye_positions(cfg, lo, hi)
     z_s = float(positions[0, 2])
     periodic = cfg.has("random_leaves")
+    canopy = canopies_from_config(cfg)[0] if periodic else None
+    bounds = canopy.plot_bounds_m if periodic else (lo[0], lo[1], hi[0], hi[1])
+    _refuse_outside(cfg, positions, bounds, "plot" if periodic else "plants' horizontal extent", float(hi[2]))
+    warn_leaves_near_lenses(cfg, geometry.leaves, positions,
+                            (bounds[2] - bounds[0], bounds[3] - bounds[1]) if periodic else None)
+    grid = truth_grid(cfg, geometry)
+    shown = make_progress(progress)
+    truth = compute_truth(geometry, grid, progress=shown,
+                          ground_area_m2=cfg["truth"]["ground_area_m2"] or ground_area,
+                          ground_z_m=cfg["ground"]["z_m"])
+    leaf = grid_values(truth, "leaf_area_m2")
+    plant = grid_values(truth, "plant_area_m2")
     if periodic:
-        canopy = canopies_from_config(cfg)[0]
-        bounds = canopy.plot_bounds_m
-        reach = (hi[2] - z_s) * math.tan(math.radians(max(li.RING_BOUNDS_DEG[-1][1],
-                                                          float(s["rings_deg"][-1]))))
-        x0, y0, x1, y1 = bounds
-        offsets, _ = tile_offsets(canopy, [(x0 - reach, y0 - reach, x1 + reach, y1 + reach)])
-        built = build_canopy_scene(canopy, offsets)
+        built = tiled_sky_scene(canopy, positions, max(li.RING_BOUNDS_DEG[-1][1], float(s["rings_deg"][-1])),
+                                key="lai_methods.rings_deg")
         above = grid.corner_m[2] + (np.arange(grid.shape[2]) + 0.5) * grid.voxel_m > z_s
         plot_lai = float(leaf[:, :, above].sum() / canopy.plot_area_m2)
         plot_pai = float(plant[:, :, above].sum() / canopy.plot_area_m2)
@@ -407,7 +429,6 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
         def truth_pai(pos, theta_min, theta_max):
             return plot_pai
     else:
-        bounds = (lo[0], lo[1], hi[0], hi[1])
         built = build(cfg, geometry)
         plot_lai = float(truth.attrs.get("LAI", leaf.sum() / ((hi[0] - lo[0]) * (hi[1] - lo[1]))))
         plot_pai = float(truth.attrs.get("PAI", plant.sum() / ((hi[0] - lo[0]) * (hi[1] - lo[1]))))

@@ -100,6 +100,8 @@ def _kinds():
     yield "grid", _tractor(-0.3972, 0.002, 200, theta, rng.uniform(0.5, 3.0, len(theta)))
     yield "grid_odd_start", _tractor(-1.23456, 0.002, 200, theta, rng.uniform(0.5, 3.0, len(theta)))
     yield "grid_1cm", _tractor(0.5, 0.01, 100, theta, rng.uniform(0.5, 3.0, len(theta)))
+    # orchard_leafy's rows: 1 cm apart from y = −1.453 m (Y = 547 + 10·i at 1 mm): 2.5 mm, moved 0.5 mm
+    yield "grid_1cm_leafy", _tractor(-1.453, 0.01, 100, theta, rng.uniform(0.5, 3.0, len(theta)))
     # the ground plane z = 0 seen from 1 m: x = 1 + cot(−θ), z = 0 for every point
     down = np.arange(-80.0, -10.0, 0.5)
     yield "plane", _tractor(-0.3972, 0.002, 100, down, 1.0 / np.sin(np.radians(-down)))
@@ -111,7 +113,8 @@ def _kinds():
 def test_no_axis_with_two_values_trips_lastools_fluff(tmp_path, kind, res):
     """Every axis holding at least two values passes LAStools' rule at x10 (so at every level),
     with scales and offsets lascheck accepts, and the points within 0.15 mm of the simulated
-    ones (0.05 mm of rounding, at most 0.1 mm of shift of a gridded axis).  A constant axis
+    ones (0.05 mm of rounding, at most 0.1 mm of shift of rows 2 mm apart; 0.5 mm at most for
+    other grids, MAX_SHIFT_M).  A constant axis
     (the plane's z, the single ray's x and z) trips it whatever the scale: LAStools counts
     remainders of equal integers."""
     path = write_scan_las(res, tmp_path / "p.las")
@@ -123,10 +126,22 @@ def test_no_axis_with_two_values_trips_lastools_fluff(tmp_path, kind, res):
             assert kind in ("plane", "single_ray") and name in "XZ", (kind, name)
     assert lastools_header_warnings(las) == []
     i, k = np.asarray(las.scan_position), np.asarray(las.scan_angle_index)
-    np.testing.assert_allclose(las.xyz, res.points_m()[i, k], rtol=0, atol=1.5e-4)
-    if kind != "grid_1cm":  # y on a 2 mm grid: exact distances along the track
-        y = np.asarray(las.points.array["Y"], np.int64) * las.header.scales[1]
-        np.testing.assert_allclose(np.diff(np.unique(y)), 0.002, rtol=0, atol=1e-9)
+    moved = 5.5e-4 if kind == "grid_1cm_leafy" else 1.5e-4  # rows 2 mm apart: ≤ 0.1 mm (+ 0.05)
+    np.testing.assert_allclose(las.xyz, res.points_m()[i, k], rtol=0, atol=moved)
+    step = 0.01 if kind.startswith("grid_1cm") else 0.002  # exact distances along the track
+    y = np.asarray(las.points.array["Y"], np.int64) * las.header.scales[1]
+    np.testing.assert_allclose(np.diff(np.unique(y)), step, rtol=0, atol=1e-9)
+
+
+def test_a_coarse_grid_far_off_every_scale_keeps_exact_coordinates_and_the_fluff(tmp_path):
+    """The documented limit: rows 5 cm apart from y = −0.3972 m would need a 1 cm scale or
+    coarser and a move of 2.8 mm (> MAX_SHIFT_M); the file keeps the exact 0.1 mm coordinates
+    (x10 fluff in Y, as lasinfo reports) rather than move the points."""
+    res = _tractor(-0.3972, 0.05, 40, [-30.0, -20.0], [2.0, 2.5])
+    las, fluff, _ = _axis_report(write_scan_las(res, tmp_path / "p.las"))
+    assert fluff["Y"][0] and las.header.scales[1] == 0.0001
+    i, k = np.asarray(las.scan_position), np.asarray(las.scan_angle_index)
+    np.testing.assert_allclose(las.xyz, res.points_m()[i, k], rtol=0, atol=0.5e-4)
 
 
 def test_scale_chooser_is_the_same_for_any_pieces():

@@ -39,7 +39,8 @@ coordinate is a whole multiple of, unless that leaves LAStools' "resolution fluf
 integer with the same last digit, as on an axis on a regular grid (a tractor's rows 2 mm apart
 from the scene's edge: 0.1 mm integers f_0 + 20 i).  Such an axis gets 0.25 mm, 0.5 mm, … (the
 scales LAStools accepts) so that the grid step is not a multiple of 10 stored units, when the
-whole axis moves by at most 0.1 mm for it (:class:`~simlidar_mi.io.las_fields.ScaleChooser`);
+whole axis moves by at most 0.5 mm for it (the rounding of a 1 mm file; at most 0.1 mm for
+rows 2 mm apart) (:class:`~simlidar_mi.io.las_fields.ScaleChooser`);
 a constant axis keeps the fluff, as any scale would.
 
 Header: the global-encoding WKT bit is always set (LAS 1.4 requires it for point

@@ -16,8 +16,9 @@ SCALES_FLUFF_FREE_M = (0.0001, 0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.02
 #: Half the finest scale: every scale of :data:`SCALES_FLUFF_FREE_M` is a whole number of it.
 HALF_STEP_M = 0.00005
 #: The most a :class:`ScaleChooser` may shift a gridded axis to keep it free of resolution fluff
-#: (on top of the 0.05 mm of rounding to 0.1 mm).
-MAX_SHIFT_M = 0.0001
+#: (on top of the 0.05 mm of rounding to 0.1 mm): the rounding of a file at 1 mm, the usual
+#: scale of terrestrial scans; rows 2 mm apart need at most 0.1 mm, rows 1 cm apart up to 1.25 mm.
+MAX_SHIFT_M = 0.0005
 
 
 def intensity_text(scale: float, energy_max: float) -> str:
@@ -185,7 +186,7 @@ class ScaleChooser:
                 continue
             rem = (2 * f0) % u
             shift = min(rem, u - rem)
-            if shift * HALF_STEP_M <= MAX_SHIFT_M * (1 + 1e-9) and (best is None or shift < best[0]):
+            if shift <= round(MAX_SHIFT_M / HALF_STEP_M) and (best is None or shift < best[0]):
                 best = (shift, s)
         return (best[1], True) if best else (SCALES_M[level], False)
 

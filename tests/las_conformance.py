@@ -14,7 +14,8 @@ numpy only, so that it shares no code with laspy or our writer.
 It also covers the checks of LAStools' ``lasvalidate`` (lascheck.cpp) that apply to these files:
 header counts against the points, bounding box against the points, return-number combinations,
 scale factors > 0, offsets on the scale's grid ("translation fluff"), coordinate "resolution
-fluff" (every stored X, Y or Z a multiple of 10), GPS week time range when bit 0 is clear,
+fluff" (every stored X, Y or Z with the first one's remainder modulo 10, C's %, as
+LASlib/src/lasutility.cpp counts it; a constant axis, which no scale can help, is not reported), GPS week time range when bit 0 is clear,
 generating software / system identifier null padding, file creation day and year.
 """
 from __future__ import annotations
@@ -205,8 +206,8 @@ def check_las(path: str | Path, *, today: datetime.date | None = None) -> list[s
         if abs(h[f"min_{name.lower()}"] - lo) > s / 2 or abs(h[f"max_{name.lower()}"] - hi) > s / 2:
             problems.append(f"header {name} extent [{h[f'min_{name.lower()}']}, {h[f'max_{name.lower()}']}] "
                             f"!= the data's [{lo}, {hi}] (§2.4)")
-        if np.all(v % 10 == 0):
-            problems.append(f"resolution fluff (x10) in {name}: every stored {name} is a multiple of 10")
+        if len(v) > 1 and np.any(v != v[0]) and np.all(np.fmod(v, 10) == np.fmod(v[0], 10)):
+            problems.append(f"resolution fluff (x10) in {name}: every stored {name} ends in the same digit")
     if ebs and n:  # every descriptor readable at its place in the record
         at = PDRF6_SIZE
         for e in ebs:

@@ -17,6 +17,7 @@ from laspy.vlrs.known import WktCoordinateSystemVlr
 from simlidar_mi.geometry import CLASS_CODES
 from simlidar_mi.io.exr import header_value, read_exr, write_scan_exr
 from simlidar_mi.io.las import LAS_CLASS, TIME_SCAN_ORDER, crs_wkt, scan_times_s, write_scan_las
+from simlidar_mi.io import las_fields
 from simlidar_mi.lidar.platforms import path_patterns, static_pattern
 from simlidar_mi.lidar.scan import ScanResult
 from simlidar_mi.lidar.survey import run_scan
@@ -65,7 +66,7 @@ def test_exr_has_every_echo_layer_and_the_sensor(tmp_path):
     base = {"range", "class", "branch_id", "tree_id"}  # angle and row coordinate: header arrays
     layers = {f"echo{r}.{c}" for r in (2, 3)
               for c in ("range", "class", "class_half", "branch_id", "intensity", "tree_id")}
-    assert set(ch) == base | {"class_half", "n_returns", "intensity"} | layers
+    assert set(ch) == base | {"class_half", "n_returns", "n_returns_half", "intensity"} | layers
     for c in ("class", "echo2.class", "echo3.class"):  # the half copies image tools read: same codes
         assert ch[f"{c}_half"].dtype == np.float16 and np.array_equal(ch[f"{c}_half"], ch[c]), c
     beam = np.arange(n * m).reshape(n, m)
@@ -106,9 +107,12 @@ def test_las_has_one_point_per_echo(tmp_path):
     np.testing.assert_array_equal(p("scan_position") * m + p("scan_angle_index"), ech.beam)
     np.testing.assert_array_equal(p("return_number"), ech.return_number)
     np.testing.assert_array_equal(p("number_of_returns"), ech.number_of_returns)
-    expected_i = np.rint(300.0 * ech.energy.astype(float))  # the sensor's intensity_scale
+    e_max = float(ech.energy.max())  # 80.07: the strong echo
+    scale = 818.4  # the scan's: 65535 / 80.07 = 818.47…, rounded down to 4 significant digits
+    assert las_fields.scan_intensity_scale(e_max) == scale
+    expected_i = np.rint(scale * ech.energy.astype(float))
     np.testing.assert_array_equal(p("intensity"), expected_i)
-    assert 20000 < p("intensity").max() < 65535 and 0 < p("intensity").min()
+    assert 65470 <= p("intensity").max() <= 65535 and 0 < p("intensity").min()
     np.testing.assert_array_equal(p("echo_energy"), ech.energy)  # E unclipped, float32
     np.testing.assert_array_equal(p("classification"), [LAS_CLASS[c] for c in ech.cls])
     np.testing.assert_allclose(p("echo_width_ns"), ech.width_ns)
@@ -121,7 +125,7 @@ def test_las_has_one_point_per_echo(tmp_path):
     want = res.pattern.row_origin_m[i] + ech.range_m[:, None] * res.pattern.world_dirs()[i, k]
     np.testing.assert_allclose(xyz, want, rtol=0, atol=1e-4)  # 0.1 mm coordinate scale
     text = las.header.vlrs.get_by_id("simlidar-mi", [2])[0].record_data
-    assert b"s = 65535 * r_I^2 / R_ref^2 = 300 counts per unit E, r_I = 0.5 m" in text
+    assert b"s = 818.4 counts per unit E, chosen for this scan" in text and b"E_max = 80.0699997 " in text  # float32 80.07
     assert json.loads(las.header.vlrs.get_by_id("simlidar-mi", [3])[0].record_data) == res.sensor
 
 

@@ -19,7 +19,7 @@ import pyproj
 import pytest
 
 from simlidar_mi.config import load_scene
-from simlidar_mi.io.las_fields import BeamAngles, forward_heading_deg
+from simlidar_mi.io.las_fields import BeamAngles, ScaleChooser, forward_heading_deg, scan_intensity_scale
 from simlidar_mi.lidar.platforms import (airborne_pattern, path_patterns, rosette_patterns, rotating_patterns,
                                          static_pattern)
 from simlidar_mi.lidar.scan import ScanSettings
@@ -83,11 +83,22 @@ def test_every_included_scan_scene_is_covered():
     assert {kind for _, _, kind in RUNS.values()} == {"tractor", "static", "path", "airborne", "rotating", "rosette"}
 
 
+def _fluff_no_scale_can_mend(problem: str, las) -> bool:
+    """LAStools' x10 fluff on an axis on a regular grid whose start lies off every accepted
+    scale's grid by more than ScaleChooser's MAX_SHIFT_M (these runs' 5 cm rows: io/las.py)."""
+    if not problem.startswith("resolution fluff (x10) in "):
+        return False
+    c = "XYZ".index(problem.split(" in ")[1][0])
+    chooser = ScaleChooser()
+    chooser.add(np.asarray(las.xyz, np.float64).T)
+    return not chooser.fluff_free()[c] and chooser.scales()[c] == las.header.scales[c]
+
+
 @pytest.mark.parametrize("name", sorted(RUNS))
 def test_las_conforms_and_reads_the_same_in_laspy_and_after_laz(name, outputs, tmp_path):
     path = outputs(name) / "points.las"
-    assert check_las(path) == []
     las = laspy.read(path)
+    assert [p for p in check_las(path) if not _fluff_no_scale_can_mend(p, las)] == []
     n = len(las.points)
     assert n > 100 and las.header.point_count == n
     rn, nr = np.asarray(las.return_number), np.asarray(las.number_of_returns)
@@ -129,21 +140,19 @@ def test_rotating_head_points_are_in_firing_order(outputs):
 
 
 @pytest.mark.parametrize("name", sorted(WITH_ECHOES))
-def test_intensity_has_the_sensor_scale_and_never_clips(name, outputs):
+def test_intensity_has_the_scans_scale_and_never_clips(name, outputs):
+    """The scale is the scan's own (issue #29: 65535 / its largest echo energy, 4 significant
+    digits), stated in VLR record 2; no longer in the EXR header, written before the echoes."""
     out = outputs(name)
     las = laspy.read(out / "points.las")
-    sensor = json.loads(las.header.vlrs.get_by_id("simlidar-mi", [3])[0].record_data)
-    scale = sensor["intensity_scale"]
-    r_i = sensor["range_min_m"] or 0.5  # the preset's blind zone, or 0.5 m without one
-    assert sensor["intensity_range_m"] == r_i
-    assert scale == pytest.approx(65535.0 * (r_i / sensor["r_ref_m"]) ** 2, rel=1e-12)
     energy = np.asarray(las.echo_energy, np.float64)
+    scale = scan_intensity_scale(float(np.asarray(las.echo_energy).max()))
     np.testing.assert_array_equal(np.asarray(las.intensity), np.rint(scale * energy))
-    assert np.asarray(las.intensity).max() < 65535 and np.asarray(las.intensity).max() > 0
+    assert 65470 <= np.asarray(las.intensity).max() <= 65535
     exr = OpenEXR.File(str(out / "scan.exr")).header()
-    assert float(np.asarray(exr["las_intensity_scale"]).ravel()[0]) == scale
+    assert "las_intensity_scale" not in exr
     text = las.header.vlrs.get_by_id("simlidar-mi", [2])[0].record_data.decode("ascii")
-    assert f"{scale:.9g} counts per unit E" in text
+    assert f"s = {scale:.9g} counts per unit E" in text
 
 
 #: (x of the face, y range, reflectance) of three plates, one per azimuth −10°, 0°, 10°
@@ -161,9 +170,9 @@ def _plate_scene(r_min: float) -> str:
 
 
 def test_intensity_ratios_on_plates_follow_rho_cos_over_r2(tmp_path):
-    """Intensity ∝ ρ·cos i / r² within 1 %; the strongest echo (100 %, 3 % beyond range_min_m,
-    10° incidence) reads 93 % of 65535: the scale maps the sensor's own range limits into
-    16 bits without clipping (the old 1000 counts per unit E clipped the nearest echo at 65535)."""
+    """Intensity ∝ ρ·cos i / r² within 1 %; the strongest echo reads 65470 … 65535: the scan's
+    scale (issue #29) maps its own echoes into 16 bits without clipping (the old 1000 counts per
+    unit E clipped the nearest echo at 65535)."""
     r_min = 1.5
     run = run_scan(load_scene(text=_plate_scene(r_min)), tmp_path / "p", write_png=False)
     las = laspy.read(tmp_path / "p" / "points.las")
@@ -176,9 +185,11 @@ def test_intensity_ratios_on_plates_follow_rho_cos_over_r2(tmp_path):
     expected = rho * cos_i / r ** 2
     got = np.asarray(las.intensity, np.float64)
     np.testing.assert_allclose(got / got.max(), expected / expected.max(), rtol=0.01)
-    # absolute: s·E with E = ρ·cos i·(R_ref/r)², s = 65535·r_min²/R_ref²  →  65535·ρ·cos i·(r_min/r)²
-    np.testing.assert_allclose(got, 65535.0 * expected * r_min ** 2, rtol=0.01)
-    assert 0.9 * 65535 < got.max() < 65535
+    # absolute: s·E with E = ρ·cos i·(R_ref/r)² and s the scan's (65535 / its largest E)
+    r_ref = run.measures["sensor"]["r_ref_m"]
+    s = scan_intensity_scale(float(np.asarray(las.echo_energy).max()))
+    np.testing.assert_allclose(got, s * expected * r_ref ** 2, rtol=0.01)
+    assert 65470 <= got.max() <= 65535
     assert np.count_nonzero(1000.0 * np.asarray(las.echo_energy) > 65535) == 1  # the old rule clipped it
     assert run.measures["sensor"]["intensity_scale"] == pytest.approx(
         65535.0 * (r_min / run.measures["sensor"]["r_ref_m"]) ** 2)

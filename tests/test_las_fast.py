@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from simlidar_mi.geometry import CLASS_CODES
-from simlidar_mi.io import las
+from simlidar_mi.io import las, las_fields
 from simlidar_mi.lidar.platforms import airborne_pattern, rosette_patterns, rotating_patterns
 from simlidar_mi.lidar.scan import ScanResult, ScanSettings
 from simlidar_mi.lidar.waveform import Echoes
@@ -73,14 +73,19 @@ def _reference(results, path, crs=None):
             cols.update(ret=np.ones(n, np.uint8), nret=np.ones(n, np.uint8), intensity=np.zeros(n, np.uint16),
                         width=np.zeros(n, np.float32), energy=np.zeros(n, np.float32))
         parts.append(cols)
+    sensor = next((r.sensor for r in results if r.sensor is not None), None)
+    e_max = max((float(p["energy"].max()) for p in parts if "energy" in p and len(p["energy"])), default=0.0)
+    for p in parts:  # the scan's intensity scale, from its largest echo energy (io/las_fields.py)
+        if "energy" in p and "intensity" not in p:
+            p["intensity"] = np.rint(las_fields.scan_intensity_scale(e_max) * p["energy"].astype(np.float64)
+                                     if sensor and sensor.get("intensity") else 0 * p["energy"]).astype(np.uint16)
     cols = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
     with_tree = any(r.tree_id is not None for r in results)
     chooser = las.ScaleChooser()
     chooser.add(cols["xyz"].T)
     offsets = chooser.offsets(cols["xyz"].min(axis=0)) if len(cols["xyz"]) else np.zeros(3)
-    sensor = next((r.sensor for r in results if r.sensor is not None), None)
     header = las.las_header(offsets, time_kind, with_tree=with_tree, with_echoes=with_echoes, crs=crs,
-                            sensor=sensor, scales=chooser.scales())
+                            sensor=sensor, scales=chooser.scales(), energy_max=e_max)
     with laspy.open(str(path), mode="w", header=header) as w:
         las.zero_extra_bytes_stats(w.header)
         w.write_points(las.las_record(header, cols, with_tree=with_tree, with_echoes=with_echoes))

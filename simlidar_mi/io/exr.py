@@ -17,10 +17,18 @@ intensity is on) and, for each return r = 2 … max_returns, the layer ``echo{r}
 (float32, escape distance where the beam has fewer echoes), ``echo{r}.class``,
 ``echo{r}.branch_id`` (uint32, 0 / 0xFFFFFFFF where absent), ``echo{r}.intensity``
 (with intensity on), ``echo{r}.tree_id`` (scenes of several plants) and
-``echo{r}.class_half``.  The header attribute ``simlidar_sensor`` holds the resolved sensor as
-JSON and, with intensity on, ``las_intensity_scale`` the LAS intensity counts per unit E
-(points.las).  Without echoes
-nothing changes, byte for byte.
+``echo{r}.class_half``, and ``n_returns_half`` (0.0 … 15.0) for the same image tools.  The header
+attribute ``simlidar_sensor`` holds the resolved sensor as JSON.  The LAS intensity counts per
+unit E are chosen per scan from all its echoes (points.las, VLR record 2), so they are not in
+this header, which a streamed scan writes before its first row.  Without echoes nothing
+changes, byte for byte.
+
+Id channels (``branch_id``, ``tree_id``, ``echo{r}.…``) have no half copy: half floats hold
+integers up to 2048 only, float32 up to 2^24, and 0xFFFFFFFF neither.  OpenImageIO reads them
+exactly when asked for uint: ``OpenImageIO.ImageInput.open(path).read_image(0, 0, c, c + 1,
+"uint")`` (c the channel's index in ``spec().channelnames``) gives the uint32 ids; its default
+float read gives id / (2^32 − 1) rounded to float32, which loses ids above 2^24
+(tests/test_trust3_las.py).
 """
 from __future__ import annotations
 
@@ -60,9 +68,14 @@ def header_value(value):
 HALF = "_half"
 
 
+#: Channels given a half copy (module docstring): small counts that image tools would scale to 0 … 1.
+HALF_COPIED = ("class", "n_returns")
+
+
 def with_half_copies(dtypes: dict) -> dict:
-    """``dtypes`` plus a float16 ``X_half`` for each class channel ``X`` (``class``, ``echo{r}.class``)."""
-    return {**dtypes, **{f"{k}{HALF}": np.float16 for k in dtypes if k == "class" or k.endswith(".class")}}
+    """``dtypes`` plus a float16 ``X_half`` for each class channel ``X`` (``class``, ``echo{r}.class``)
+    and for ``n_returns``."""
+    return {**dtypes, **{f"{k}{HALF}": np.float16 for k in dtypes if k in HALF_COPIED or k.endswith(".class")}}
 
 
 #: Header attributes holding the broadcast constants (float64 JSON lists, exact) that
@@ -320,12 +333,8 @@ def _echo_channels(result: ScanRecord, channels: dict, header: dict) -> None:
 
 def sensor_header(sensor: dict) -> dict:
     """Header attributes of a ``[sensor]`` scan: ``simlidar_sensor`` (the resolved sensor as
-    JSON) and, with intensity on, ``las_intensity_scale`` (double: the LAS intensity counts per
-    unit of the ``intensity`` channel's energy E, io/las.py)."""
-    out = {"simlidar_sensor": json.dumps(sensor, sort_keys=True, default=_plain)}
-    if sensor.get("intensity") and sensor.get("intensity_scale") is not None:
-        out["las_intensity_scale"] = header_value(float(sensor["intensity_scale"]))
-    return out
+    JSON).  The LAS intensity scale is points.las's own (module docstring)."""
+    return {"simlidar_sensor": json.dumps(sensor, sort_keys=True, default=_plain)}
 
 
 def _plain(value):

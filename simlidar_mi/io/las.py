@@ -14,11 +14,13 @@ Point format 6, every field as LAS 1.4 R15 defines it (§2.6, "Point Data Record
   of that plane (spinning heads, rosettes, tripods) it is the full angle from nadir with the
   side's sign, so |scan_angle| is always the off-nadir angle and a near-nadir filter keeps
   near-vertical beams only.  Beams in the vertical plane through the track count as right.
-* ``intensity``: ``min(65535, round(s·E))``, E the echo energy (lidar/sensor.py), s the sensor's
-  ``intensity_scale`` = 65535·r_I²/R_ref²: a 100 % Lambertian target at normal incidence filling
-  the beam at r_I = ``range_min_m`` reads 65535, so nothing inside the sensor's range limits
-  clips (§2.6 "Intensity": normalised to the sensor's dynamic range); r_I = 0.5 m when the sensor
-  gives no ``range_min_m`` (nearer echoes may then clip).  0 without a ``[sensor]`` with intensity on.  VLR record 2 states the rule and s.
+* ``intensity``: ``round(s·E)``, E the echo energy (lidar/sensor.py), s chosen per scan from the
+  echoes it holds: 65535 / E_max rounded down to 4 significant digits
+  (:func:`~simlidar_mi.io.las_fields.scan_intensity_scale`), so no echo clips, however near, and
+  the strongest reads 65470 … 65535 however weak the scan's echoes (§2.6 "Intensity": normalised
+  to the dynamic range).  Counts compare within a file; across files divide by s first.  VLR
+  record 2 states s and E_max; ``echo_energy`` holds E itself.  0 without a ``[sensor]`` with
+  intensity on.
 * classification: ground 2, leaves 5 (high vegetation); wood has no ASPRS class and uses 64
   (user-definable range).  Escapes are not written.
 
@@ -27,14 +29,19 @@ zero, so a file's bytes do not depend on how many chunks wrote it): ``range_m`` 
 ``scan_position`` (uint32, row i of the pattern), ``scan_angle_index`` (uint32, column k),
 ``elevation_deg`` and ``azimuth_deg`` (float32: the beam direction's elevation above the
 horizon and its azimuth counter-clockwise from +x, in [-180, 180)), ``branch_id`` (uint32),
-``tree_id`` (uint32) for scenes of several plants and, with echoes, ``echo_width_ns`` (float32)
+``tree_id`` (uint32) for scenes of several plants (both 4294967295 for none, declared as the
+descriptor's no_data value: option bit 0, §4) and, with echoes, ``echo_width_ns`` (float32)
 and, with intensity, ``echo_energy`` (float32, E unclipped).
 
-Coordinates: offsets floor(min) per axis; the scale per axis is 0.1 mm, or the coarsest of
-1 mm, 1 cm, 0.1 m and 1 m that every point's 0.1 mm coordinate is a whole multiple of (an axis
-the pattern fixes on a grid, as a tractor's rows): the same coordinates as at 0.1 mm, and no
-axis carries "resolution fluff" (every stored integer a multiple of 10, which lasinfo reports)
-(:class:`~simlidar_mi.io.las_fields.ScaleChooser`).
+Coordinates: offsets floor(min) per axis (whole metres, on the grid of every scale used); the
+scale per axis is the coarsest of 0.1 mm … 1 m (powers of ten) that every point's 0.1 mm
+coordinate is a whole multiple of, unless that leaves LAStools' "resolution fluff": every stored
+integer with the same last digit, as on an axis on a regular grid (a tractor's rows 2 mm apart
+from the scene's edge: 0.1 mm integers f_0 + 20 i).  Such an axis gets 0.25 mm, 0.5 mm, … (the
+scales LAStools accepts) so that the grid step is not a multiple of 10 stored units, when the
+whole axis moves by at most 0.5 mm for it (the rounding of a 1 mm file; at most 0.1 mm for
+rows 2 mm apart) (:class:`~simlidar_mi.io.las_fields.ScaleChooser`);
+a constant axis keeps the fluff, as any scale would.
 
 Header: the global-encoding WKT bit is always set (LAS 1.4 requires it for point
 formats 6–10); its GPS-time-type bit stays 0, since ``gps_time`` is a time from the
@@ -79,9 +86,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..geometry import CLASS_CODES
+from ..lidar.waveform import NO_ID  # "no element / no plant": the no_data of branch_id, tree_id
 from .atomic import atomic_file
 from .las_fields import (SCALES_M, BeamAngles, ScaleChooser, echo_intensity, firing_order, firing_sort,
-                         intensity_text)
+                         intensity_text, scan_intensity_scale)
 from .scan_record import ScanRecord
 
 if TYPE_CHECKING:  # annotations only: laspy loads in the LAS writer's child
@@ -101,6 +109,7 @@ CHUNK_POINTS = 1 << 16
 LAS_CLASS_LUT = np.zeros(256, np.uint8)
 LAS_CLASS_LUT[list(LAS_CLASS)] = list(LAS_CLASS.values())
 _INT32 = np.iinfo(np.int32)
+
 def scan_times_s(result: ScanRecord, first_row: int = 0) -> tuple[np.ndarray, str]:
     """(N, M) float64 ``gps_time`` of every beam of ``result`` and the definition used.
 
@@ -224,8 +233,9 @@ def write_scan_las(result: ScanRecord | list[ScanRecord], path: str | Path,
         chooser.add(xyz[:, a:a + CHUNK_POINTS])
     offsets = chooser.offsets(lo) if at else np.zeros(3)
     sensor = next((r.sensor for r in results if getattr(r, "sensor", None) is not None), None)
+    e_max = set_echo_intensities([lp.echo_cols for lp in legs if lp.echo_cols is not None], sensor)
     header = las_header(offsets, time_kind, with_tree=with_tree, with_echoes=with_echoes, crs=crs,
-                        sensor=sensor, scales=chooser.scales())
+                        sensor=sensor, scales=chooser.scales(), energy_max=e_max)
     with atomic_file(path) as tmp, RecordWriter(tmp, header, *((lo, hi) if at else (None, None))) as w:
         at = 0
         for lp in legs:
@@ -234,6 +244,17 @@ def write_scan_las(result: ScanRecord | list[ScanRecord], path: str | Path,
                 w.write(xyz[:, at:at + n], cols, leg=lp.leg, with_tree=with_tree, with_echoes=with_echoes)
                 at += n
     return Path(path)
+
+
+def set_echo_intensities(echo_cols: list[dict], sensor: dict | None) -> float:
+    """Fill ``intensity`` of every leg's echo columns (:func:`_echo_points`) with the scan's
+    scale (:func:`~simlidar_mi.io.las_fields.scan_intensity_scale` of the largest echo energy of
+    all legs; zeros when the sensor's intensity is off); the largest energy."""
+    e_max = max((float(c["energy"].max()) for c in echo_cols if len(c["energy"])), default=0.0)
+    scale = scan_intensity_scale(e_max) if (sensor or {}).get("intensity") else None
+    for c in echo_cols:
+        c["intensity"] = echo_intensity(c["energy"], scale)
+    return e_max
 
 
 class _LegPoints:
@@ -297,7 +318,7 @@ class _LegPoints:
             cols = {"cls": res.cls[a:b].reshape(-1).take(flat), "range": res.range_m[a:b].reshape(-1).take(flat),
                     "elem": res.element_id[a:b].reshape(-1).take(flat),
                     "tree": (res.tree_id[a:b].reshape(-1).take(flat) if res.tree_id is not None
-                             else np.full(n, 0xFFFFFFFF, np.uint32)),
+                             else np.full(n, NO_ID, np.uint32)),
                     "gps": row_times_s(res.pattern, self.first_row, a, b)[0].reshape(-1).take(flat),
                     "i": i, "k": k}
             cols["angle"], cols["elev"], cols["azim"] = self.angles(i, k)
@@ -378,9 +399,11 @@ class RecordWriter:
 
 
 def las_header(offsets_m, time_kind: str, *, with_tree: bool, with_echoes: bool = False,
-               crs: str | None = None, sensor: dict | None = None, scales=None) -> laspy.LasHeader:
+               crs: str | None = None, sensor: dict | None = None, scales=None,
+               energy_max: float = 0.0) -> laspy.LasHeader:
     """The LAS header of a scan (module docstring) with the given offsets and scales (default
-    0.1 mm; :class:`~simlidar_mi.io.las_fields.ScaleChooser`)."""
+    0.1 mm; :class:`~simlidar_mi.io.las_fields.ScaleChooser`); ``energy_max``, the scan's largest
+    echo energy, sets the intensity scale that VLR record 2 states."""
     import laspy  # noqa: PLC0415 - on first use (module docstring)
     from laspy.vlrs.known import WktCoordinateSystemVlr  # noqa: PLC0415
     header = laspy.LasHeader(point_format=6, version="1.4")
@@ -392,8 +415,9 @@ def las_header(offsets_m, time_kind: str, *, with_tree: bool, with_echoes: bool 
         laspy.ExtraBytesParams("scan_angle_index", np.uint32, description="angle index k"),
         laspy.ExtraBytesParams("elevation_deg", np.float32, description="beam elevation above horizon"),
         laspy.ExtraBytesParams("azimuth_deg", np.float32, description="beam azimuth, ccw from +x"),
-        laspy.ExtraBytesParams("branch_id", np.uint32, description="element id"),
-        *([laspy.ExtraBytesParams("tree_id", np.uint32, description="tree or plant id")] if with_tree else []),
+        laspy.ExtraBytesParams("branch_id", np.uint32, description="element id", no_data=[NO_ID]),
+        *([laspy.ExtraBytesParams("tree_id", np.uint32, description="tree or plant id", no_data=[NO_ID])]
+          if with_tree else []),
         *([laspy.ExtraBytesParams("echo_width_ns", np.float32, description="echo FWHM width (ns)")]
           if with_echoes else []),
         *([laspy.ExtraBytesParams("echo_energy", np.float32, description="echo energy E, unclipped")]
@@ -415,7 +439,8 @@ def las_header(offsets_m, time_kind: str, *, with_tree: bool, with_echoes: bool 
     header.vlrs.append(laspy.VLR("simlidar-mi", 1, "gps_time definition",
                                  (f"gps_time: {time_kind}\0").encode("ascii")))
     if with_echoes:
-        text = intensity_text(sensor) if with_energy else "intensity = 0: [sensor] intensity is off"
+        text = (intensity_text(scan_intensity_scale(energy_max), energy_max) if with_energy
+                else "intensity = 0: [sensor] intensity is off")
         header.vlrs.append(laspy.VLR("simlidar-mi", 2, "intensity scale", (text + "\0").encode("ascii")))
         header.vlrs.append(laspy.VLR("simlidar-mi", 3, "sensor (JSON)",
                                      json.dumps(sensor, sort_keys=True, default=_plain).encode("utf-8")))
@@ -491,15 +516,13 @@ def _echo_points(res: ScanRecord, leg: int, times_s: np.ndarray) -> dict:
     if velocity is not None and col_time is not None:  # fired from where the platform was
         origin = origin + np.asarray(col_time, np.float64)[k_idx, None] * np.asarray(velocity, np.float64)
     rng = pick(np.asarray(echoes.range_m, np.float64))
-    sensor = getattr(res, "sensor", None) or {}
-    scale = sensor.get("intensity_scale") if getattr(res, "intensity", None) is not None else None
     energy = pick(echoes.energy)
     cols = {"xyz": origin + rng[:, None] * p.world_dirs()[i_idx, k_idx],
             "cls": pick(echoes.cls), "range": rng.astype(np.float32), "elem": pick(echoes.element_id),
             "tree": (pick(echoes.tree_id) if echoes.tree_id is not None
-                     else np.full(len(i_idx), 0xFFFFFFFF, np.uint32)),
+                     else np.full(len(i_idx), NO_ID, np.uint32)),
             "gps": times_s[i_idx, k_idx], "ret": pick(echoes.return_number), "nret": pick(echoes.number_of_returns),
-            "intensity": echo_intensity(energy, scale), "energy": np.asarray(energy, np.float32),
+            "energy": np.asarray(energy, np.float32),  # intensity: set_echo_intensities
             "width": pick(np.asarray(echoes.width_ns, np.float32))}
     cols["angle"], cols["elev"], cols["azim"] = BeamAngles(p)(i_idx, k_idx)
     cols["i"], cols["k"] = i_idx, k_idx

@@ -10,16 +10,42 @@ import numpy as np
 SCAN_ANGLE_UNIT_DEG = 0.006
 #: Candidate per-axis scales, coarsest first (module docstring; :class:`ScaleChooser`).
 SCALES_M = (1.0, 0.1, 0.01, 0.001, 0.0001)
+#: The scales LAStools accepts (1, 2.5 or 5 × 10^k, lasinfo's "factor ten of 0.1 or 0.5 or 0.25"),
+#: 0.1 mm to 1 m, finest first: :class:`ScaleChooser`'s choice for an axis on a regular grid.
+SCALES_FLUFF_FREE_M = (0.0001, 0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0)
+#: Half the finest scale: every scale of :data:`SCALES_FLUFF_FREE_M` is a whole number of it.
+HALF_STEP_M = 0.00005
+#: The most a :class:`ScaleChooser` may shift a gridded axis to keep it free of resolution fluff
+#: (on top of the 0.05 mm of rounding to 0.1 mm): the rounding of a file at 1 mm, the usual
+#: scale of terrestrial scans; rows 2 mm apart need at most 0.1 mm, rows 1 cm apart up to 1.25 mm.
+MAX_SHIFT_M = 0.0005
 
 
-def intensity_text(sensor: dict) -> str:
-    """VLR record 2: the intensity rule and the sensor's scale (module docstring)."""
-    return (f"intensity = min(65535, round(s * E)), s = 65535 * r_I^2 / R_ref^2 = "
-            f"{float(sensor['intensity_scale']):.9g} counts per unit E, r_I = "
-            f"{float(sensor['intensity_range_m']):g} m (a 100 % Lambertian target at normal incidence "
-            "filling the beam at r_I reads 65535); E = echo energy, unclipped in extra bytes "
+def intensity_text(scale: float, energy_max: float) -> str:
+    """VLR record 2: the intensity rule and this scan's scale (:func:`scan_intensity_scale`)."""
+    return (f"intensity = round(s * E), s = {float(scale):.9g} counts per unit E, chosen for this "
+            f"scan: 65535 / E_max rounded down to 4 significant digits, E_max = {float(energy_max):.9g} "
+            "the largest echo energy of the scan (so no echo clips and the strongest reads about "
+            "65535; 1 when the scan has no echo energy); E = echo energy, also in extra bytes "
             "echo_energy: sum over the echo's sub-rays of w * rho * |cos i| * (R_ref / r)^2, R_ref = "
-            "range_at_10pct_m * sqrt(detection_threshold / 0.1); 0 when [sensor] intensity is off")
+            "range_at_10pct_m * sqrt(detection_threshold / 0.1); the sensor record's "
+            "intensity_scale is the sensor's nominal scale, not this file's")
+
+
+def scan_intensity_scale(energy_max: float) -> float:
+    """LAS intensity counts per unit echo energy for a scan whose largest echo energy is
+    ``energy_max``: 65535 / E_max rounded down to 4 significant digits, so that round(s·E) ≤ 65535
+    for every echo (none clips) and the strongest reads at least 65535·(1 − 10⁻³); 1.0 for a
+    scan without positive finite energy.  Readable in the VLR and the same for any chunking."""
+    e = float(energy_max)
+    if not (e > 0.0 and np.isfinite(e)):
+        return 1.0
+    exact = 65535.0 / e
+    digits = 3 - int(np.floor(np.log10(exact)))
+    scale = float(np.floor(exact * 10.0 ** digits) / 10.0 ** digits)
+    while scale * e > 65535.5:  # guard the decimal rounding; never taken in practice
+        scale = float(np.nextafter(scale, 0.0))
+    return scale
 
 
 def echo_intensity(energy: np.ndarray, scale: float | None) -> np.ndarray:
@@ -104,44 +130,73 @@ class BeamAngles:
 
 
 class ScaleChooser:
-    """Per-axis LAS scale: 0.1 mm, or the coarsest of :data:`SCALES_M` that every point's
-    0.1 mm coordinate is a whole multiple of, checked piece by piece (the same for any pieces).
+    """Per-axis LAS scale and offset that LAStools reads without "resolution fluff", fed the
+    points piece by piece (the same choice for any pieces: a gcd and a first value per axis).
 
-    The file then stores exactly the coordinates a 0.1 mm file would, and no axis has all its
-    stored integers divisible by 10 (lasinfo's "resolution fluff"), since that would have chosen
-    the next coarser scale.  Offsets are whole metres, so divisibility does not depend on them;
-    at 1 m the integers are x − floor(min): if all points agree modulo 10 m (a constant axis, say),
-    :meth:`offsets` moves that offset 1 m down."""
+    LAStools' rule (LASlib/src/lasutility.cpp, ``LASsummary::add``; lasinfo and lasvalidate
+    print it, lasinfo.cpp / lascheck.cpp): "resolution fluff (x10)" in an axis when every stored
+    integer leaves the first point's remainder modulo 10, "serious (x100)" modulo 100, and so on;
+    and they accept only scales 1, 2.5 or 5 × 10^k with an offset on the scale's grid
+    (else "translation fluff").  Whole-metre offsets lie on every grid used here, so the rule
+    is about the scale alone: with the points' 0.1 mm integers f (f_0 the first) and G the gcd
+    of every f − f_0, the stored integers share their remainder modulo 10 exactly when G / (s in
+    0.1 mm) is a multiple of 10.
+
+    * First the coarsest power of ten, 0.1 mm … 1 m, that every f is a whole multiple of: the same
+      coordinates as at 0.1 mm, the previous rule (one that LAStools does not trip when
+      G / s is not a multiple of 10).
+    * Else (an axis on a regular grid off the scale's grid: a tractor's rows 2 mm apart starting
+      at the scene's edge give f = f_0 + 20 i) the scale of :data:`SCALES_FLUFF_FREE_M` that
+      moves the axis least (G / s a whole number, not a multiple of 10), finest on a tie, when
+      it moves it by at most :data:`MAX_SHIFT_M`: the axis shifts as a whole by that much, the
+      distances along it stay exact.
+    * Else (a constant axis, one point, or a grid too far off every scale) the first choice:
+      every integer the same leaves every remainder the same, whatever the scale."""
 
     def __init__(self):
-        self.level = np.zeros(3, np.int64)  # index into SCALES_M
-        self.mod10 = [None, None, None]     # x mod 10 m at level 0 while it is one value
+        self.first = [None, None, None]   # f_0 per axis (int)
+        self.gcd = [0, 0, 0]              # gcd of every f - f_0 per axis
 
     def add(self, xyz: np.ndarray) -> None:
         """Feed points ``xyz`` (3, n)."""
         if not xyz.shape[1]:
             return
         for c in range(3):
-            if self.level[c] == len(SCALES_M) - 1:  # already the finest: nothing to check
+            fine = np.round(xyz[c] / SCALES_M[-1]).astype(np.int64)  # the 0.1 mm integers
+            if self.first[c] is None:
+                self.first[c] = int(fine[0])
+            self.gcd[c] = int(np.gcd.reduce(np.abs(fine - self.first[c]), initial=self.gcd[c]))
+
+    def _choice(self, c: int) -> tuple[float, bool]:
+        """(scale of axis c, whether LAStools' x10 rule passes it)."""
+        if self.first[c] is None:
+            return SCALES_M[0], True
+        g, f0 = self.gcd[c], self.first[c]
+        exact = int(np.gcd(f0, g))  # every f is a multiple of it
+        level = len(SCALES_M) - 1   # 0.1 mm
+        while level > 0 and exact % round(SCALES_M[level - 1] / SCALES_M[-1]) == 0:
+            level -= 1
+        step = round(SCALES_M[level] / SCALES_M[-1])
+        if g and (g // step) % 10:
+            return SCALES_M[level], True
+        best = None  # (shift, scale) in 0.05 mm units, so that 0.25 mm is whole
+        for s in SCALES_FLUFF_FREE_M:
+            u = round(s / HALF_STEP_M)
+            if g == 0 or (2 * g) % u or ((2 * g) // u) % 10 == 0:
                 continue
-            fine = np.round(xyz[c] / SCALES_M[-1])  # the 0.1 mm integers (exact in float64)
-            while self.level[c] < len(SCALES_M) - 1:
-                step = round(SCALES_M[self.level[c]] / SCALES_M[-1])
-                if not np.any(np.fmod(fine, step)):
-                    break
-                self.level[c] += 1
-            if self.level[c] == 0 and self.mod10[c] is not False:
-                r = np.unique(np.mod(fine / 10_000, 10.0))
-                same = len(r) == 1 and self.mod10[c] in (None, float(r[0]))
-                self.mod10[c] = float(r[0]) if same else False
+            rem = (2 * f0) % u
+            shift = min(rem, u - rem)
+            if shift <= round(MAX_SHIFT_M / HALF_STEP_M) and (best is None or shift < best[0]):
+                best = (shift, s)
+        return (best[1], True) if best else (SCALES_M[level], False)
 
     def scales(self) -> np.ndarray:
-        return np.array([SCALES_M[lv] for lv in self.level], np.float64)
+        return np.array([self._choice(c)[0] for c in range(3)], np.float64)
+
+    def fluff_free(self) -> list[bool]:
+        """Per axis, whether LAStools' "resolution fluff (x10)" rule passes the chosen scale."""
+        return [self._choice(c)[1] for c in range(3)]
 
     def offsets(self, lo_m: np.ndarray) -> np.ndarray:
-        """floor(min) per axis, 1 m lower for a 1 m axis whose points all agree modulo 10 m."""
-        off = np.floor(lo_m)
-        for c in range(3):
-            if self.level[c] == 0 and self.mod10[c] is not False:
-                off[c] -= 1.0
-        return off
+        """floor(min) per axis: whole metres, on the grid of every scale used."""
+        return np.floor(lo_m)

@@ -3,9 +3,12 @@
 A LAS file's offsets are floor(min of every point), known only once the whole scan has been
 traced.  :class:`PointSpill` takes each block of rows as it is traced, keeps the minimum and
 writes the block's points in packed columns (beam, range, class, ids and, with echoes,
-return numbers, intensity, width: 21–40 bytes a point) to an unnamed temporary file in the
+return numbers, echo energy, width: 21–38 bytes a point) to an unnamed temporary file in the
 output folder (gone when closed, also after a failure); :meth:`PointSpill.write` reads them
-back and writes ``points.las`` once, so the scan is traced once.  Used by first-return scans
+back and writes ``points.las`` once, so the scan is traced once.  The LAS intensities are
+made then, from the kept energies, with the scan's scale (65535 / the largest energy,
+:func:`~simlidar_mi.io.las_fields.scan_intensity_scale`): the spill keeps only the running
+maximum, so memory stays bounded and the bytes do not depend on the blocks.  Used by first-return scans
 (:func:`~simlidar_mi.lidar.stream.stream_scan`) and ``[sensor]`` scans
 (:func:`~simlidar_mi.lidar.stream_sensor.stream_physical_scan`).
 
@@ -27,13 +30,13 @@ from .waveform import NO_ID
 class PointSpill:
     """The LAS points of a streamed scan, kept on disk until the offsets are known (module docstring).
 
-    ``intensity_scale``: LAS intensity counts per unit of echo energy (a ``[sensor]`` with
-    intensity; None: intensities 0)."""
+    ``intensity``: whether the ``[sensor]`` records intensity (else intensities 0)."""
 
-    def __init__(self, stage: Path, intensity_scale: float | None = None):
+    def __init__(self, stage: Path, intensity: bool = False):
         from ..io.las_fields import ScaleChooser  # noqa: PLC0415
         self.f = tempfile.TemporaryFile(dir=stage)
-        self.intensity_scale = intensity_scale
+        self.intensity = bool(intensity)
+        self.energy_max = 0.0  # the largest echo energy added (float32 values: exact)
         self.index: list[tuple] = []  # (leg, first_row, a, b, columns' dtypes, count)
         self.lo, self.hi = np.full(3, np.inf), np.full(3, -np.inf)
         self.scales = ScaleChooser()
@@ -44,7 +47,7 @@ class PointSpill:
         ``[sensor]`` scan, ``echoes`` with beams relative to the block's first), kept in firing
         order (:func:`~simlidar_mi.io.las_fields.firing_order`, as ``write_scan_las`` writes them)."""
         from ..io.las import CHUNK_POINTS  # noqa: PLC0415
-        from ..io.las_fields import echo_intensity, firing_order, firing_sort  # noqa: PLC0415
+        from ..io.las_fields import firing_order, firing_sort  # noqa: PLC0415
         m = pattern.n_cols
         fire = firing_order(pattern)
         echoes = block.get("echoes")
@@ -58,14 +61,14 @@ class PointSpill:
         else:
             cols = {"beam": echoes.beam, "range": np.asarray(echoes.range_m, np.float64), "cls": echoes.cls,
                     "elem": echoes.element_id, "tree": echoes.tree_id, "ret": echoes.return_number,
-                    "nret": echoes.number_of_returns,
-                    "intensity": echo_intensity(echoes.energy, self.intensity_scale),
-                    "energy": np.asarray(echoes.energy, np.float32),
+                    "nret": echoes.number_of_returns, "energy": np.asarray(echoes.energy, np.float32),
                     "width": np.asarray(echoes.width_ns, np.float32)}
             if fire is not None:
                 order = firing_sort(echoes.beam, m, fire)
                 cols = {k: (np.asarray(v)[order] if v is not None else None) for k, v in cols.items()}
         cols = {k: v for k, v in cols.items() if v is not None}
+        if "energy" in cols and len(cols["energy"]):
+            self.energy_max = max(self.energy_max, float(cols["energy"].max()))
         for c0 in range(0, len(cols["beam"]), CHUNK_POINTS):  # min and max of the points, exact in any pieces
             part = slice(c0, c0 + CHUNK_POINTS)
             xyz = self._xyz(pattern, leg, a, m, cols["beam"][part], cols["range"][part])
@@ -90,12 +93,13 @@ class PointSpill:
         """``points.las`` of every point added, with the held scan's header and bytes
         (:class:`~simlidar_mi.io.las.RecordWriter`, as ``write_scan_las`` writes them)."""
         from ..io.las import CHUNK_POINTS, RecordWriter, las_header, row_times_s  # noqa: PLC0415
-        from ..io.las_fields import BeamAngles  # noqa: PLC0415
+        from ..io.las_fields import BeamAngles, echo_intensity, scan_intensity_scale  # noqa: PLC0415
         any_point = any(entry[-1] for entry in self.index)
         offsets = self.scales.offsets(self.lo) if any_point else np.zeros(3)
         time_kind = row_times_s(patterns[-1], 0, 0, 0)[1]
         header = las_header(offsets, time_kind, with_tree=with_tree, with_echoes=with_echoes, crs=crs,
-                            sensor=sensor, scales=self.scales.scales())
+                            sensor=sensor, scales=self.scales.scales(), energy_max=self.energy_max)
+        iscale = scan_intensity_scale(self.energy_max) if self.intensity else None
         self.f.seek(0)
         angles = [BeamAngles(p) for p in patterns]
         with RecordWriter(path, header, *((self.lo, self.hi) if any_point else (None, None))) as writer:
@@ -116,7 +120,7 @@ class PointSpill:
                            "gps": times[i, k], "i": i + a, "k": k}
                     rec["angle"], rec["elev"], rec["azim"] = angles[leg](i + a, k)
                     if with_echoes:
-                        rec.update(ret=part["ret"], nret=part["nret"], intensity=part["intensity"],
+                        rec.update(ret=part["ret"], nret=part["nret"], intensity=echo_intensity(part["energy"], iscale),
                                    width=part["width"], energy=part["energy"])
                     writer.write(xyz, rec, leg=leg, with_tree=with_tree, with_echoes=with_echoes)
 

@@ -144,7 +144,7 @@ def stream_physical_scan(built, patterns: list, stage: Path, *, model, variant: 
                for j, p in enumerate(patterns)]
     sensor = model.to_dict()
     max_returns = int(sensor.get("max_returns") or 1)
-    spill = PointSpill(stage, model.intensity_scale if model.intensity else None) if las else None
+    spill = PointSpill(stage, intensity=model.intensity) if las else None
     bar = progress.stage("trace + write", sum(t.n_chunks for t in tracers), "chunk") if progress is not None else None
     out, trace_s, first_row = [], 0.0, 0
     with closed_after(spill, bar):

@@ -80,7 +80,7 @@ def run(label: str, extra: list[str], zens) -> dict:
 def table(results, measured, zens) -> str:
     head = ("| candidate | P0 at 0°, steps 0/1/2/3 | mean P0 0° / 15° / 30° | bias 0° / 15° / 30° "
             "(95 % CI, plot to plot) | leaf area steps 1/2/3 (of step 0) | −ln P0 at 0°, steps 1/2/3 "
-            "(of step 0) | G·Ω at 0°, step 0 → 3 | seconds |")
+            "(of step 0) | G·Ω at 0°, step 3 over step 0 | seconds |")
     rows = [head, "|---|---|---|---|---|---|---|---|"]
     for res in results:
         p0, area = res["p0"], res["area"]
@@ -92,7 +92,7 @@ def table(results, measured, zens) -> str:
         mp0 = p0.mean(0)[0]                           # nadir, per step (mean over plots)
         a = area.mean(0)
         lnr = np.log(mp0) / math.log(mp0[0])
-        # G·Ω = −ln P0 / LAI at nadir on the planted bed (LAI = area / ground of the plot)
+        # G·Ω = −ln P0 / LAI: its change from step 0 to 3 is the −ln P0 ratio over the area ratio
         rows.append(
             f"| {res['label']} | " + " / ".join(f"{v:.3f}" for v in mp0) + " | "
             + " / ".join(f"{m:.3f}" for m in means) + " | "

@@ -416,6 +416,15 @@ def _compare_run(args: argparse.Namespace) -> int:
               f"{s['bias']:+8.4f}  {f(s['bias_se'], '.4f'):>6}  {s['bias_r']:+7.2%}  "
               f"{f(s['scatter'], '.4f'):>7}  {f(s['paper_rmse'], '.3f'):>11}  "
               f"{f(s['paper_bias'], '.3f'):>6}  {f(s['paper_scatter'], '.4f'):>7}")
+    print("\n95 % intervals (bias: t, Welch-Satterthwaite df; rmse, r: bootstrap of the replicate plots)")
+    for s in res.stats:
+        z = s["zenith_deg"] if isinstance(s["zenith_deg"], str) else f"{s['zenith_deg']:g}"
+        verdict = {"yes": "0 inside: the gap cannot be told from the noise",
+                   "no": "0 outside: the gap is more than the noise"}.get(s["bias_inside_ci"], "no interval")
+        why_r = "" if math.isfinite(s["r"]) else "  (r needs >= 2 rows per zenith, e.g. one per extraction step)"
+        print(f"{z:>6}  bias {f(s['bias_ci_low'], '+.4f')}…{f(s['bias_ci_high'], '+.4f')} "
+              f"(df {f(s['ci_df'], '.1f')})  rmse {f(s['rmse_ci_low'], '.4f')}…{f(s['rmse_ci_high'], '.4f')}  "
+              f"r {f(s['r_ci_low'], '.3f')}…{f(s['r_ci_high'], '.3f')}  [{s['ci_basis']}]  {verdict}{why_r}")
     if res.readings:
         from .canopy.compare import PETIOLE_READINGS, READINGS_NOTE
         print(f"\nboth petiole readings (strawberry rows; the scenes' own: {res.own_reading}):")

@@ -394,13 +394,18 @@ def test_strawberry_steps_share_views_and_p0_never_falls():
 
 
 def test_strawberry_extraction_in_scene_files(tmp_path):
-    """Default: a sixth of the starting leaves per step; extraction_counts is the option;
-    both at once is refused, naming the file and key."""
+    """Default (issue 33): the shares of the starting leaves that make leaf area follow Table
+    4's real canopy (0.806 / 0.649 / 0.472 of the first); sixths and extraction_counts are
+    options; both keys at once is refused, naming the file and key."""
     def counts(extra):
         cfg = load_scene(REPO / "scenes" / "strawberry_plot.toml", extra)
         return [len(np.unique(c.leaves.leaf_id)) for c in canopies_from_config(cfg)]
     n = counts([])
-    assert n == [n[0] - math.floor(n[0] * k / 6 + 0.5) for k in range(4)] and n[0] > 600
+    assert n == [n[0] - math.floor(n[0] * (1 - a / 1.116) + 0.5 + 1e-9)
+                 for a in (1.116, 0.900, 0.724, 0.527)] and n[0] > 600
+    sixths = counts(["strawberry.extraction_fractions=[0.16666666666666666, 0.16666666666666666, "
+                     "0.16666666666666666]"])
+    assert sixths == [n[0] - math.floor(n[0] * k / 6 + 0.5) for k in range(4)]
     assert counts(["strawberry.extraction_fractions=[0.5]"]) == [n[0], n[0] - n[0] // 2]
     assert counts(["strawberry.extraction_counts=[44, 39, 44]"]) == [n[0] - c for c in (0, 44, 83, 127)]
     cfg = load_scene(REPO / "scenes" / "strawberry_plot.toml", ["strawberry.extraction_counts=[44]"])

@@ -11,7 +11,8 @@ from simlidar_mi.errors import ConfigError
 from simlidar_mi.geometry import Leaves
 from simlidar_mi.plants.strawberry import StrawberryPlotParams, strawberry_plant, strawberry_plot
 from simlidar_mi.plants.strawberry_extraction import (PAPER_EXTRACTION_COUNTS,
-                                                      PAPER_EXTRACTION_FRACTIONS, extract_leaves,
+                                                      PAPER_EXTRACTION_FRACTIONS,
+                                                      PAPER_EXTRACTION_SIXTHS, extract_leaves,
                                                       extraction_steps, fraction_counts)
 from simlidar_mi.plants.strawberry_leaf import (LeafTraits, StrawberryLeafParams, draw_leaf_traits,
                                                 leaf_triangles, strawberry_leaf)
@@ -58,7 +59,10 @@ def test_defaults_are_the_paper_tables():
         (0.268, 0.03, 0.227, 0.02)
     assert (q.leaves_per_plant_mean, q.leaves_per_plant_sd) == (42, 5)
     assert PAPER_EXTRACTION_COUNTS == (44, 39, 44)
-    assert PAPER_EXTRACTION_FRACTIONS == (1 / 6, 1 / 6, 1 / 6)
+    # Default since issue 33: Table 4's real leaf-area shares; the text's sixths an option.
+    assert PAPER_EXTRACTION_SIXTHS == (1 / 6, 1 / 6, 1 / 6)
+    assert PAPER_EXTRACTION_FRACTIONS == pytest.approx((0.216 / 1.116, 0.176 / 1.116, 0.197 / 1.116),
+                                                       abs=1e-12)
 
 
 # --------------------------------------------------------------------------- leaf
@@ -155,6 +159,8 @@ def test_orientation_conventions(seed):
 
 
 def test_petiole_zenith_convention_switch(seed):
+    # the default is 'theta' since issue 33 (tests/test_strawberry_bias.py checks its law)
+    assert StrawberryLeafParams().petiole_zenith == "theta"
     for conv, zen_mean in (("phi", 45.0), ("theta", None)):
         p = StrawberryLeafParams(petiole_zenith=conv)
         t = draw_leaf_traits(p, np.random.default_rng(seed), 4000)
@@ -162,9 +168,12 @@ def test_petiole_zenith_convention_switch(seed):
         if zen_mean is not None:
             assert abs(t.zenith_deg.mean() - zen_mean) < 4 * t.zenith_deg.std() / 63
     # Divergences: consecutive azimuth steps follow the other law.
-    p = StrawberryLeafParams(theta_sd_deg=0.0)
+    p = StrawberryLeafParams(theta_sd_deg=0.0, petiole_zenith="phi")
     t = draw_leaf_traits(p, np.random.default_rng(seed), 10)
     np.testing.assert_allclose(np.diff(t.azimuth_deg) % 360, p.theta_mean_deg % 360)
+    p = StrawberryLeafParams(phi_sd_deg=0.0)  # default: φ is the divergence
+    t = draw_leaf_traits(p, np.random.default_rng(seed), 10)
+    np.testing.assert_allclose(np.diff(t.azimuth_deg) % 360, p.phi_mean_deg % 360)
 
 
 def test_truncation_resamples_inside_the_valid_ranges(seed):
@@ -324,9 +333,9 @@ def test_extraction_errors(seed):
 
 def test_extraction_steps_leaf_area_and_lai(seed):
     plot = strawberry_plot(seed=seed)
-    steps = extraction_steps(plot, seed=1)
+    steps = extraction_steps(plot, seed=1, fractions=PAPER_EXTRACTION_SIXTHS)
     assert [s.step for s in steps] == [0, 1, 2, 3]
-    # Default: a sixth of the starting leaves per step, so step 3 holds half.
+    # The sixths option: a sixth of the starting leaves per step, so step 3 holds half.
     n0 = plot.n_leaves
     assert [s.n_leaves for s in steps] == [n0 - math.floor(n0 * k / 6 + 0.5) for k in range(4)]
     assert steps[3].n_leaves == n0 - round(n0 / 2 + 0.1)  # half (rounded up when n0 is odd)
@@ -345,7 +354,7 @@ def test_extraction_steps_leaf_area_and_lai(seed):
     (682, [114, 113, 114]),  # the shipped 4 × 4 plot (seed 2014): 341 left = half
     (6, [1, 1, 1]), (7, [1, 1, 2]), (0, [0, 0, 0]), (5, [1, 1, 1])])
 def test_fraction_counts_are_cumulatively_rounded_sixths(n0, want):
-    got = fraction_counts(n0, PAPER_EXTRACTION_FRACTIONS)
+    got = fraction_counts(n0, PAPER_EXTRACTION_SIXTHS)
     assert got == want
     assert sum(got) == math.floor(n0 / 2 + 0.5)
     assert all(abs(c - n0 / 6) <= 1 for c in got)
@@ -361,10 +370,12 @@ def test_fraction_extraction_area_falls_by_a_sixth_of_the_start():
     seeds of one plot against 4·SD/√K; the SD of one step's share is ~0.011 here."""
     plot = strawberry_plot(StrawberryPlotParams(rows=2, plants_per_row=3), seed=7)
     n0, a0 = plot.n_leaves, plot.leaf_area_m2
-    c = fraction_counts(n0, PAPER_EXTRACTION_FRACTIONS)
-    share = np.array([np.diff([-s.leaf_area_m2 for s in extraction_steps(plot, seed=k)]) / a0
+    c = fraction_counts(n0, PAPER_EXTRACTION_SIXTHS)
+    share = np.array([np.diff([-s.leaf_area_m2 for s in extraction_steps(
+        plot, seed=k, fractions=PAPER_EXTRACTION_SIXTHS)]) / a0
                       for k in range(200)])                    # (K, 3) area shares removed
-    assert [len(np.unique(s.leaf_id)) for s in extract_leaves(plot.leaves, seed=3)] == \
+    assert [len(np.unique(s.leaf_id)) for s in extract_leaves(
+        plot.leaves, seed=3, fractions=PAPER_EXTRACTION_SIXTHS)] == \
         [n0 - x for x in np.cumsum([0] + c)]
     for k in range(3):
         assert abs(c[k] / n0 - 1 / 6) <= 1 / n0
@@ -439,7 +450,7 @@ def test_table4_reading_six_plants_of_44_leaves():
     ("area_mean_m2", float("nan")), ("area_mean_m2", -1e-4), ("area_mean_m2", 0.0),
     ("area_sd_m2", -1e-4), ("b_over_a_mean", 0.0), ("c_over_b_mean", 1.5),
     ("p_over_a_sd", float("inf")), ("lateral_area_ratio", 0.0), ("alpha_mean_deg", 95.0),
-    ("phi_mean_deg", -10.0), ("lambda_sd_deg", "x"),
+    ("theta_mean_deg", -10.0), ("lambda_sd_deg", "x"),  # θ: the petiole zenith by default
 ])
 def test_leaf_params_validation(key, value):
     with pytest.raises(ConfigError) as e:

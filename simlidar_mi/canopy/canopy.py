@@ -145,8 +145,8 @@ def canopies_from_config(cfg: SceneConfig, replicate: int = 0) -> list[Canopy]:
     """The canopies a scene file describes: one per extraction step.
 
     ``[random_leaves]`` gives one periodic canopy; ``[strawberry]`` a plot and its
-    extraction steps (``[strawberry] extraction_fractions``, default one sixth of the
-    starting leaves three times, or ``extraction_counts``).  ``replicate`` selects an
+    extraction steps (``[strawberry] extraction_fractions``, default the shares of the
+    starting leaves that follow Table 4's real leaf area, or ``extraction_counts``).  ``replicate`` selects an
     independent plot of the same scene (:func:`replicate_seed`).
     """
     has_rl, has_sb = cfg.has("random_leaves"), cfg.has("strawberry")

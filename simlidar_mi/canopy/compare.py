@@ -22,7 +22,18 @@ Outputs (written together, or not at all)
     uncertainty due to the virtual side's seed noise (√Σ p0_virtual_se² / n);
     ``paper_*`` are the paper's Table 5 values at that zenith (its scatter: 0.021,
     0.0145, 0.009 at 0/15/30°).  ``r`` and ``scatter`` are ``nan`` with fewer than two
-    pairs (``r`` also with no spread).
+    pairs (``r`` also with no spread): r per zenith is the correlation across a zenith's
+    rows (extraction steps, treatments), so it needs one row per step; the shipped manifest
+    has one row per zenith (the paper prints its per-step P0 only as Figure 4's points).
+    Uncertainty: ``bias_ci_low``/``bias_ci_high`` a t-based 95 % interval
+    (:func:`bias_interval`, Welch–Satterthwaite ``ci_df``) from the spread between the
+    scene's replicate plots (plot to plot) and, where the manifest gives ``p0_measured_sd``
+    and ``n_measured``, between the measured photos / areas (photo to photo); a row with
+    ``n_measured`` only takes its virtual plots' SD as a stand-in (``ci_basis`` says which).
+    ``rmse_ci_*``, ``r_ci_*``: percentile 95 % intervals of :data:`BOOTSTRAP_DRAWS`
+    resamplings of the replicate plots (and of the measured values within their SE).
+    ``bias_inside_ci``: ``yes`` when 0 lies in the bias interval (the gap cannot be told
+    from noise), ``no`` when it does not.
 ``pairs.csv``
     Every manifest row with its measured P0 and the virtual P0: the mean over the
     scene's ``[gapfraction] replicates`` plots, the SD between them
@@ -37,9 +48,9 @@ Outputs (written together, or not at all)
     the strawberry paper's petiole angles (:data:`PETIOLE_READINGS`), over the manifest rows
     whose scene has a ``[strawberry]`` section (each such scene is rendered a second time with
     ``strawberry.leaf.petiole_zenith`` swapped); absent when no row has one, or with
-    ``readings=False``.  The scene's own reading (φ as the zenith by default) was chosen
-    because it fits the paper's measured gap fractions better, so its agreement is not an
-    independent check of the model (:data:`READINGS_NOTE`).
+    ``readings=False``.  The scene's own reading (θ as the zenith by default, the paper's
+    "hemisphere") was chosen from the paper's text, not from this comparison; the other
+    (φ) had been chosen because it fits the measured values better (:data:`READINGS_NOTE`).
 ``comparison.json``
     Manifest and scene checksums, settings, the statistics (and ``readings``).
 """
@@ -56,6 +67,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import ConfigError, PhotoError, SimlidarError
+from ..plants.strawberry_leaf import StrawberryLeafParams
 from ..io.atomic import writes_output
 from .gapfraction import replicate_sd
 from .manifest import ManifestError, ManifestRow, read_manifest
@@ -63,11 +75,15 @@ from .manifest import ManifestError, ManifestRow, read_manifest
 __all__ = [
     "Pair", "ComparisonResult", "COMPARISON_COLUMNS", "PAIRS_COLUMNS", "PAPER_TABLE5",
     "comparison_stats", "compare", "plot_comparison", "PETIOLE_READINGS", "READINGS_NOTE",
+    "bias_interval", "BOOTSTRAP_DRAWS",
 ]
 
 COMPARISON_COLUMNS = ("zenith_deg", "n", "r", "rmse", "rmse_r", "bias", "bias_r", "bias_se",
-                      "scatter", "paper_rmse", "paper_bias", "paper_scatter")
-PAIRS_COLUMNS = ("row", "scene", "camera", "zenith_deg", "step", "p0_measured", "p0_virtual",
+                      "scatter", "bias_ci_low", "bias_ci_high", "ci_df", "rmse_ci_low", "rmse_ci_high",
+                      "r_ci_low", "r_ci_high", "bias_inside_ci", "ci_basis",
+                      "paper_rmse", "paper_bias", "paper_scatter")
+PAIRS_COLUMNS = ("row", "scene", "camera", "zenith_deg", "step", "p0_measured", "p0_measured_sd",
+                 "n_measured", "p0_virtual",
                  "p0_virtual_sd", "p0_virtual_sd_plot", "replicates", "difference", "measured_from",
                  "photo", "method", "crop", "lai_virtual", "note")
 # The files a comparison owns in its folder (whole-name regular expressions): a re-run
@@ -77,11 +93,12 @@ COMPARE_OUTPUTS = (r"comparison\.(csv|json|png)", r"pairs\.csv", r"readings\.csv
 
 #: The strawberry paper's two petiole angles, φ (45 ± 5.6°) and θ (65 ± 45°): which one is the
 #: petiole's zenith (the other being the azimuth step between leaves) it does not say.
-PETIOLE_READINGS = {"phi": "φ (45 ± 5.6°) the petiole zenith, θ the divergence",
-                    "theta": "θ (65 ± 45°) the petiole zenith, φ the divergence"}
-READINGS_NOTE = ("The default petiole reading (phi as the zenith) was chosen because it fits the "
-                 "measured gap fractions (Table 5's implied means) better than the other; its "
-                 "agreement with them is therefore not an independent check of the model.")
+PETIOLE_READINGS = {"phi": "φ (45 ± 5.6°) the petiole zenith, θ the divergence (a cone of petioles)",
+                    "theta": "θ (65 ± 45°) the petiole zenith, φ the divergence (the paper's hemisphere)"}
+READINGS_NOTE = ("The default petiole reading (theta as the zenith) was chosen from the paper's text "
+                 "(leaves 'tending to form a hemisphere'), not from this comparison, and fits the "
+                 "measured gap fractions worse than the other (phi as the zenith, which had been "
+                 "chosen because it fits them better and so is no independent check).")
 #: The paper's Table 5 per view zenith: (RMSE, Bias) over its 4 densities.  Its error
 #: scatter √(RMSE² − Bias²) is 0.0209, 0.0145 and 0.0089.
 PAPER_TABLE5 = {0.0: (0.022, 0.007), 15.0: (0.015, 0.004), 30.0: (0.012, 0.008)}
@@ -99,6 +116,7 @@ class Pair:
     photo_result: Any = None  # simlidar_mi.canopy.photo.PhotoGapResult for photo rows
     p0_virtual_sd_plot: float = math.nan  # SD between the scene's replicate plots
     replicates: int = 1
+    p0_virtual_replicates: tuple[float, ...] = ()  # each replicate plot's P0, in replicate order
 
     @property
     def p0_virtual_sd(self) -> float:
@@ -115,7 +133,10 @@ class Pair:
         src = "value" if r.photo is None else f"photo:{r.method}"
         return {"row": r.row, "scene": r.scene_text, "camera": r.camera,
                 "zenith_deg": f"{r.zenith_deg:g}", "step": r.step_label,
-                "p0_measured": f"{self.p0_measured:.6f}", "p0_virtual": f"{self.p0_virtual:.6f}",
+                "p0_measured": f"{self.p0_measured:.6f}",
+                "p0_measured_sd": "" if r.p0_measured_sd is None else f"{r.p0_measured_sd:.6f}",
+                "n_measured": "" if r.n_measured is None else r.n_measured,
+                "p0_virtual": f"{self.p0_virtual:.6f}",
                 "p0_virtual_sd_plot": f"{self.p0_virtual_sd_plot:.6f}",
                 "p0_virtual_sd": f"{self.p0_virtual_sd:.6f}", "replicates": self.replicates,
                 "difference": f"{self.difference:+.6f}", "measured_from": src,
@@ -315,17 +336,149 @@ def _fmt(v: Any) -> str:
     return "nan" if not math.isfinite(v) else f"{v:.6g}"
 
 
+def bias_interval(virtual: Sequence[Sequence[float]], groups: Sequence[Any],
+                  observed: Sequence[float], observed_sd: Sequence[float | None],
+                  observed_n: Sequence[int | None], level: float = 0.95) -> dict[str, float]:
+    """Bias = mean(s − o) of k pairs with a t-based confidence interval (Welch–Satterthwaite).
+
+    Parameters
+    ----------
+    virtual : k sequences of float
+        Each pair's virtual P0 per replicate plot; its simulated value is their mean.
+    groups : k hashables
+        Pairs of one group (one scene) come from the same replicate plots, replicate ``j`` of
+        each being plot ``j``: their per-plot sums are taken together, so the correlation
+        between, say, a zenith's extraction steps is kept.  Groups are independent.
+    observed : k floats
+    observed_sd, observed_n : k values
+        SD among the ``n`` photos / sample areas each observed value is the mean of (None:
+        not known, that value is taken as exact).
+    level : float
+        Confidence level.
+
+    Returns
+    -------
+    dict
+        ``bias``; ``se`` = √(Σ_g var_j(Σ_{i∈g} v_ij)/(R_g·k²) + Σ_i sd_i²/(n_i·k²)); ``df`` the
+        Welch–Satterthwaite degrees of freedom (R_g − 1 per group, n_i − 1 per observed value);
+        ``low``, ``high`` = bias ∓ t_{(1+level)/2, df}·se.  nan where no component has a spread
+        (one replicate and no SDs).
+    """
+    from scipy import stats as _st  # noqa: PLC0415
+    k = len(observed)
+    v = [np.asarray(x, np.float64) for x in virtual]
+    bias = float(np.mean([x.mean() for x in v]) - np.mean(np.asarray(observed, np.float64)))
+    comps: list[tuple[float, float]] = []   # (variance contribution, df)
+    for g in dict.fromkeys(groups):
+        members = [x for x, gg in zip(v, groups) if gg == g]
+        lengths = {len(x) for x in members}
+        if len(lengths) != 1:
+            raise ConfigError("pairs of one scene must have the same replicates", key="virtual")
+        n_rep = lengths.pop()
+        if n_rep < 2:
+            continue
+        tot = np.sum(members, axis=0)
+        comps.append((float(np.var(tot, ddof=1)) / n_rep / k ** 2, n_rep - 1))
+    for sd, n in zip(observed_sd, observed_n):
+        if sd is not None and n is not None and n >= 2 and math.isfinite(sd):
+            comps.append((sd * sd / n / k ** 2, n - 1))
+    var = sum(c for c, _ in comps)
+    if not comps:
+        return {"bias": bias, "se": math.nan, "df": math.nan, "low": math.nan, "high": math.nan}
+    den = sum(c * c / d for c, d in comps)
+    df = var * var / den if den > 0 else float(min(d for _, d in comps))
+    se = math.sqrt(var)
+    t = float(_st.t.ppf(0.5 + level / 2, df)) if se > 0 else 0.0
+    return {"bias": bias, "se": se, "df": df, "low": bias - t * se, "high": bias + t * se}
+
+
+#: Bootstrap draws for the RMSE and r intervals (resampled replicate plots; fixed seed, so a
+#: comparison repeats bit for bit).
+BOOTSTRAP_DRAWS = 2000
+_BOOTSTRAP_SEED = 20140225  # the paper's field day
+
+
+def _measured_spread(ps: list[Pair]) -> tuple[list[float | None], list[int | None], str]:
+    """Per pair (SD among the measured photos/areas, their number) and what the interval rests on.
+
+    A row with ``n_measured`` but no ``p0_measured_sd`` takes its virtual plots' SD as a stand-in
+    (one virtual plot ≈ one ~1 m² sample area): an assumption, named in ``ci_basis``."""
+    sds, ns, stand_in, given = [], [], False, False
+    for p in ps:
+        sd, n = p.row.p0_measured_sd, p.row.n_measured
+        if sd is None and n is not None and n >= 2 and math.isfinite(p.p0_virtual_sd_plot):
+            sd, stand_in = p.p0_virtual_sd_plot, True
+        elif sd is not None:
+            given = True
+        sds.append(sd)
+        ns.append(n)
+    basis = "plots"
+    if given:
+        basis += "+photos"
+    if stand_in:
+        basis += "+photos(virtual SD stand-in)"
+    if all(sd is None for sd in sds):
+        basis += " (measured spread not given)"
+    return sds, ns, basis
+
+
+def _bootstrap(ps: list[Pair], sds, ns) -> tuple[float, float, float, float]:
+    """Percentile 95 % intervals of RMSE and r: replicate plots resampled (jointly within a
+    scene), measured values drawn around themselves with SD sd/√n where known."""
+    reps = [np.asarray(p.p0_virtual_replicates, np.float64) for p in ps]
+    if any(len(x) < 2 for x in reps):
+        return math.nan, math.nan, math.nan, math.nan
+    rng = np.random.default_rng(_BOOTSTRAP_SEED)
+    scenes = [p.row.scene.resolve() for p in ps]
+    sim = np.empty((BOOTSTRAP_DRAWS, len(ps)))
+    for g in dict.fromkeys(scenes):
+        idx = [i for i, sc in enumerate(scenes) if sc == g]
+        n_rep = len(reps[idx[0]])
+        draw = rng.integers(0, n_rep, size=(BOOTSTRAP_DRAWS, n_rep))
+        for i in idx:
+            sim[:, i] = reps[i][draw].mean(1)
+    obs = np.tile(np.array([p.p0_measured for p in ps]), (BOOTSTRAP_DRAWS, 1))
+    for i, (sd, n) in enumerate(zip(sds, ns)):
+        if sd is not None and n is not None and n >= 1:
+            obs[:, i] += rng.normal(0.0, sd / math.sqrt(n), BOOTSTRAP_DRAWS)
+    d = sim - obs
+    rmse = np.sqrt(np.mean(d * d, axis=1))
+    r_lo = r_hi = math.nan
+    if len(ps) >= 2:
+        sc, oc = sim - sim.mean(1, keepdims=True), obs - obs.mean(1, keepdims=True)
+        den = np.sqrt((sc * sc).sum(1) * (oc * oc).sum(1))
+        ok = den > 0
+        if ok.any():
+            r = (sc * oc).sum(1)[ok] / den[ok]
+            r_lo, r_hi = (float(x) for x in np.percentile(r, [2.5, 97.5]))
+    lo, hi = np.percentile(rmse, [2.5, 97.5])
+    return float(lo), float(hi), r_lo, r_hi
+
+
 def _stats_row(zenith: float | str, ps: list[Pair]) -> dict[str, Any]:
     st = comparison_stats([p.p0_virtual for p in ps], [p.p0_measured for p in ps])
     # seed noise of the virtual side only (measured values carry their own)
     bias_se = math.sqrt(sum(p.p0_virtual_sd ** 2 for p in ps)) / len(ps)
+    sds, ns, basis = _measured_spread(ps)
+    if all(len(p.p0_virtual_replicates) for p in ps):
+        ci = bias_interval([p.p0_virtual_replicates for p in ps], [p.row.scene.resolve() for p in ps],
+                           [p.p0_measured for p in ps], sds, ns)
+        rmse_lo, rmse_hi, r_lo, r_hi = _bootstrap(ps, sds, ns)
+    else:
+        ci = {"low": math.nan, "high": math.nan, "df": math.nan}
+        rmse_lo = rmse_hi = r_lo = r_hi = math.nan
+    inside = ("nan" if not math.isfinite(ci["low"])
+              else "yes" if ci["low"] <= 0.0 <= ci["high"] else "no")
     paper = next((v for z, v in PAPER_TABLE5.items() if not isinstance(zenith, str)
                   and abs(z - zenith) <= _ZENITH_TOL_DEG), None)
     ref = {"paper_rmse": math.nan, "paper_bias": math.nan, "paper_scatter": math.nan}
     if paper is not None:
         ref = {"paper_rmse": paper[0], "paper_bias": paper[1],
                "paper_scatter": math.sqrt(paper[0] ** 2 - paper[1] ** 2)}
-    return {"zenith_deg": zenith, **st, "bias_se": bias_se, **ref}
+    return {"zenith_deg": zenith, **st, "bias_se": bias_se, "bias_ci_low": ci["low"],
+            "bias_ci_high": ci["high"], "ci_df": ci["df"], "rmse_ci_low": rmse_lo,
+            "rmse_ci_high": rmse_hi, "r_ci_low": r_lo, "r_ci_high": r_hi,
+            "bias_inside_ci": inside, "ci_basis": basis, **ref}
 
 
 def _group_stats(pairs: list[Pair]) -> list[dict[str, Any]]:
@@ -379,8 +532,10 @@ def plot_comparison(pairs: Sequence[Pair], stats: Sequence[dict[str, Any]], path
         ax.set_xlabel("measured P0")
         ax.set_ylabel("virtual P0")
         r = "–" if not math.isfinite(s["r"]) else f"{s['r']:.3f}"
+        ci = ("" if not math.isfinite(s.get("bias_ci_low", math.nan))
+              else f"\n95 % CI {s['bias_ci_low']:+.3f}…{s['bias_ci_high']:+.3f}")
         ax.set_title(f"θ = {z:g}°   n = {s['n']}\nr = {r}, RMSE = {s['rmse']:.3f}, "
-                     f"bias = {s['bias']:+.3f} ± {s['bias_se']:.3f}", fontsize=9)
+                     f"bias = {s['bias']:+.3f} ± {s['bias_se']:.3f}{ci}", fontsize=9)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="upper left")
     if title:
@@ -438,7 +593,7 @@ def compare(manifest_path: str | os.PathLike[str], out_dir: str | os.PathLike[st
                 used[(r.scene.resolve(), im.stem())] = (r.scene.stem, im)
             p0_m = photos[r.row].p0 if r.photo is not None else float(r.p0_measured)
             pairs.append(Pair(r, float(p0_m), float(np.mean(values)), lai, photos.get(r.row),
-                              replicate_sd(values), len(values)))
+                              replicate_sd(values), len(values), tuple(values)))
         stats = _group_stats(pairs)
         by_reading, own = _petiole_readings(rows, runs, pairs, src, progress) if readings else ({}, None)
         files: dict[str, Path] = {}
@@ -486,7 +641,8 @@ def _petiole_readings(rows: list[ManifestRow], runs: dict, pairs: list[Pair], sr
     scenes' own (from ``pairs``) and the other (each such scene rendered again with
     ``petiole_zenith`` swapped).  ({reading: stats rows}, the scenes' own reading)."""
     def own_of(cfg) -> str | None:
-        return (cfg["strawberry.leaf"]["petiole_zenith"] or "phi") if cfg.has("strawberry") else None
+        default = StrawberryLeafParams().petiole_zenith
+        return (cfg["strawberry.leaf"]["petiole_zenith"] or default) if cfg.has("strawberry") else None
     owns = {own_of(cfg) for _run, cfg in runs.values()} - {None}
     if not owns:
         return {}, None
@@ -507,7 +663,7 @@ def _petiole_readings(rows: list[ManifestRow], runs: dict, pairs: list[Pair], sr
         values, lai, _imgs = _virtual(r, alt[0], src)
         mine.append(pair)
         theirs.append(Pair(r, pair.p0_measured, float(np.mean(values)), lai, None,
-                           replicate_sd(values), len(values)))
+                           replicate_sd(values), len(values), tuple(values)))
     if own == "mixed":  # name the series by what they are to each scene
         return {"own": _group_stats(mine), "other": _group_stats(theirs)}, own
     return {own: _group_stats(mine), "theta" if own == "phi" else "phi": _group_stats(theirs)}, own

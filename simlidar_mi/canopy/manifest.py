@@ -24,6 +24,11 @@ column            needed    meaning
                             ``blue-otsu`` (photo rows only)
 ``crop``          no        central fraction (``0.5``) or pixel box
                             (``"x0,y0,x1,y1"``) of the photo (photo rows only)
+``p0_measured_sd`` no       SD among the photos (or sample areas) whose mean the row's
+                            measured P0 is; needs ``n_measured``
+``n_measured``    no        how many photos / sample areas that mean holds (≥ 2 with an
+                            SD); alone it lets ``compare`` stand in the virtual plots' SD
+                            for the missing one (flagged as an assumption)
 ``note``          no        free text, copied to ``pairs.csv``
 ================  ========  ============================================================
 
@@ -54,7 +59,8 @@ __all__ = ["ManifestError", "ManifestRow", "MANIFEST_COLUMNS", "REQUIRED_COLUMNS
 
 REQUIRED_COLUMNS = ("scene", "camera", "zenith_deg", "step")
 MEASUREMENT_COLUMNS = ("photo", "p0_measured")
-MANIFEST_COLUMNS = REQUIRED_COLUMNS + MEASUREMENT_COLUMNS + ("method", "crop", "note")
+MANIFEST_COLUMNS = REQUIRED_COLUMNS + MEASUREMENT_COLUMNS + ("method", "crop", "p0_measured_sd",
+                                                            "n_measured", "note")
 CAMERAS = ("orthographic", "perspective")
 MEAN_STEP = "mean"
 
@@ -96,6 +102,8 @@ class ManifestRow:
     scene_text: str = ""  # as written in the manifest
     photo_text: str = ""
     crop_text: str = ""
+    p0_measured_sd: float | None = None  # SD among the photos / areas averaged
+    n_measured: int | None = None        # how many photos / areas
 
     @property
     def step_label(self) -> str:
@@ -240,5 +248,26 @@ def _parse_row(rec: dict[str, str], n: int, src: str, base: Path, methods: Seque
             raise err("p0_measured", "not a number", p0_text) from None
         if not (math.isfinite(p0) and 0.0 <= p0 <= 1.0):
             raise err("p0_measured", "a gap fraction must lie in [0, 1]", p0_text)
+    sd_text, n_text = rec.get("p0_measured_sd", ""), rec.get("n_measured", "")
+    sd: float | None = None
+    n_meas: int | None = None
+    if n_text:
+        try:
+            n_meas = int(n_text)
+        except ValueError:
+            raise err("n_measured", "not an integer (photos or sample areas averaged)",
+                      n_text) from None
+        if n_meas < 1:
+            raise err("n_measured", "must be ≥ 1 (photos or sample areas averaged)", n_text)
+    if sd_text:
+        try:
+            sd = float(sd_text)
+        except ValueError:
+            raise err("p0_measured_sd", "not a number", sd_text) from None
+        if not (math.isfinite(sd) and 0.0 <= sd <= 1.0):
+            raise err("p0_measured_sd", "an SD of gap fractions must lie in [0, 1]", sd_text)
+        if n_meas is None or n_meas < 2:
+            raise err("n_measured", "an SD needs the number of photos / areas it is over (≥ 2)",
+                      n_text or None)
     return ManifestRow(n, scene, camera, zenith, step, photo, method, crop, p0,
-                       rec.get("note", ""), scene_text, photo_text, crop_text)
+                       rec.get("note", ""), scene_text, photo_text, crop_text, sd, n_meas)

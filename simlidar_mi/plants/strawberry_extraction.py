@@ -1,12 +1,18 @@
 """Leaf extraction (the strawberry paper's density experiment): successive random leaf removals.
 
-The paper pulled one sixth of each sample area's leaves out, three times, "leaving half
-of the original leaves at the end of the last extraction"; the 44, 39 and 44 leaves it
-reports are those sixths of a ~254-leaf sample area, and its virtual canopy (a canopy
-of that size) lost the same numbers.  On a virtual plot of another size the same
-*shares* must go, so the default here removes a fraction of the starting leaves per
-step (:data:`PAPER_EXTRACTION_FRACTIONS`); absolute counts
-(:data:`PAPER_EXTRACTION_COUNTS`) stay available as an explicit option.
+The paper pulled leaves out of each sample area three times: "se arrancaron aleatoriamente un
+sexto de las hojas, en tres extracciones sucesivas, quedando la mitad de las hojas iniciales al
+final de la última extracción" (one sixth of the leaves were pulled out at random in three
+successive extractions, half of the starting leaves remaining after the last).  Its Table 4 then
+prints what the field canopy's leaf area actually did, averaged over the 3 sample areas: 1.116,
+0.900, 0.724 and 0.527 m², i.e. 0.806, 0.649 and 0.472 of the first, not 5/6, 4/6, 3/6.  The
+gap fractions measured in the field belong to those canopies, so by default the virtual
+extraction removes at each step the share of the starting leaves that Table 4's real leaf area
+lost (:data:`PAPER_EXTRACTION_FRACTIONS`, from :data:`PAPER_TABLE4_REAL_M2`: 0.1935, 0.1577,
+0.1765 of the start; 52.8 % gone after three steps).  Sixths (:data:`PAPER_EXTRACTION_SIXTHS`,
+the procedure as the text states it) and absolute counts (:data:`PAPER_EXTRACTION_COUNTS`, the
+44, 39, 44 leaves of a ~254-leaf sample area) stay available as options
+(``[strawberry] extraction_fractions`` / ``extraction_counts``).
 
 Leaves are removed whole and at random, each step from what the step before left, so
 every step is a subset of the previous one.  Counts are exact (see
@@ -29,15 +35,38 @@ from ..geometry import Leaves
 from .strawberry import StrawberryPlot
 
 __all__ = ["ExtractionStep", "extract_leaves", "extraction_steps", "fraction_counts",
-           "PAPER_EXTRACTION_COUNTS", "PAPER_EXTRACTION_FRACTIONS"]
+           "PAPER_EXTRACTION_COUNTS", "PAPER_EXTRACTION_FRACTIONS", "PAPER_EXTRACTION_SIXTHS",
+           "PAPER_TABLE4_REAL_M2", "PAPER_TABLE4_VIRTUAL_M2", "table4_fractions"]
 
 #: Leaves removed in the paper's three successive extractions (average of its 3 sample
 #: areas of ~254 leaves each): right only for a canopy of that size.
 PAPER_EXTRACTION_COUNTS = (44, 39, 44)
 
-#: Share of the *starting* leaves removed at each of the paper's three extractions
-#: ("one sixth of the leaves … leaving half"): the default.
-PAPER_EXTRACTION_FRACTIONS = (1 / 6, 1 / 6, 1 / 6)
+#: Table 4, "Dosel real, promedio de las 3 áreas de muestreo": the field canopy's leaf area,
+#: m² (per 1 m² sample area), full and after each extraction.
+PAPER_TABLE4_REAL_M2 = (1.116, 0.900, 0.724, 0.527)
+
+#: Table 4, "Dosel virtual": the paper's virtual canopy, m² (it removed the field's leaf counts).
+PAPER_TABLE4_VIRTUAL_M2 = (1.241, 1.034, 0.849, 0.642)
+
+#: "One sixth of the leaves … leaving half" as the text states the procedure (an option).
+PAPER_EXTRACTION_SIXTHS = (1 / 6, 1 / 6, 1 / 6)
+
+
+def table4_fractions(areas_m2: Sequence[float] = PAPER_TABLE4_REAL_M2) -> tuple[float, ...]:
+    """Shares of the starting leaves to remove per step so that leaf area follows ``areas_m2``.
+
+    Step ``k`` removes ``(A_{k-1} − A_k)/A_0``; after step ``k`` the canopy holds ``A_k/A_0`` of
+    its leaves (and, in expectation, of its leaf area).  With Table 4's real canopy:
+    0.193548, 0.157706, 0.176523 (the areas fall to 0.806, 0.649, 0.472 of the first).
+    """
+    a = [float(x) for x in areas_m2]
+    return tuple((a[k - 1] - a[k]) / a[0] for k in range(1, len(a)))
+
+
+#: Share of the *starting* leaves removed at each of the paper's three extractions so that the
+#: leaf area falls as Table 4's real canopy did (the default; see the module docstring).
+PAPER_EXTRACTION_FRACTIONS = table4_fractions(PAPER_TABLE4_REAL_M2)
 
 
 # ----------------------------------------------------------------------- extraction
@@ -157,8 +186,8 @@ def extraction_steps(plot: StrawberryPlot, counts: Sequence[int] | None = None,
                      fractions: Sequence[float] | None = None) -> list[ExtractionStep]:
     """Leaf area and LAI of the plot after each extraction (cf. paper Table 4).
 
-    ``counts`` / ``fractions`` as in :func:`extract_leaves` (default: one sixth of
-    the starting leaves, three times). The ground area is the planted area
+    ``counts`` / ``fractions`` as in :func:`extract_leaves` (default: Table 4's real-canopy
+    shares, :data:`PAPER_EXTRACTION_FRACTIONS`). The ground area is the planted area
     ``rows·inter_row_m × plants_per_row·intra_row_m``
     (:attr:`StrawberryPlot.ground_area_m2`).
     """

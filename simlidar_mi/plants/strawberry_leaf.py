@@ -56,16 +56,27 @@ Petiole (φ, θ) and length p
     leaf ``k`` has azimuth ``ψ0 + Σ_{i≤k} δ_i`` with ``ψ0`` uniform in [0°, 360°)
     for each plant. (Read as an absolute azimuth, either law would put every leaf
     of every plant on the same side, contradicting the paper's radial plants.)
-    Default ``petiole_zenith='phi'``: φ (45° ± 5.6°) is the zenith angle and θ
-    (65° ± 45°) the divergence. We chose it because it reproduces the paper's
-    gap fractions: with the paper's planting grid and 42 leaves a plant, removing
-    1/6 of the initial leaves three times as the paper did, the nadir perspective
-    P0 of ``scenes/strawberry_plot.toml`` (mean of 16 plots) goes from 0.150 to
-    0.337 (paper, Figure 4: 0.15 to 0.40; mean over the 4 densities 0.229 against
-    the measured 0.270), whereas ``petiole_zenith='theta'`` (θ as a zenith of
-    65° ± 45°, truncated) gives 0.087 to 0.292 (mean 0.174) and puts 7 % of the
-    leaves partly below the ground (0.1 % with the default); BENCHMARKS.md §2. The central leaflet's midrib points along the petiole azimuth
-    (away from the plant centre). The petiole length is ``p = (p/a)·a``; the
+    Default ``petiole_zenith='theta'``: θ (65° ± 45°, truncated to (0°, 90°): mean
+    50.8°, SD 23.9°) is the petiole zenith and φ (45° ± 5.6°) the divergence. Source,
+    the paper's discussion: "Dada la simplicidad de la estructura la planta de fresa,
+    (todas las hojas parten de un único punto en el suelo), las hojas se distribuyen
+    radialmente tendiendo a formar una semiesfera, con el fin de evitar los
+    recubrimientos entre ellas" (given the strawberry plant's simple structure, all
+    leaves starting from one point on the ground, the leaves spread radially, tending
+    to form a hemisphere, so as to avoid overlapping one another). Petiole tips spread
+    over a hemisphere need a wide zenith law, which only θ has (its SD of 45° spans
+    vertical to horizontal); φ's SD of 5.6° puts every tip on one 45° cone, a ring.
+    And "radially … to avoid overlapping" fits φ as a near-regular divergence (45°
+    steps, eight leaves a turn). This reading was chosen from those sentences, not
+    from the comparison: it fits the measured gap fractions *worse* (mean P0 0.18
+    against the measured 0.27; bias −0.09), while it follows the field's response to
+    leaf removal (−ln P0 ∝ leaf area) far better than the other (BENCHMARKS.md §2,
+    "Within-plant overlap"). The earlier default, ``petiole_zenith='phi'`` (φ the
+    zenith, θ the divergence: a 45° cone of petioles), stays as the option; it was
+    chosen because it fitted the measured gap fractions (bias −0.03…−0.04). With
+    θ, 7 % of the leaves reach partly below the ground (0.1 % with φ); they are left
+    there (no collision handling, as in the paper). The central leaflet's midrib
+    points along the petiole azimuth (away from the plant centre). The petiole length is ``p = (p/a)·a``; the
     petiole itself is not meshed (the paper meshes leaflets only), and leaves are
     not kept above the ground or apart from each other (no collision handling).
 Truncation ranges (open intervals; draws outside are redrawn)
@@ -208,8 +219,8 @@ class StrawberryLeafParams:
         Petiole angle φ, degrees (π/4 ± π/32 = 45 ± 5.625°).
     petiole_zenith : {'phi', 'theta'}
         Which of θ, φ is the petiole zenith angle; the other is the azimuthal
-        divergence between consecutive leaves (default 'phi', see the module
-        docstring for why).
+        divergence between consecutive leaves (default 'theta', the paper's
+        hemisphere; see the module docstring for the source).
     """
 
     area_mean_m2: float = 13.025e-4
@@ -235,7 +246,7 @@ class StrawberryLeafParams:
     theta_sd_deg: float = 180.0 / 4
     phi_mean_deg: float = 180.0 / 4
     phi_sd_deg: float = 180.0 / 32
-    petiole_zenith: str = "phi"
+    petiole_zenith: str = "theta"
 
     def __post_init__(self) -> None:
         for f in fields(self):

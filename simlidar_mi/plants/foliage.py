@@ -132,7 +132,7 @@ SPECIES_FOLIAGE: dict[str, SpeciesFoliage] = {
                      "(4.5 ± 2.5, from 2.0) up to the beech-stand range's 8 (leuschner2006)"),
         figures={"wood_share": _C((0.12, 0.20), "kuusinen2021", "broadleaf (birch) woody share of "
                                   "reflectance; the preset's wood is grown, its share measured")},
-        ours="leaves per leaf-bearing segment (180–220, for the crown LAI), growth levels 7–9 "
+        ours="leaves per leaf-bearing segment (260–320, for the crown LAI), growth levels 7–8 "
              "(one more generation of twigs than before), leaf width ratio 0.55, the architecture"),
     "conifer-whorl": SpeciesFoliage(
         "Norway spruce (Picea abies)",

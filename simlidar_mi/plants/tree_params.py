@@ -120,7 +120,7 @@ class RandomTreeParams:
     # global laws (G1–G3)
     trunk_length_m: TruncNormal = TruncNormal(4.5, 0.6, 3.0, 6.5)
     trunk_radius_m: TruncNormal = TruncNormal(0.22, 0.04, 0.12, 0.35)
-    growth_level: Discrete = Discrete((7, 8, 9), (0.25, 0.5, 0.25))
+    growth_level: Discrete = Discrete((7, 8), (0.5, 0.5))
     length_ratio: TruncNormal = TruncNormal(0.80, 0.04, 0.68, 0.92)
     radius_ratio: TruncNormal = TruncNormal(0.70, 0.04, 0.58, 0.82)
     lateral_length_ratio: TruncNormal | None = None
@@ -135,7 +135,7 @@ class RandomTreeParams:
     leader_angle_deg: TruncNormal = TruncNormal(0.0, 5.0, -15.0, 15.0)
     leaf_length_m: TruncNormal = TruncNormal(0.11, 0.02, 0.06, 0.16)
     leaf_width_ratio: TruncNormal = TruncNormal(0.55, 0.06, 0.35, 0.75)
-    leaves_per_branch: Discrete = Discrete((180, 200, 220), (0.25, 0.5, 0.25))
+    leaves_per_branch: Discrete = Discrete((260, 290, 320), (0.25, 0.5, 0.25))
     leaf_angle_deg: TruncNormal = TruncNormal(50.0, 15.0, 10.0, 90.0)
     leaf_roll_deg: TruncNormal = TruncNormal(0.0, 20.0, -60.0, 60.0)
     # architecture constants
@@ -323,7 +323,9 @@ _D = Discrete
 #: per leaf-bearing segment (the twigs the generator does not grow) is ours, fitted to it.
 SPECIES_PRESETS: dict[str, RandomTreeParams] = {
     # elm/birch-like: sympodial, every split at the apex; ~14–20 m, leaves 6–16 cm (≈ 33 cm²,
-    # Dutch elm 29.5–38 cm²), 180–220 a leaf-bearing segment: crown LAI ≈ 4, ~850 m² a tree
+    # Dutch elm 29.5–38 cm²), 260–320 a leaf-bearing segment: crown LAI ≈ 3.7, ~750 m² a tree
+    # (growth levels 7–8: one more generation of twigs than before, without the 9th whose
+    # largest trees carried 3000 m²)
     "deciduous-apex": RandomTreeParams(),
     # spruce-like: a leader trunk with whorls of 4–6 near-horizontal laterals
     # (flag p = 0.3: with one flag per tree, 3 trees in 10 scatter their laterals between

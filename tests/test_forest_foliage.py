@@ -105,3 +105,12 @@ def test_trees_csv_leaf_area_is_the_leaf_tables(small_run):
     for r in rows:
         f = needle_area_factor(0.16) if r["species"] == "spruce" else 1.0
         assert float(r["needle_area_m2"]) == pytest.approx(f * float(r["leaf_area_m2"]))
+
+
+@pytest.mark.parametrize("bad", [0.3, 0.01, -0.1, float("nan")])
+def test_a_shoot_star_outside_its_physical_range_is_refused(bad):
+    from simlidar_mi.errors import ConfigError
+    from simlidar_mi.plants.tree_params import tree_params_from_dict
+    with pytest.raises(ConfigError) as e:
+        tree_params_from_dict({"shoot_star": bad}, SPECIES_PRESETS["conifer-whorl"], "species[1].tree.")
+    assert e.value.key == "species[1].tree.shoot_star"

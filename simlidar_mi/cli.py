@@ -372,6 +372,18 @@ def _forest_run(args: argparse.Namespace) -> int:
               f"{sp['requested_count']:.1f}, {sp['requested_density_per_ha']:.2f}/ha, as the "
               f"{sp['count_mode']} count; {sp['candidates_drawn']} candidates drawn at "
               f"{sp['candidate_factor']:.2f}×λ, {sp['removed_by_thinning']} removed{short})")
+        th = sp["thinning"]
+        print(f"  {'':<16} thinning: expected ∫λ {th['expected']:.1f}, drawn {th['drawn']}, "
+              f"removed {th['removed']}, final {th['final']} ({th['final_minus_expected']:+.1f})")
+    fo = s["foliage"]
+    for sp in fo["species"]:
+        if sp["n_trees"]:
+            needle = (f"; needle area {sp['needle_area_m2']:.0f} m², crown needle LAI "
+                      f"{sp['crown_needle_lai']:.2f}" if "needle_area_m2" in sp else "")
+            print(f"  {sp['name']:<16} leaves {sp['mean_leaf_area_per_tree_m2']:.0f} m² a tree, crown "
+                  f"LAI {sp['crown_lai']:.2f}, domain LAI {sp['domain_lai']:.3f}{needle}")
+    print(f"stand LAI {fo['lai']:.3f} over the domain, {fo['lai_over_crowns'] or 0:.2f} over the "
+          f"{fo['crown_union_m2']:.0f} m² of crowns (needle-area LAI {fo['needle_lai']:.3f})")
     print(f"leaf table: {s['leaf_table']}, export: {s['export']}; seconds: "
           + ", ".join(f"{k} {v:.2f}" for k, v in s["seconds"].items()))
     for path in run.files.values():

@@ -28,7 +28,9 @@ from simlidar_mi.plants.tree_params import species_preset
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 TREES_COLUMNS = ["tree_id", "species", "x", "y", "height_m", "n_branches", "n_leaves", "seed",
-                 "prototype", "yaw_deg", "scale", "crown_radius_m", "branching"]
+                 "prototype", "yaw_deg", "scale", "crown_radius_m", "branching",
+                 # issue 30: foliage per tree (needle area: the scene has a shoot species)
+                 "leaf_area_m2", "crown_projection_m2", "needle_area_m2"]
 LEAF_COLUMNS = ["tree_id", "leaf_id", "x", "y", "z", "length_m", "width_m", "area_m2",
                 "nx", "ny", "nz", "hx", "hy", "hz"]
 FACETS = 6
@@ -113,14 +115,15 @@ def test_placement_keeps_the_distance_and_crown_rules(run, request):
     s = r.summary
     assert [sp["count"] for sp in s["species"]] == counts.tolist()
     assert [sp["removed_by_thinning"] for sp in s["species"]] == f.placement.removed.tolist()
-    # requested against obtained, per species: the scene's ∫λ counts the final stand here
+    # requested against obtained, per species: the scene's ∫λ counts the Poisson points before
+    # the thinning here (the paper's process, the default since issue 30 §2; "stand" was)
     ha = d.area_m2 / 1e4
     for j, sp in enumerate(s["species"]):
-        assert sp["count_mode"] == "stand" and sp["requested_count"] == pytest.approx(
+        assert sp["count_mode"] == "poisson" and sp["requested_count"] == pytest.approx(
             expected_count(p.species[j].intensity, d), rel=1e-12)
         assert sp["density_per_ha"] == pytest.approx(sp["count"] / ha)
         assert sp["requested_density_per_ha"] == pytest.approx(sp["requested_count"] / ha)
-        assert sp["count"] == sp["target_count"] or not sp["count_reached"]
+        assert sp["target_count"] is None and sp["count_reached"]
         assert sp["candidates_drawn"] == sp["count"] + sp["removed_by_thinning"]
     assert s["removed_by_thinning"] == int(f.placement.removed.sum())
 
@@ -133,8 +136,10 @@ def test_without_the_crown_rule_crowns_overlap_as_before(full_run):
                          np.random.default_rng(np.random.SeedSequence(f0.seed, spawn_key=(0,))))
     np.testing.assert_array_equal(f0.x_m, direct.x_m)
     np.testing.assert_array_equal(f0.species, direct.species)
-    assert f0.placement.count_mode == ("poisson",) * 4    # auto: no crown rule, the paper's count
-    assert full_run[0].forest.placement.count_mode == ("stand",) * 4
+    assert f0.placement.count_mode == ("poisson",) * 4    # the paper's count (the scene's)
+    # the crown rule does not change the count mode since the paper's count is the default
+    # (issue 30 §2; "auto" chose "stand" with a crown rule)
+    assert full_run[0].forest.placement.count_mode == ("poisson",) * 4
     assert crown_overlap_share(f0.x_m, f0.y_m, f0.crown_radius_m) >= 0.3
 
 
@@ -505,7 +510,8 @@ def test_species_count_mode_and_tree_spreads_come_from_the_scene():
     t = p.species[0].tree
     assert p.species[0].count == "poisson" and t.leaves_per_branch_tree_cv == 0.2
     assert (t.leaf_length_tree_cv, t.n_daughters_tree_cv) == (0.10, 0.05)     # the preset's
-    assert forest_params_from_scene(load_scene(text=scene())).species[0].count == "auto"
+    # the paper's count is the default since issue 30 §2 (it was "auto")
+    assert forest_params_from_scene(load_scene(text=scene())).species[0].count == "poisson"
 
 
 def test_adding_a_species_does_not_change_the_trees_of_the_others():

@@ -390,11 +390,12 @@ ARRAY_SECTIONS: dict[str, dict[str, Key]] = {
                      "must be a list of tables {C_per_m2, x0_m, y0_m, h_m2, l_m2}",
                      "squared-exponential intensity terms C·exp(−[(x−x0)²/h + (y−y0)²/l])"),
         "background_per_m2": Key(FLOAT, 0.0, nonneg, "constant intensity added everywhere"),
-        "count": Key(STR, "auto", one_of("auto", "poisson", "stand"),
-                     "what ∫λ (trees) counts: 'poisson', the Poisson points before the thinning (the "
-                     "paper's reading); 'stand', the trees of the final stand (C solved after the "
-                     "thinning: candidates drawn until a Poisson(∫λ) target is kept); 'auto': 'stand' "
-                     "when forest.crown_factor > 0, else 'poisson'"),
+        "count": Key(STR, "poisson", one_of("auto", "poisson", "stand"),
+                     "what ∫λ (trees) counts: 'poisson' (default), the Poisson points before the "
+                     "thinning (the paper's process: N ~ Poisson(∫λ), then close pairs thinned); "
+                     "'stand', the trees of the final stand (C solved after the thinning: candidates "
+                     "drawn until a Poisson(∫λ) target is kept); 'auto': 'stand' when "
+                     "forest.crown_factor > 0, else 'poisson'"),
         "leaf_length_tree_cv": Key(FLOAT, None, within(0, 0.3),
                                    "(1, 0–0.3; default: the preset's) between-tree coefficient of "
                                    "variation of a tree's mean leaf length: each tree draws a factor "

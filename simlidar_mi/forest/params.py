@@ -62,7 +62,7 @@ class ForestSpecies:
     tree: RandomTreeParams
     intensity: SpeciesIntensity
     preset: str | None = None
-    count: str = "auto"
+    count: str = "poisson"
 
     def __post_init__(self) -> None:
         if self.count not in ("auto", *COUNT_MODES):
@@ -229,7 +229,7 @@ def forest_params_from_scene(cfg: SceneConfig) -> ForestParams:
                               key=f"{key}.bumps", value=sp.get("bumps"))
         species.append(ForestSpecies(name, tree, SpeciesIntensity(name, bumps,
                                                                   sp.get("background_per_m2") or 0.0),
-                                     sp["preset"], sp.get("count") or "auto"))
+                                     sp["preset"], sp.get("count") or "poisson"))
     if not species:
         raise ConfigError("a [forest] needs at least one [[species]] table", file=src, key="species")
     try:

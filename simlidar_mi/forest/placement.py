@@ -292,7 +292,8 @@ class Placement:
 
 
 def _count_modes(count, n: int, crown_factor: float) -> tuple[str, ...]:
-    """Per-species count modes; ``None``/``"auto"`` → "stand" with a crown rule, else "poisson"."""
+    """Per-species count modes; ``None`` → "poisson" (the paper's, the default); ``"auto"`` →
+    "stand" with a crown rule, else "poisson"."""
     auto = "stand" if crown_factor > 0 else "poisson"
     if count is None or isinstance(count, str):
         count = [count] * n
@@ -301,7 +302,7 @@ def _count_modes(count, n: int, crown_factor: float) -> tuple[str, ...]:
         raise ConfigError(f"needs one count mode per species ({n})", key="count", value=count)
     out = []
     for j, c in enumerate(count):
-        c = auto if c in (None, "auto") else c
+        c = "poisson" if c is None else auto if c == "auto" else c
         if c not in COUNT_MODES:
             raise ConfigError("must be 'auto', 'poisson' or 'stand'", key=f"species[{j}].count", value=c)
         out.append(c)
@@ -337,7 +338,8 @@ def place_trees(species: Sequence[SpeciesIntensity], domain: Domain | Sequence[f
         thinning, per realisation. If T reaches ``max_candidate_factor`` first (the crowns
         leave no room), the species stops short and ``reached`` is False.
 
-    ``None`` or ``"auto"``: ``"stand"`` when ``crown_factor > 0``, else ``"poisson"``.
+    ``None`` (the default): ``"poisson"``; ``"auto"``: ``"stand"`` when ``crown_factor > 0``,
+    else ``"poisson"``.
     With ``min_distance_m = 0`` and ``k = 0`` both modes are the Poisson process.
 
     Parameters

@@ -4,7 +4,9 @@
 
 ``trees.csv``
     ``tree_id, species, x, y, height_m, n_branches, n_leaves, seed, prototype,
-    yaw_deg, scale, crown_radius_m, branching`` (metres, degrees; ``prototype = -1``
+    yaw_deg, scale, crown_radius_m, branching, leaf_area_m2, crown_projection_m2``
+    (and ``needle_area_m2`` when a species models conifer shoots: see
+    :mod:`simlidar_mi.forest.foliage`) (metres, degrees; ``prototype = -1``
     without instancing; ``height_m`` is the highest z of the tree's branch end points
     and leaf vertices, ``crown_radius_m`` their largest horizontal distance from the
     trunk; ``branching`` the L1 flag, 0 or 1, or with ``lateral_branching_per =
@@ -38,7 +40,9 @@
     height and crown radius, share of trees with the L1 flag), totals,
     ``crown_overlap_share`` (share of trees whose nearest neighbour's trunk stands
     inside their crown), prototypes and trees per prototype, the modes chosen and
-    the seconds per step.
+    the seconds per step; per species ``thinning`` (``expected`` ∫λ, ``drawn``,
+    ``removed``, ``final``) and ``foliage``: leaf area and LAI per species and for the
+    stand (:func:`simlidar_mi.forest.foliage.foliage_summary`).
 
 The two pictures are drawn in a forked process while this one writes the tables and
 meshes (they are independent; same bytes as drawn in turn): see :func:`_start_pictures`.

@@ -42,7 +42,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Iterator
 
 import numpy as np
 
@@ -50,8 +50,10 @@ from .._runtime.progress import bar, make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
+from ..plants.foliage import needle_area_factor
 from ..plants.random_tree import RandomTree, iter_random_trees, random_tree
 from ..plants.tree_leaves import LeafTable
+from .foliage import crown_hull, foliage_summary, polygon_area_m2
 from .params import ForestParams, forest_params_from_scene, prototype_scale, prototype_seed, tree_seed
 from .placement import Placement, crown_overlap_share, place_trees
 
@@ -129,6 +131,10 @@ class Forest:
     n_branches, n_leaves, n_leaf_triangles : (n,) per tree.
     branching : (n,) share of the tree's branching decisions with the L1 flag true (0/1
         with one flag per tree).
+    leaf_area_m2, needle_area_m2, crown_projection_m2 : (n,) per tree: one-sided leaf-element
+        area, the needle area it stands for (= leaf area for broadleaves), crown projection
+        (:mod:`simlidar_mi.forest.foliage`); ``hulls``: the crown hull of each prototype
+        (instancing) or tree, own frame.
     seconds : time spent per step.
     info : counts of what was grown (candidates, prototypes or trees).
     """
@@ -150,6 +156,10 @@ class Forest:
     n_leaves: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
     n_leaf_triangles: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
     branching: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
+    leaf_area_m2: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
+    needle_area_m2: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
+    crown_projection_m2: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
+    hulls: list = field(repr=False, default=None)  # type: ignore[assignment]
     seconds: dict[str, float] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
 
@@ -169,6 +179,7 @@ class Forest:
             self.n_branches, self.n_leaves, self.n_leaf_triangles = (
                 (a[p] if n else np.zeros(0, np.int64)) for a in (pb, pl, pt))
             self.branching = pf[p] if n else np.zeros(0)
+            self._foliage(self.prototypes, self.prototype_species, p)
         else:
             self.height_m = np.array([t.height_m for t in loc])
             self.crown_radius_m = np.array([t.crown_radius_m for t in loc])
@@ -176,6 +187,30 @@ class Forest:
             self.n_leaves = np.array([t.n_leaves for t in loc], np.int64)
             self.n_leaf_triangles = np.array([len(t.leaves) for t in loc], np.int64)
             self.branching = np.array([t.branching for t in loc], np.float64)
+            self._foliage(loc, self.species, np.arange(n))
+
+    def _foliage(self, local, local_species, p) -> None:
+        """Per-tree leaf and needle area and crown projection from the ``local`` trees
+        (prototypes or trees; tree ``i`` is ``local[p[i]]``, scaled by its instance scale)."""
+        hulls = [crown_hull(t) for t in local]
+        la = np.array([float(t.leaf_table.area_m2.sum()) for t in local])
+        nf = np.array([needle_area_factor(self.params.species[int(j)].tree.shoot_star)
+                       for j in local_species])
+        cp = np.array([polygon_area_m2(h) for h in hulls])
+        s2 = self.instance_scale ** 2
+        n = len(self)
+        self.hulls = hulls
+        self.leaf_area_m2 = la[p] * s2 if n else np.zeros(0)
+        self.needle_area_m2 = (la * nf)[p] * s2 if n else np.zeros(0)
+        self.crown_projection_m2 = cp[p] * s2 if n else np.zeros(0)
+
+    def crown_hulls_world(self) -> Iterator[np.ndarray]:
+        """Each tree's crown hull placed in the world (x, y)."""
+        for i in range(len(self)):
+            h = self.hulls[int(self.prototype[i]) if self.instancing else i]
+            if len(h):
+                yield _place(np.column_stack([h, np.zeros(len(h))]), self.translation_m(i),
+                             float(self.yaw_deg[i]), float(self.instance_scale[i]))[:, :2]
 
     def __len__(self) -> int:
         return len(self.placement)
@@ -297,7 +332,10 @@ class Forest:
                 np.zeros(0, object), "x": self.x_m, "y": self.y_m, "height_m": self.height_m,
                 "n_branches": self.n_branches, "n_leaves": self.n_leaves, "seed": self.geometry_seed,
                 "prototype": self.prototype, "yaw_deg": self.yaw_deg, "scale": self.scale,
-                "crown_radius_m": self.crown_radius_m, "branching": self.branching}
+                "crown_radius_m": self.crown_radius_m, "branching": self.branching,
+                "leaf_area_m2": self.leaf_area_m2, "crown_projection_m2": self.crown_projection_m2,
+                **({"needle_area_m2": self.needle_area_m2}
+                   if any(s.tree.shoot_star > 0 for s in self.params.species) else {})}
 
     def summary(self) -> dict[str, Any]:
         """Counts per species and totals (JSON-ready)."""
@@ -318,6 +356,11 @@ class Forest:
                         "candidates_drawn": int(p.count_before[j]),
                         "candidate_factor": float(p.candidate_factor[j]),
                         "removed_by_thinning": int(p.removed[j]),
+                        # how far the thinning moves the count from ∫λ (poisson: drawn is the
+                        # Poisson draw N ~ Poisson(∫λ); stand: the candidates it took)
+                        "thinning": {"expected": req, "drawn": int(p.count_before[j]),
+                                     "removed": int(p.removed[j]), "final": int(m.sum()),
+                                     "final_minus_expected": float(m.sum()) - req},
                         "n_leaves": int(self.n_leaves[m].sum()),
                         "mean_height_m": float(self.height_m[m].mean()) if m.any() else None,
                         "mean_crown_radius_m": float(self.crown_radius_m[m].mean()) if m.any() else None,
@@ -346,7 +389,7 @@ class Forest:
                                      else int(self.n_branches.sum())),
                 "n_leaf_triangles_built": (sum(len(t.leaves) for t in self.prototypes)
                                            if self.instancing else int(self.n_leaf_triangles.sum())),
-                "species": per, "seconds": dict(self.seconds)}
+                "species": per, "foliage": foliage_summary(self), "seconds": dict(self.seconds)}
 
 
 def _bar(it: Iterable, progress, desc: str, total: int | None = None) -> Iterable:

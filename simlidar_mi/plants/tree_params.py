@@ -104,6 +104,10 @@ class RandomTreeParams:
     leaf_min_order : branches of this order or higher bear leaves.
     leaf_shape : ``"rhombus"`` (2 triangles) or ``"ellipse"`` (``leaf_sides`` triangles).
     leaf_sides : polygon sides of an ellipse leaf (≥ 4).
+    shoot_star : 0: the leaf elements are leaves; in [0.05, 0.25]: each is a conifer shoot
+        drawn as one flat element of its silhouette, with this shoot silhouette to total
+        needle area ratio (STAR): it stands for ``area / (4·STAR)`` of needle LAI area (half
+        the total needle area, :func:`simlidar_mi.plants.foliage.needle_area_factor`).
     max_branches : refuse trees with more segments (memory guard).
 
     Raises
@@ -116,7 +120,7 @@ class RandomTreeParams:
     # global laws (G1–G3)
     trunk_length_m: TruncNormal = TruncNormal(4.5, 0.6, 3.0, 6.5)
     trunk_radius_m: TruncNormal = TruncNormal(0.22, 0.04, 0.12, 0.35)
-    growth_level: Discrete = Discrete((6, 7, 8), (0.25, 0.5, 0.25))
+    growth_level: Discrete = Discrete((7, 8), (0.5, 0.5))
     length_ratio: TruncNormal = TruncNormal(0.80, 0.04, 0.68, 0.92)
     radius_ratio: TruncNormal = TruncNormal(0.70, 0.04, 0.58, 0.82)
     lateral_length_ratio: TruncNormal | None = None
@@ -129,9 +133,9 @@ class RandomTreeParams:
     branch_angle_deg: TruncNormal = TruncNormal(30.0, 8.0, 10.0, 60.0)
     trunk_branch_angle_deg: TruncNormal | None = None
     leader_angle_deg: TruncNormal = TruncNormal(0.0, 5.0, -15.0, 15.0)
-    leaf_length_m: TruncNormal = TruncNormal(0.10, 0.02, 0.05, 0.16)
+    leaf_length_m: TruncNormal = TruncNormal(0.11, 0.02, 0.06, 0.16)
     leaf_width_ratio: TruncNormal = TruncNormal(0.55, 0.06, 0.35, 0.75)
-    leaves_per_branch: Discrete = Discrete((16, 20, 24), (0.25, 0.5, 0.25))
+    leaves_per_branch: Discrete = Discrete((260, 290, 320), (0.25, 0.5, 0.25))
     leaf_angle_deg: TruncNormal = TruncNormal(50.0, 15.0, 10.0, 90.0)
     leaf_roll_deg: TruncNormal = TruncNormal(0.0, 20.0, -60.0, 60.0)
     # architecture constants
@@ -148,6 +152,7 @@ class RandomTreeParams:
     leaf_shape: str = "rhombus"
     leaf_sides: int = 6
     max_branches: int = 200_000
+    shoot_star: float = 0.0
     # per-tree means (seed 004 §II-B): between-tree coefficients of variation, ours
     leaf_length_tree_cv: float = 0.10
     n_daughters_tree_cv: float = 0.05
@@ -215,6 +220,12 @@ class RandomTreeParams:
                               value=self.leaf_shape)
         set_(self, "leaf_sides", _whole(self.leaf_sides, f"{prefix}leaf_sides", 4, 64))
         set_(self, "max_branches", _whole(self.max_branches, f"{prefix}max_branches", 1))
+        v = _finite(self.shoot_star, f"{prefix}shoot_star")
+        if not (v == 0 or 0.05 <= v <= 0.25):
+            raise ConfigError("must be 0 (leaves) or a shoot STAR in [0.05, 0.25] (0.25: a lone "
+                              "convex needle's mean projection per unit area)",
+                              key=f"{prefix}shoot_star", value=v)
+        set_(self, "shoot_star", v)
         for name in TREE_CV:
             v = _finite(getattr(self, name), f"{prefix}{name}")
             if not 0 <= v <= 0.3:
@@ -307,13 +318,20 @@ _D = Discrete
 #: monopodial trees (ABOP Fig. 2.6). Sizes are this project's choice from common
 #: field values (heights, trunk radii, leaf lengths), not from the paper, which
 #: gives no numbers; "conifer-whorl" foliage is flat shoot elements (a few cm),
-#: not single needles.
+#: not single needles. Foliage: each preset's leaf (shoot) size and the range its crown LAI
+#: lies in are cited in :data:`simlidar_mi.plants.foliage.SPECIES_FOLIAGE`; the leaf count
+#: per leaf-bearing segment (the twigs the generator does not grow) is ours, fitted to it.
 SPECIES_PRESETS: dict[str, RandomTreeParams] = {
-    # elm/birch-like: sympodial, every split at the apex; ~13–20 m, leaves 6–14 cm
+    # elm/birch-like: sympodial, every split at the apex; ~14–20 m, leaves 6–16 cm (≈ 33 cm²,
+    # Dutch elm 29.5–38 cm²), 260–320 a leaf-bearing segment: crown LAI ≈ 3.7, ~750 m² a tree
+    # (growth levels 7–8: one more generation of twigs than before, without the 9th whose
+    # largest trees carried 3000 m²)
     "deciduous-apex": RandomTreeParams(),
     # spruce-like: a leader trunk with whorls of 4–6 near-horizontal laterals
     # (flag p = 0.3: with one flag per tree, 3 trees in 10 scatter their laterals between
-    # whorls), drooping; ~15–24 m, shoots 6–10 cm
+    # whorls), drooping; ~15–24 m; foliage as shoots (shoot_star = 0.16): flat elements 5–11 cm
+    # long and 0.6 as wide (the needle cylinder), 84–108 a segment: shoot-element crown LAI ≈ 4.3,
+    # needle LAI (half the total needle area) ≈ 6.7
     "conifer-whorl": RandomTreeParams(
         name="conifer-whorl",
         trunk_length_m=_T(1.9, 0.2, 1.4, 2.4), trunk_radius_m=_T(0.20, 0.03, 0.12, 0.30),
@@ -324,29 +342,32 @@ SPECIES_PRESETS: dict[str, RandomTreeParams] = {
         n_daughters=_D((2, 3), (0.5, 0.5)), trunk_n_daughters=_D((4, 5, 6), (0.3, 0.4, 0.3)),
         branch_angle_deg=_T(45.0, 10.0, 20.0, 70.0), trunk_branch_angle_deg=_T(82.0, 6.0, 65.0, 100.0),
         leader_angle_deg=_T(0.0, 1.5, -5.0, 5.0),
-        leaf_length_m=_T(0.08, 0.012, 0.05, 0.11), leaf_width_ratio=_T(0.30, 0.04, 0.20, 0.40),
-        leaves_per_branch=_D((12, 16, 20), (0.3, 0.4, 0.3)),
+        leaf_length_m=_T(0.08, 0.012, 0.05, 0.11), leaf_width_ratio=_T(0.60, 0.06, 0.45, 0.75),
+        leaves_per_branch=_D((84, 96, 108), (0.3, 0.4, 0.3)),
         leaf_angle_deg=_T(40.0, 12.0, 10.0, 80.0), leaf_roll_deg=_T(0.0, 25.0, -70.0, 70.0),
         monopodial_orders=2, max_order=3, bare_trunk_levels=2, lateral_position_min=0.2,
-        tropism=-0.04, min_length_m=0.08, leaf_levels=2, leaf_min_order=3),
+        tropism=-0.04, min_length_m=0.08, leaf_levels=2, leaf_min_order=3, shoot_star=0.16),
     # beech/ash-like Honda monopodial broadleaf: leader trunk and main limbs, laterals
-    # at random points along them (flag p = 0.7 of the trees); ~14–22 m, leaves 5–11 cm
+    # at random points along them (flag p = 0.7 of the trees); ~13–18 m, leaves 5–10 cm × 0.65
+    # (≈ 21 cm²), 160–200 a leaf-bearing segment: crown LAI ≈ 7, ~250 m² a tree
     "broadleaf-monopodial": RandomTreeParams(
         name="broadleaf-monopodial",
         trunk_length_m=_T(2.6, 0.3, 1.8, 3.4), trunk_radius_m=_T(0.25, 0.04, 0.15, 0.38),
-        growth_level=_D((8, 9, 10), (0.25, 0.5, 0.25)),
+        growth_level=_D((9, 10, 11), (0.25, 0.5, 0.25)),
         length_ratio=_T(0.88, 0.02, 0.82, 0.94), radius_ratio=_T(0.82, 0.03, 0.74, 0.90),
         lateral_length_ratio=_T(0.70, 0.05, 0.55, 0.85), lateral_radius_ratio=_T(0.45, 0.04, 0.35, 0.55),
         lateral_branching=Bernoulli(0.7), twist_deg=_T(0.0, 30.0, -90.0, 90.0),
         n_daughters=_D((2, 3), (0.5, 0.5)), trunk_n_daughters=_D((3, 4), (0.5, 0.5)),
         branch_angle_deg=_T(45.0, 10.0, 20.0, 75.0), trunk_branch_angle_deg=_T(50.0, 8.0, 30.0, 70.0),
         leader_angle_deg=_T(0.0, 4.0, -12.0, 12.0),
-        leaf_length_m=_T(0.08, 0.015, 0.05, 0.11), leaf_width_ratio=_T(0.60, 0.06, 0.45, 0.75),
-        leaves_per_branch=_D((10, 14, 18), (0.3, 0.4, 0.3)),
+        leaf_length_m=_T(0.08, 0.012, 0.05, 0.10), leaf_width_ratio=_T(0.65, 0.06, 0.50, 0.80),
+        leaves_per_branch=_D((160, 180, 200), (0.3, 0.4, 0.3)),
         leaf_angle_deg=_T(55.0, 15.0, 15.0, 90.0), leaf_roll_deg=_T(0.0, 15.0, -45.0, 45.0),
         monopodial_orders=2, max_order=4, bare_trunk_levels=2, lateral_position_min=0.25,
         tropism=0.15, min_length_m=0.10, leaf_levels=3, leaf_min_order=3),
-    # hawthorn-like small tree: short trunk, dense apex splits, small leaves; ~5–8 m
+    # hawthorn-like small tree: short trunk, dense apex splits, small leaves (2–6 cm, rhombi of
+    # ≈ 6.5 cm²: 2 triangles, not an ellipse's 6, for memory), 300–360 a leaf-bearing segment:
+    # crown LAI ≈ 2.6; ~5–8 m
     "small-tree": RandomTreeParams(
         name="small-tree",
         trunk_length_m=_T(1.6, 0.25, 1.0, 2.2), trunk_radius_m=_T(0.09, 0.015, 0.05, 0.14),
@@ -356,9 +377,9 @@ SPECIES_PRESETS: dict[str, RandomTreeParams] = {
         n_daughters=_D((2, 3), (0.5, 0.5)), trunk_n_daughters=_D((3, 4), (0.5, 0.5)),
         branch_angle_deg=_T(35.0, 10.0, 10.0, 65.0), leader_angle_deg=_T(0.0, 5.0, -15.0, 15.0),
         leaf_length_m=_T(0.04, 0.008, 0.02, 0.06), leaf_width_ratio=_T(0.80, 0.08, 0.60, 1.00),
-        leaves_per_branch=_D((10, 15, 20), (0.3, 0.4, 0.3)),
+        leaves_per_branch=_D((300, 330, 360), (0.3, 0.4, 0.3)),
         leaf_angle_deg=_T(50.0, 15.0, 10.0, 90.0), leaf_roll_deg=_T(0.0, 20.0, -60.0, 60.0),
-        leaf_shape="ellipse", leaf_sides=6,
+        leaf_shape="rhombus",
         monopodial_orders=0, tropism=0.2, min_length_m=0.05, leaf_levels=3),
 }
 

@@ -1,0 +1,113 @@
+"""A forest's foliage in numbers: leaf area per tree, crown projections, LAI per species and stand.
+
+Definitions (what ``forest`` prints and ``forest.json`` records):
+
+leaf area
+    the one-sided area of a tree's leaf elements (the sum of its rows in the leaf table:
+    what the sensors see and the truth scores). For a species whose elements are conifer
+    shoots (``shoot_star > 0``) the **needle area** is reported beside it: half the total
+    needle area the shoots stand for, ``leaf area / (4·STAR)``
+    (:func:`simlidar_mi.plants.foliage.needle_area_factor`; LAI of Chen & Black 1992).
+crown projection
+    the area of the convex hull, seen from above, of the tree's leaf centres and branch end
+    points (a field crown projection is the polygon of measured crown radii).
+crown LAI of a species
+    its trees' leaf area over the sum of their crown projections; the **domain** LAI is
+    its leaf area over the domain's area.
+stand LAI
+    all leaf area over the domain's area, and over the union of all crown projections
+    (rasterised on a ``UNION_CELL_M`` grid).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..plants.foliage import needle_area_factor
+from ..plants.random_tree import RandomTree
+
+__all__ = ["UNION_CELL_M", "crown_hull", "foliage_summary", "polygon_area_m2", "union_area_m2"]
+
+#: Grid step of the union of crown projections (m): cells whose centre lies in a hull count.
+UNION_CELL_M = 0.25
+
+
+def crown_hull(tree: RandomTree) -> np.ndarray:
+    """(k, 2) vertices, counter-clockwise, of the convex hull of the tree's leaf centres and
+    branch end points projected on the ground (own frame); (0, 2) for a bare point."""
+    from scipy.spatial import ConvexHull, QhullError  # noqa: PLC0415
+
+    pts = np.concatenate([tree.leaf_table.centre_m[:, :2], tree.branches.p0[:, :2],
+                          tree.branches.p1[:, :2], np.zeros((1, 2))])
+    try:
+        h = ConvexHull(pts)
+    except QhullError:      # fewer than 3 points off a line: no area
+        return np.zeros((0, 2))
+    return pts[h.vertices]
+
+
+def polygon_area_m2(v: np.ndarray) -> float:
+    """Shoelace area of a simple polygon's (k, 2) vertices (0 for k < 3)."""
+    if len(v) < 3:
+        return 0.0
+    x, y = v[:, 0], v[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+
+def union_area_m2(polygons, cell_m: float = UNION_CELL_M) -> float:
+    """Area of the union of convex polygons ((k, 2) vertex arrays, world frame), rasterised:
+    the number of grid cells (side ``cell_m``, aligned at 0) whose centre lies inside one."""
+    polys = [np.asarray(p, np.float64) for p in polygons if len(p) >= 3]
+    if not polys:
+        return 0.0
+    lo = np.floor(np.min([p.min(0) for p in polys], axis=0) / cell_m).astype(np.int64)
+    hi = np.ceil(np.max([p.max(0) for p in polys], axis=0) / cell_m).astype(np.int64)
+    grid = np.zeros((hi[1] - lo[1], hi[0] - lo[0]), bool)
+    for p in polys:
+        a = np.floor(p.min(0) / cell_m).astype(np.int64)
+        b = np.ceil(p.max(0) / cell_m).astype(np.int64)
+        cx = (np.arange(a[0], b[0]) + 0.5) * cell_m
+        cy = (np.arange(a[1], b[1]) + 0.5) * cell_m
+        X, Y = np.meshgrid(cx, cy)
+        inside = np.ones(X.shape, bool)
+        q = np.roll(p, -1, axis=0)
+        orient = np.sign(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1])) or 1.0
+        for (x0, y0), (x1, y1) in zip(p, q):   # a convex polygon: left of every edge
+            inside &= orient * ((x1 - x0) * (Y - y0) - (y1 - y0) * (X - x0)) >= 0
+        grid[a[1] - lo[1]:b[1] - lo[1], a[0] - lo[0]:b[0] - lo[0]] |= inside
+    return float(grid.sum()) * cell_m * cell_m
+
+
+def _ratio(a: float, b: float) -> float | None:
+    return a / b if b > 0 else None
+
+
+def foliage_summary(forest) -> dict:
+    """Leaf area and LAI per species and for the stand (JSON-ready; see the module docstring).
+
+    ``forest``: a :class:`~simlidar_mi.forest.stand.Forest` (its per-tree ``leaf_area_m2``,
+    ``needle_area_m2``, ``crown_projection_m2`` and world crown hulls).
+    """
+    area = forest.params.domain.area_m2
+    per = []
+    for j, s in enumerate(forest.params.species):
+        m = forest.species == j
+        la, na = float(forest.leaf_area_m2[m].sum()), float(forest.needle_area_m2[m].sum())
+        cp = float(forest.crown_projection_m2[m].sum())
+        rec = {"name": s.name, "n_trees": int(m.sum()), "leaf_area_m2": la,
+               "mean_leaf_area_per_tree_m2": la / m.sum() if m.any() else None,
+               "crown_projection_m2": cp, "crown_lai": _ratio(la, cp), "domain_lai": la / area}
+        if s.tree.shoot_star > 0:
+            rec.update({"shoot_star": s.tree.shoot_star,
+                        "needle_area_factor": needle_area_factor(s.tree.shoot_star),
+                        "needle_area_m2": na, "crown_needle_lai": _ratio(na, cp),
+                        "domain_needle_lai": na / area})
+        per.append(rec)
+    la, na = float(forest.leaf_area_m2.sum()), float(forest.needle_area_m2.sum())
+    union = union_area_m2(forest.crown_hulls_world())
+    return {"leaf_area_m2": la, "needle_area_m2": na, "lai": la / area, "needle_lai": na / area,
+            "crown_union_m2": union, "crown_union_cell_m": UNION_CELL_M,
+            "lai_over_crowns": _ratio(la, union), "species": per,
+            "definitions": "one-sided leaf-element area (what the sensors see; the truth's); "
+                           "needle area = half the total needle area a conifer shoot element "
+                           "stands for, leaf area/(4·STAR); crown projection = convex hull of "
+                           "a tree's leaf centres and branch ends seen from above"}

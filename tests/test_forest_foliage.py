@@ -1,0 +1,116 @@
+"""Issue 30 §1–2: the species presets' foliage lies in its cited ranges; the paper's Poisson count
+is the default and its thinning numbers add up; trees.csv's leaf area is the leaf table's."""
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+
+from simlidar_mi.config import load_scene
+from simlidar_mi.config.keys import ARRAY_SECTIONS
+from simlidar_mi.forest.foliage import crown_hull, polygon_area_m2, union_area_m2
+from simlidar_mi.forest.params import ForestSpecies
+from simlidar_mi.forest.placement import Bump, SpeciesIntensity
+from simlidar_mi.forest.run import run_forest
+from simlidar_mi.plants.foliage import SPECIES_FOLIAGE, needle_area_factor
+from simlidar_mi.plants.random_tree import random_tree
+from simlidar_mi.plants.tree_params import SPECIES_PRESETS
+
+SEEDS = (0, 1, 2, 3)
+
+
+@pytest.fixture(scope="module")
+def trees():
+    return {name: [random_tree(P, s) for s in SEEDS] for name, P in SPECIES_PRESETS.items()}
+
+
+@pytest.mark.parametrize("name", list(SPECIES_PRESETS))
+def test_preset_foliage_in_its_cited_ranges(trees, name):
+    """Mean leaf (element) size and mean crown LAI of four seeded trees inside the cited ranges
+    (the old presets: 0.09–0.28 crown LAI, far below every range)."""
+    P, F = SPECIES_PRESETS[name], SPECIES_FOLIAGE[name]
+    ts = trees[name]
+    leaf_cm2 = np.mean([t.leaf_table.area_m2.mean() for t in ts]) * 1e4
+    lo, hi = F.leaf_area_cm2.value
+    assert lo <= leaf_cm2 <= hi
+    # conifer: the crown LAI range is of needle area (half the total, Chen & Black 1992)
+    f = needle_area_factor(P.shoot_star)
+    lai = np.mean([f * t.leaf_table.area_m2.sum() / polygon_area_m2(crown_hull(t)) for t in ts])
+    lo, hi = F.crown_lai.value
+    assert lo <= lai <= hi, (name, lai)
+
+
+def test_a_beech_carries_a_few_hundred_square_metres(trees):
+    ts = trees["broadleaf-monopodial"]
+    assert 13 < np.mean([t.height_m for t in ts]) < 20
+    assert 150 < np.mean([t.leaf_table.area_m2.sum() for t in ts]) < 500
+
+
+def test_spruce_shoots_stand_for_their_needles():
+    # a flat element of area A: mean silhouette A/2, total needle area A/(2 STAR), LAI half of it
+    assert SPECIES_PRESETS["conifer-whorl"].shoot_star == SPECIES_FOLIAGE["conifer-whorl"].star.value
+    assert needle_area_factor(0.16) == pytest.approx(1 / 0.64)
+    assert needle_area_factor(0.25) == 1.0 and needle_area_factor(0.0) == 1.0
+    assert all(SPECIES_PRESETS[n].shoot_star == 0 for n in SPECIES_PRESETS if n != "conifer-whorl")
+
+
+def test_union_and_hull_areas_are_exact_on_squares():
+    sq = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0]])
+    assert polygon_area_m2(sq) == 16.0
+    assert union_area_m2([sq, sq + [2.0, 0.0]]) == pytest.approx(24.0)
+    assert union_area_m2([sq, sq[::-1] + [10.0, 10.0]]) == pytest.approx(32.0)
+
+
+def test_poisson_is_the_default_count():
+    assert ARRAY_SECTIONS["species"]["count"].default == "poisson"
+    sp = ForestSpecies("a", SPECIES_PRESETS["small-tree"], SpeciesIntensity("a", [Bump(0.01, 5, 5, 50, 50)]))
+    assert sp.count == "poisson"
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("foliage")
+    over = ["forest.domain_m=[0.0, 14.0, 0.0, 14.0]", 'forest.export="none"', 'forest.leaf_table="all"',
+            'forest.leaf_table_format="csv"']
+    return run_forest(load_scene("scenes/forest_small.toml", over), out), out
+
+
+def test_thinning_numbers_add_up(small_run):
+    run, _ = small_run
+    p = run.forest.placement
+    assert set(p.count_mode) == {"poisson"}
+    for j, sp in enumerate(run.summary["species"]):
+        th = sp["thinning"]
+        assert th["expected"] == pytest.approx(float(p.requested[j]))
+        assert th["drawn"] - th["removed"] == th["final"] == sp["count"]
+        assert th["final_minus_expected"] == pytest.approx(th["final"] - th["expected"])
+    assert sum(s["thinning"]["removed"] for s in run.summary["species"]) == run.summary["removed_by_thinning"]
+
+
+def test_trees_csv_leaf_area_is_the_leaf_tables(small_run):
+    run, out = small_run
+    with open(out / "trees.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert rows and "leaf_area_m2" in rows[0] and "needle_area_m2" in rows[0]
+    area = np.zeros(len(rows))
+    with open(out / "leaves.csv") as fh:
+        for r in csv.DictReader(fh):
+            area[int(r["tree_id"])] += float(r["area_m2"])
+    la = np.array([float(r["leaf_area_m2"]) for r in rows])
+    assert la == pytest.approx(area, rel=1e-6)     # the CSV rounds each leaf to 7 digits
+    fo = run.summary["foliage"]
+    assert fo["leaf_area_m2"] == pytest.approx(la.sum())
+    assert fo["lai"] == pytest.approx(la.sum() / 14.0 ** 2)
+    for r in rows:
+        f = needle_area_factor(0.16) if r["species"] == "spruce" else 1.0
+        assert float(r["needle_area_m2"]) == pytest.approx(f * float(r["leaf_area_m2"]))
+
+
+@pytest.mark.parametrize("bad", [0.3, 0.01, -0.1, float("nan")])
+def test_a_shoot_star_outside_its_physical_range_is_refused(bad):
+    from simlidar_mi.errors import ConfigError
+    from simlidar_mi.plants.tree_params import tree_params_from_dict
+    with pytest.raises(ConfigError) as e:
+        tree_params_from_dict({"shoot_star": bad}, SPECIES_PRESETS["conifer-whorl"], "species[1].tree.")
+    assert e.value.key == "species[1].tree.shoot_star"

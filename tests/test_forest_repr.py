@@ -17,6 +17,7 @@ from simlidar_mi.forest.representation import (DEFAULT_PROTOTYPES_PER_SPECIES, N
                                                representation, scene_parts)
 from simlidar_mi.forest.stand import make_forest
 from simlidar_mi.lidar.survey import SceneGeometry, generate
+from simlidar_mi.plants.random_tree import random_tree
 
 REPO = Path(__file__).resolve().parents[1]
 SCENES = REPO / "scenes"
@@ -90,6 +91,11 @@ def test_fewer_prototypes_keep_same_seed_bytes():
         assert a.leaves.vertices.tobytes() == b.leaves.vertices.tobytes()
     for arr in ("x_m", "y_m", "yaw_deg", "prototype"):
         assert getattr(f2, arr).tobytes() == getattr(f2b, arr).tobytes()
+    # kept from the thinning (a fixed K grows each prototype once): the tree its seed grows alone
+    for m, t in enumerate(f2.prototypes):
+        alone = random_tree(f2.params.species[int(f2.prototype_species[m])].tree, seed=int(f2.prototype_seed[m]))
+        assert t.leaves.vertices.tobytes() == alone.leaves.vertices.tobytes()
+        assert t.branches.p1.tobytes() == alone.branches.p1.tobytes()
     by_seed = {int(s): t for s, t in zip(f4.prototype_seed, f4.prototypes)}
     shared = [(t, by_seed[int(s)]) for s, t in zip(f2.prototype_seed, f2.prototypes) if int(s) in by_seed]
     assert shared

@@ -450,11 +450,13 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     fixed_k = None if params.prototypes_per_species == "auto" else int(params.prototypes_per_species)
     # only crown radii are kept while thinning (the grown candidates of a 300 m stand are
     # 2886 prototypes, 7.8 GB); the kept trees and used prototypes are grown again after it,
-    # from the same seeds, so they are the same bytes
+    # from the same seeds, so they are the same bytes. A fixed K (default 12) grows at most K
+    # prototypes a species: those are kept from the thinning instead of grown twice
     tree_r: dict[tuple[int, int], float] = {}      # (species, candidate) → crown radius (no instancing)
     proto_r: dict[tuple[int, int], float] = {}     # (species, k) → prototype crown radius, wood scaled
     proto_scale: dict[tuple[int, int], float] = {}
     n_tri: dict[tuple[str, int, int], int] = {}   # leaf triangles of what was grown: memory check
+    kept_protos: dict[tuple[int, int], RandomTree] = {}   # fixed K: the prototypes grown while thinning
     n_grown = [0]
     # one progress stage for all the batches the thinning asks for
     stage = make_progress(progress).stage("trees" if not params.instancing else "prototypes",
@@ -498,6 +500,8 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
         ks = sorted({int(k) for k in proto_of(idx)} - {k for (jj, k) in proto_r if jj == j})
         for k, t in zip(ks, grow_protos(j, ks)):
             proto_r[(j, k)], n_tri[("p", j, k)] = t.crown_radius_m, len(t.leaves)
+            if fixed_k is not None:
+                kept_protos[(j, k)] = t
         r = np.array([proto_r[(j, int(k))] for k in proto_of(idx)])
         if whole:   # each tree's scale comes from its own seed (after its yaw)
             r = r * np.array([_yaw_scale(tree_seed(seed, j, int(i)), lo, hi)[1] for i in idx])
@@ -529,9 +533,10 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
         _check_grown([n_tri.get(("p", j, k)) for j, k in used], params, "its prototypes", src)
         where = {key: m for m, key in enumerate(used)}
         prototype = np.array([where[key] for key in keys], np.int32)
-        grown = {}
+        grown = {key: kept_protos[key] for key in used if key in kept_protos}
+        kept_protos.clear()
         for j in sorted({j for j, _ in used}):
-            ks = [k for jj, k in used if jj == j]
+            ks = [k for jj, k in used if jj == j and (jj, k) not in grown]
             grown.update({(j, k): t for k, t in zip(ks, grow_protos(j, ks))})
         protos_used = tuple(_with_tree_id(grown[key], m) for m, key in enumerate(used))
         proto_sp = np.array([j for j, _ in used], np.int32)

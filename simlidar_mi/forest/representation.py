@@ -53,7 +53,7 @@ GROWN_BYTES_PER_TRIANGLE = 120
 
 #: Bytes the Mitsuba scene adds per built triangle (float32 vertices and faces, Embree's BVH,
 #: the hit tables), rounded up from BENCHMARKS.md §15.
-SCENE_BYTES_PER_TRIANGLE = 160
+SCENE_BYTES_PER_TRIANGLE = 170
 
 _KEY = "forest.memory_limit_gb"
 

@@ -89,7 +89,8 @@ class ForestParams:
     species : at least one, distinct names.
     min_distance_m : minimum distance between any two trees (0: no thinning).
     instancing : prototypes + per-tree transforms (true) or one draw per tree (false).
-    prototypes_per_species : K (candidate i of a species places prototype ``i mod K``), or
+    prototypes_per_species : K (candidate i of a species places prototype ``i mod K``; default
+        12, :data:`~simlidar_mi.forest.representation.DEFAULT_PROTOTYPES_PER_SPECIES`), or
         ``"auto"``: candidate i places prototype ``i // trees_per_prototype``, so no
         prototype is placed more than ``trees_per_prototype`` times.
     scale_range : ``(min, max)`` of the uniform scale of instanced trees (``(1, 1)``:

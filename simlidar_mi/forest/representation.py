@@ -28,13 +28,10 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .stand import Forest
 
 __all__ = ["Representation", "representation", "scene_parts", "memory_limit_bytes", "check_memory",
            "GROWN_BYTES_PER_TRIANGLE", "SCENE_BYTES_PER_TRIANGLE", "NESTED_INSTANCING",
@@ -83,8 +80,9 @@ class Representation:
                 "nested_instancing": NESTED_INSTANCING}
 
 
-def representation(forest: Forest) -> Representation:
-    """The representation ``forest`` was made in (see the module docstring)."""
+def representation(forest) -> Representation:
+    """The representation ``forest`` (a :class:`~simlidar_mi.forest.stand.Forest`; not imported
+    here: stand imports this module) was made in (see the module docstring)."""
     if forest.instancing:
         return Representation("instanced", len(forest.prototypes), forest.params.prototypes_per_species,
                               sum(len(t.leaves) for t in forest.prototypes),
@@ -117,7 +115,7 @@ def check_memory(need_bytes: float, limit: float | str, what: str, file: str | N
                           "smaller domain_m, or raise the limit", file=file, key=_KEY, value=limit)
 
 
-def scene_parts(forest: Forest, source: str | None = None
+def scene_parts(forest, source: str | None = None
                 ) -> tuple[Branches, Leaves, Any]:
     """The forest as the scene builder and the truth read it: ``(branches, leaves, instances)``.
 

@@ -9,9 +9,9 @@ position. Two modes:
 
 ``instancing = true``
     Each species gets prototype trees, each drawn from its own seed: candidate ``i``
-    (arrival order, which is random in space) places prototype ``i // trees_per_prototype``
-    (``prototypes_per_species = "auto"``: no prototype serves more than that many trees)
-    or ``i mod K`` (a fixed ``K``); each
+    (arrival order, which is random in space) places prototype ``i mod K`` (a fixed ``K``,
+    default 12: :mod:`simlidar_mi.forest.representation`) or ``i // trees_per_prototype``
+    (``prototypes_per_species = "auto"``: no prototype serves more than that many trees); each
     tree draws a yaw (uniform 0–360°) from *its* seed. Geometry is built once per
     prototype and placed as instances: the way a 300 m × 300 m forest fits in memory.
     ``scale_range`` other than ``[1, 1]`` scales, with ``scale_mode = "wood"``

@@ -88,7 +88,7 @@ print(json.dumps({"trees": int(len(geo.instances)) if geo.instances is not None 
 """
 
 
-def run(scene: Path, mode: str, x0: float, y0: float, size: float, tmp: Path) -> dict:
+def run(scene: Path, mode: str, x0: float, y0: float, size: float, tmp: Path, seed: int | None = None) -> dict:
     over = [f"forest.domain_m=[{x0}, {x0 + size}, {y0}, {y0 + size}]",
             'platform.kind="airborne"', f"platform.start_xy_m=[{x0 + size / 2}, {y0 - 5}]",
             f"platform.end_xy_m=[{x0 + size / 2}, {y0 + size + 5}]", "platform.altitude_m=200.0",
@@ -101,7 +101,9 @@ def run(scene: Path, mode: str, x0: float, y0: float, size: float, tmp: Path) ->
     else:
         over += ["forest.instancing=true", "forest.prototypes_per_species=" +
                  ('"auto"' if mode == "auto" else mode[1:])]
-    copy = tmp / f"{mode}.toml"
+    if seed is not None:
+        over.append(f"scene.seed={seed}")
+    copy = tmp / f"{mode}-{seed}.toml"
     copy.write_text(scene.read_text())
     t = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", ROW, str(copy), str(x0), str(y0), str(size),
@@ -128,6 +130,8 @@ def main() -> None:
     ap.add_argument("--corner", type=float, nargs=2, default=(30.0, 90.0))
     ap.add_argument("--modes", default="explicit,explicit-seed2,auto,k16,k12,k8,k4")
     ap.add_argument("--tmp", default="/tmp/bench_forest_repr")
+    ap.add_argument("--seeds", default="", help="comma-separated scene seeds: a second table of "
+                    "each mode's stand results averaged over these seeds (explicit-seed2 left out)")
     a = ap.parse_args()
     tmp = Path(a.tmp)
     tmp.mkdir(parents=True, exist_ok=True)
@@ -159,6 +163,43 @@ def main() -> None:
     print(f"Machine: {machine()}  \nDate: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}  \n"
           f"Scene: {a.scene}, {a.size:g} m square at {tuple(a.corner)}\n")
     print("\n".join(rows))
+    if a.seeds:
+        print()
+        print(over_seeds(Path(a.scene), [m for m in modes if m != "explicit-seed2"],
+                         [int(x) for x in a.seeds.split(",")], a, tmp))
+
+
+def over_seeds(scene: Path, modes: list, seeds: list, a, tmp: Path) -> str:
+    """Each mode's mean over ``seeds`` of the stand results, against explicit's mean ± its SE."""
+    res = {m: [run(scene, m, a.corner[0], a.corner[1], a.size, tmp, s) for s in seeds] for m in modes}
+    for m in modes:
+        print(m, "seeds done", file=sys.stderr)
+
+    def stats(rs):
+        h = np.array([np.asarray(r["hist"], float) / max(1, sum(r["hist"])) for r in rs])
+        g = np.array([r["gap"] for r in rs])
+        prof = np.array([r["pad"].mean(axis=(0, 1)) for r in rs])
+        lai = np.array([r["LAI"] for r in rs])
+        return h, g, prof, lai
+    h0, g0, p0, l0 = stats(res[modes[0]])
+    se = lambda x: x.std(axis=0, ddof=1) / np.sqrt(len(x)) if len(x) > 1 else np.zeros(x.shape[1:])  # noqa: E731
+    out = [f"Over scene seeds {', '.join(map(str, seeds))} (means of {len(seeds)} stands a mode; "
+           f"'SE' is explicit's standard error of the mean):", "",
+           "| representation | triangles built (mean) | peak RSS MB (max) | returns per 2 m bin: L1 of the mean "
+           "profiles % | gap per ring: mean, max abs diff (explicit SE, max) | PAD profile per 2 m layer: L1 of "
+           "the means % | LAI mean ± SE |", "|---|---|---|---|---|---|---|"]
+    for m in modes:
+        h, g, p, l_ = stats(res[m])
+        dh = 100 * np.abs(h.mean(0) - h0.mean(0)).sum()
+        dg = np.abs(g.mean(0) - g0.mean(0)).max()
+        dp = 100 * np.abs(p.mean(0) - p0.mean(0)).sum() / p0.mean(0).sum()
+        tri = np.mean([r["triangles_built"] for r in res[m]])
+        rss = max(r["rss_peak_mb"] for r in res[m])
+        gap = (" / ".join(f"{x:.3f}" for x in g0.mean(0)) + f" (SE {se(g0).max():.3f})" if m == modes[0]
+               else f"{dg:.3f}")
+        out.append(f"| {m} | {tri:,.0f} | {rss:.0f} | {dh:.1f} | {gap} | {dp:.1f} | "
+                   f"{l_.mean():.2f} ± {se(l_[:, None])[0]:.2f} |")
+    return "\n".join(out)
 
 
 if __name__ == "__main__":

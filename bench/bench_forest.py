@@ -1,10 +1,11 @@
 """Forest generation, scene build and a 10 M-pulse airborne scan, with and without instancing.
 
-    .venv/bin/python bench/bench_forest.py [--only instanced|instanced-k12|flat]
+    .venv/bin/python bench/bench_forest.py [--only instanced|instanced-auto|instanced-k12|flat]
 
-``instanced``: the scene's defaults (auto prototypes, at most 5 trees each);
-``instanced-k12``: the earlier pool of 12 prototypes a species (same placement rules);
-``flat``: every tree its own draw.
+``instanced``: the scene's defaults (12 prototypes a species since issue 30);
+``instanced-auto``: ``prototypes_per_species = "auto"`` (at most 5 trees a prototype);
+``instanced-k12``: 12 prototypes a species, whatever the scene says; ``flat``: every tree its own
+draw (BENCHMARKS §16 compares these on a small square, with their accuracy).
 
 Each mode runs in a fresh process (peak RSS is the process's own); prints a markdown table.
 """
@@ -54,6 +55,8 @@ def run(mode: str) -> dict:
     over = [f"forest.instancing={'false' if mode == 'flat' else 'true'}"]
     if mode == "instanced-k12":
         over.append("forest.prototypes_per_species=12")
+    elif mode == "instanced-auto":
+        over.append('forest.prototypes_per_species="auto"')
     t = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", ROW, str(SCENE), *over], capture_output=True, text=True, cwd=REPO)
     if proc.returncode:
@@ -65,12 +68,12 @@ def run(mode: str) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=["instanced", "instanced-k12", "flat"])
+    ap.add_argument("--only", choices=["instanced", "instanced-auto", "instanced-k12", "flat"])
     a = ap.parse_args()
     rows = ["| mode | trees | prototypes (most trees on one) | triangles built | generate s | build s | "
             "generate + build s | airborne scan s (pulses) | vegetation returns | peak RSS MB | process s |",
             "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for mode in ([a.only] if a.only else ["instanced", "instanced-k12", "flat"]):
+    for mode in ([a.only] if a.only else ["instanced", "instanced-auto", "flat"]):
         r = run(mode)
         protos = f"{r['prototypes']} ({r['max_trees_per_prototype']})" if r["prototypes"] else "–"
         rows.append(f"| {mode} | {r['trees']} | {protos} | {r['triangles_built']:,} | {r['generate_s']:.1f} | "

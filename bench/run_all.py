@@ -30,6 +30,7 @@ BENCHES: dict[str, list[str]] = {
     "table3_counts": ["bench_table3_counts.py", "--seeds", "200"],  # §3
     "forest": ["bench_forest.py", "--only", "instanced"],          # §4
     "forest_counts": ["bench_forest_counts.py", "--seeds", "20"],  # §4 (11)
+    "forest_repr": ["bench_forest_repr.py"],                       # §16
     "sensor": ["bench_sensor.py", "--dy", "0.02", "--repeat", "2"],  # §7
     "sensor_readings": ["bench_sensor.py", "--readings", "--dy", "0.02"],  # §7b
     "echo_rules": ["bench_echo_rules.py"],                         # §7c

@@ -48,7 +48,7 @@ def inst_run(tmp_path_factory):
     """The same scene with instancing (auto prototypes, wood scaled by 0.8–1.25 per prototype)."""
     out = tmp_path_factory.mktemp("forest_inst")
     over = ["forest.instancing=true", 'forest.export="none"', 'forest.leaf_table="all"',
-            "forest.scale_range=[0.8, 1.25]", "forest.trees_per_prototype=2",
+            "forest.scale_range=[0.8, 1.25]", "forest.trees_per_prototype=2", 'forest.prototypes_per_species="auto"',
             'forest.leaf_table_format="csv"']
     return run_forest(SCENES / "forest_small.toml", out, over), out
 
@@ -151,8 +151,10 @@ def test_included_forests_keep_crown_overlap_moderate(name, over):
     f = make_forest(load_scene(SCENES / name, over))
     s = f.summary()
     assert len(f) > 10 and s["crown_overlap_share"] <= 0.10, (name, s["crown_overlap_share"])
-    if f.instancing:                       # auto prototypes: at most 5 trees each
+    if f.instancing and f.params.prototypes_per_species == "auto":   # at most 5 trees each
         assert s["trees_per_prototype_max"] <= 5 == f.params.trees_per_prototype
+    if f.instancing:                       # a fixed K (default 12): at most K a species
+        assert len(f.prototypes) <= 12 * len(f.species_names) or f.params.prototypes_per_species == "auto"
         assert np.bincount(f.prototype).max() == s["trees_per_prototype_max"]
         assert np.bincount(f.prototype).min() >= 1         # unused prototypes are not kept
 

@@ -30,7 +30,7 @@ from docutils.parsers.rst import Directive
 # name suffix -> unit, longest first (``speed_m_s`` is m/s, not s)
 UNIT_SUFFIXES = (
     ("_m_s", "m/s"), ("_per_m2", "m⁻²"), ("_per_m", "m⁻¹"), ("_m2", "m²"), ("_mrad", "mrad"),
-    ("_deg", "°"), ("_hz", "Hz"), ("_us", "µs"), ("_ns", "ns"), ("_nm", "nm"), ("_m", "m"), ("_s", "s"),
+    ("_deg", "°"), ("_hz", "Hz"), ("_us", "µs"), ("_ns", "ns"), ("_nm", "nm"), ("_gb", "GB"), ("_m", "m"), ("_s", "s"),
 )
 
 #: Number-valued keys whose name carries no unit because the quantity has none, and what stands

@@ -62,7 +62,7 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "min_distance_m": Key(FLOAT, 3.0, nonneg, "no two trees closer than this (0: no thinning)"),
         "instancing": Key(BOOL, True, None, "true: K prototypes per species, placed with yaw/scale; "
                           "false: every tree its own random draw"),
-        "prototypes_per_species": Key((int, str), "auto", lambda v: None if v == "auto" or (
+        "prototypes_per_species": Key((int, str), 12, lambda v: None if v == "auto" or (
                                       isinstance(v, int) and 1 <= v <= 1000)
                                       else "must be 'auto' or a whole number in [1, 1000]",
                                       "K distinct trees per species (candidate i places i mod K); "
@@ -80,6 +80,11 @@ SECTIONS: dict[str, dict[str, Key]] = {
                                     "candidates up to this multiple of its intensity λ; if the thinning "
                                     "still keeps too few, forest.json reports the shortfall"),
         "max_trees": Key(INT, 100_000, at_least(1), "refuse forests with more trees", knob=True),
+        "memory_limit_gb": Key((float, int, str), "auto", lambda v: None if v == "auto" or (
+                               isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < 1e6)
+                               else "must be 'auto' or a number of GB in (0, 1e6)",
+                               "refuse, before growing or building it, a forest whose trees and scene "
+                               "would hold more (GB; auto: 90 % of physical memory)", knob=True),
         "leaf_table": Key(STR, "auto", one_of("auto", "all", "prototypes", "none"),
                           "auto: 'all' up to leaf_table_max_rows leaves, else 'prototypes' (instancing) or 'all'"),
         "leaf_table_max_rows": Key(INT, 1_000_000, at_least(0), "limit of leaf_table = 'auto'"),

@@ -23,6 +23,7 @@ import numpy as np
 from ..config import SceneConfig
 from ..errors import ConfigError
 from ..plants.tree_params import SPECIES_PRESETS, TREE_CV, RandomTreeParams, species_preset, tree_params_from_dict
+from .representation import DEFAULT_PROTOTYPES_PER_SPECIES, memory_limit_bytes
 from .placement import COUNT_MODES, MAX_CANDIDATE_FACTOR, Bump, Domain, SpeciesIntensity
 
 __all__ = ["ForestSpecies", "ForestParams", "forest_params_from_scene", "tree_seed", "prototype_seed",
@@ -88,7 +89,8 @@ class ForestParams:
     species : at least one, distinct names.
     min_distance_m : minimum distance between any two trees (0: no thinning).
     instancing : prototypes + per-tree transforms (true) or one draw per tree (false).
-    prototypes_per_species : K (candidate i of a species places prototype ``i mod K``), or
+    prototypes_per_species : K (candidate i of a species places prototype ``i mod K``; default
+        12, :data:`~simlidar_mi.forest.representation.DEFAULT_PROTOTYPES_PER_SPECIES`), or
         ``"auto"``: candidate i places prototype ``i // trees_per_prototype``, so no
         prototype is placed more than ``trees_per_prototype`` times.
     scale_range : ``(min, max)`` of the uniform scale of instanced trees (``(1, 1)``:
@@ -102,19 +104,23 @@ class ForestParams:
     crown_factor : k of the crown rule ``d_ij ≥ k·(r_i + r_j)`` (0: the minimum distance only).
     max_candidate_factor : a ``count = "stand"`` species draws candidates at most up to this
         multiple of its intensity (:func:`~simlidar_mi.forest.placement.place_trees`).
+    memory_limit_gb : the trees grown and the scene built may hold at most this (GB, or
+        ``"auto"``: 90 % of physical memory); a forest over it is refused before it is grown
+        or built (:mod:`simlidar_mi.forest.representation`).
     """
 
     domain: Domain
     species: tuple[ForestSpecies, ...]
     min_distance_m: float = 3.0
     instancing: bool = True
-    prototypes_per_species: int | str = "auto"
+    prototypes_per_species: int | str = DEFAULT_PROTOTYPES_PER_SPECIES
     scale_range: tuple[float, float] = (1.0, 1.0)
     max_trees: int = 100_000
     trees_per_prototype: int = 5
     scale_mode: str = "wood"
     crown_factor: float = CROWN_FACTOR
     max_candidate_factor: float = MAX_CANDIDATE_FACTOR
+    memory_limit_gb: float | str = "auto"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "domain", Domain.of(self.domain))
@@ -133,6 +139,7 @@ class ForestParams:
             raise ConfigError("must be a finite number ≥ 0 m", key="forest.min_distance_m",
                               value=self.min_distance_m)
         object.__setattr__(self, "min_distance_m", d)
+        memory_limit_bytes(self.memory_limit_gb)  # refuses a bad value
         if not isinstance(self.instancing, (bool, np.bool_)):
             raise ConfigError("must be true or false", key="forest.instancing", value=self.instancing)
         k = self.prototypes_per_species
@@ -236,7 +243,7 @@ def forest_params_from_scene(cfg: SceneConfig) -> ForestParams:
         return ForestParams(Domain(*f["domain_m"]), tuple(species), f["min_distance_m"], f["instancing"],
                             f["prototypes_per_species"], tuple(f["scale_range"]), f["max_trees"],
                             f["trees_per_prototype"], f["scale_mode"], f["crown_factor"],
-                            f["max_candidate_factor"])
+                            f["max_candidate_factor"], f["memory_limit_gb"])
     except ConfigError as exc:
         raise ConfigError(_bare(exc), file=src, key=exc.key, value=exc.value) from None
 

@@ -9,9 +9,9 @@ position. Two modes:
 
 ``instancing = true``
     Each species gets prototype trees, each drawn from its own seed: candidate ``i``
-    (arrival order, which is random in space) places prototype ``i // trees_per_prototype``
-    (``prototypes_per_species = "auto"``: no prototype serves more than that many trees)
-    or ``i mod K`` (a fixed ``K``); each
+    (arrival order, which is random in space) places prototype ``i mod K`` (a fixed ``K``,
+    default 12: :mod:`simlidar_mi.forest.representation`) or ``i // trees_per_prototype``
+    (``prototypes_per_species = "auto"``: no prototype serves more than that many trees); each
     tree draws a yaw (uniform 0–360°) from *its* seed. Geometry is built once per
     prototype and placed as instances: the way a 300 m × 300 m forest fits in memory.
     ``scale_range`` other than ``[1, 1]`` scales, with ``scale_mode = "wood"``
@@ -56,6 +56,7 @@ from ..plants.tree_leaves import LeafTable
 from .foliage import crown_hull, foliage_summary, polygon_area_m2
 from .params import ForestParams, forest_params_from_scene, prototype_scale, prototype_seed, tree_seed
 from .placement import Placement, crown_overlap_share, place_trees
+from .representation import GROWN_BYTES_PER_TRIANGLE, check_memory, representation
 
 __all__ = ["Forest", "make_forest", "place_tree"]
 
@@ -389,6 +390,7 @@ class Forest:
                                      else int(self.n_branches.sum())),
                 "n_leaf_triangles_built": (sum(len(t.leaves) for t in self.prototypes)
                                            if self.instancing else int(self.n_leaf_triangles.sum())),
+                "representation": representation(self).as_dict(),
                 "species": per, "foliage": foliage_summary(self), "seconds": dict(self.seconds)}
 
 
@@ -480,6 +482,8 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     >>> len(f.prototypes) <= 2, bool((f.prototype >= 0).all())
     (True, True)
     """
+    src = (config_or_params.source if isinstance(config_or_params, SceneConfig) else
+           str(config_or_params) if isinstance(config_or_params, (str, Path)) else None)
     params, seed = _resolve(config_or_params, seed)
     seconds: dict[str, float] = {}
     t_grow = 0.0
@@ -489,10 +493,13 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     fixed_k = None if params.prototypes_per_species == "auto" else int(params.prototypes_per_species)
     # only crown radii are kept while thinning (the grown candidates of a 300 m stand are
     # 2886 prototypes, 7.8 GB); the kept trees and used prototypes are grown again after it,
-    # from the same seeds, so they are the same bytes
+    # from the same seeds, so they are the same bytes. A fixed K (default 12) grows at most K
+    # prototypes a species: those are kept from the thinning instead of grown twice
     tree_r: dict[tuple[int, int], float] = {}      # (species, candidate) → crown radius (no instancing)
     proto_r: dict[tuple[int, int], float] = {}     # (species, k) → prototype crown radius, wood scaled
     proto_scale: dict[tuple[int, int], float] = {}
+    n_tri: dict[tuple[str, int, int], int] = {}   # leaf triangles of what was grown: memory check
+    kept_protos: dict[tuple[int, int], RandomTree] = {}   # fixed K: the prototypes grown while thinning
     n_grown = [0]
     # one progress stage for all the batches the thinning asks for
     stage = make_progress(progress).stage("trees" if not params.instancing else "prototypes",
@@ -529,11 +536,15 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
             raise ConfigError(f"the Poisson processes drew {n_grown[0]} trees, far more than "
                               "forest.max_trees", key="forest.max_trees", value=params.max_trees)
         if not params.instancing:
-            tree_r.update({(j, int(i)): t.crown_radius_m for i, t in zip(idx, grow_trees(j, idx))})
+            for i, t in zip(idx, grow_trees(j, idx)):
+                tree_r[(j, int(i))], n_tri[("t", j, int(i))] = t.crown_radius_m, len(t.leaves)
             t_grow += time.perf_counter() - t0
             return np.array([tree_r[(j, int(i))] for i in idx])
         ks = sorted({int(k) for k in proto_of(idx)} - {k for (jj, k) in proto_r if jj == j})
-        proto_r.update({(j, k): t.crown_radius_m for k, t in zip(ks, grow_protos(j, ks))})
+        for k, t in zip(ks, grow_protos(j, ks)):
+            proto_r[(j, k)], n_tri[("p", j, k)] = t.crown_radius_m, len(t.leaves)
+            if fixed_k is not None:
+                kept_protos[(j, k)] = t
         r = np.array([proto_r[(j, int(k))] for k in proto_of(idx)])
         if whole:   # each tree's scale comes from its own seed (after its yaw)
             r = r * np.array([_yaw_scale(tree_seed(seed, j, int(i)), lo, hi)[1] for i in idx])
@@ -562,11 +573,13 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     if params.instancing:
         keys = [(int(j), int(k)) for j, k in zip(sp, proto_of(cand))]
         used = sorted(set(keys))
+        _check_grown([n_tri.get(("p", j, k)) for j, k in used], params, "its prototypes", src)
         where = {key: m for m, key in enumerate(used)}
         prototype = np.array([where[key] for key in keys], np.int32)
-        grown = {}
+        grown = {key: kept_protos[key] for key in used if key in kept_protos}
+        kept_protos.clear()
         for j in sorted({j for j, _ in used}):
-            ks = [k for jj, k in used if jj == j]
+            ks = [k for jj, k in used if jj == j and (jj, k) not in grown]
             grown.update({(j, k): t for k, t in zip(ks, grow_protos(j, ks))})
         protos_used = tuple(_with_tree_id(grown[key], m) for m, key in enumerate(used))
         proto_sp = np.array([j for j, _ in used], np.int32)
@@ -579,6 +592,7 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     else:
         proto_sp, proto_seed, protos_used = np.zeros(0, np.int32), np.zeros(0, np.int64), ()
         grown = {}
+        _check_grown([n_tri.get(("t", int(j), int(c))) for j, c in zip(sp, cand)], params, "its trees", src)
         for j in np.unique(sp):
             idx = cand[sp == j]
             grown.update({(int(j), int(i)): t for i, t in zip(idx, grow_trees(int(j), idx))})
@@ -590,6 +604,16 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     seconds["grow"] = t_grow + time.perf_counter() - t0
     return Forest(params, seed, placement, seeds, prototype, yaw, scale, protos_used, proto_sp,
                   proto_seed, placed, seconds=seconds, info=info)
+
+
+def _check_grown(n_tri: list, params: ForestParams, what: str, src: str | None) -> None:
+    """Refuse, before they are grown again and kept, trees whose leaf triangles (counted when the
+    thinning grew them; None where it did not) would hold more than ``forest.memory_limit_gb``."""
+    known = [n for n in n_tri if n is not None]
+    if known:  # trees the thinning did not grow count as the mean of those it did
+        need = GROWN_BYTES_PER_TRIANGLE * sum(known) * len(n_tri) / len(known)
+        check_memory(need, params.memory_limit_gb, f"the forest ({len(n_tri)} of {what}, "
+                     f"~{round(sum(known) * len(n_tri) / len(known)):,} leaf triangles)", src)
 
 
 def _yaw_scale(seed: int, lo: float, hi: float) -> tuple[float, float]:

@@ -179,14 +179,10 @@ def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
             leaves = orchard_leaves_from_config(cfg, parts[-1])
     if cfg.has("forest") or cfg.arrays.get("species"):
         from ..forest.stand import make_forest  # noqa: PLC0415
-        forest = make_forest(cfg)
-        if forest.instancing:
-            from ..scene.build import Instances  # noqa: PLC0415  (a plain dataclass; no Mitsuba import)
-            instances = Instances(**forest.instance_arrays())
-        else:
-            fb, forest_leaves = forest.geometry()
-            parts.append(fb)
-            leaves = Leaves.concat([leaves, forest_leaves])
+        from ..forest.representation import scene_parts  # noqa: PLC0415
+        fb, forest_leaves, instances = scene_parts(make_forest(cfg), cfg.source)
+        parts.append(fb)
+        leaves = Leaves.concat([leaves, forest_leaves])
     prims = []
     for j, p in enumerate(cfg.arrays["primitive"]):
         params = {k: v for k, v in p.items() if k not in ("type", "label") and v is not None}

@@ -51,12 +51,21 @@ PAIRS_PER_BATCH = 2_000_000
 
 
 def projection_G(vector_area_m2: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """G(Omega) of leaves given by their vector areas a_i n_i (m, 3), for directions (k, 3)."""
+    """G(Omega) of leaves given by their vector areas a_i n_i (m, 3), for directions (k, 3).
+
+    The (k, m) projections are summed in blocks of leaves (``PAIRS_PER_BATCH`` pairs): a whole
+    (k, m) matrix of 360 directions by a forest's 1.7 M leaf triangles was 5 GB, twice."""
     va = np.asarray(vector_area_m2, np.float64).reshape(-1, 3)
     d = np.asarray(dirs, np.float64).reshape(-1, 3)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     area = np.linalg.norm(va, axis=1).sum()
-    return np.abs(d @ va.T).sum(axis=1) / area if area > 0 else np.full(len(d), np.nan)
+    if not area > 0:
+        return np.full(len(d), np.nan)
+    step = max(1, PAIRS_PER_BATCH // max(1, len(d)))
+    total = np.zeros(len(d))
+    for a in range(0, len(va), step):
+        total += np.abs(d @ va[a:a + step].T).sum(axis=1)
+    return total / area
 
 
 class LeafPieces:

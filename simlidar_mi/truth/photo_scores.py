@@ -71,6 +71,7 @@ from ..canopy import ring_sampler as rs
 from ..errors import ConfigError
 from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
 from .grid import VoxelGrid, grid_values
+from .leaf_g import projection_G
 
 __all__ = ["PhotoRun", "RadialSums", "footprint_index", "canopy_G", "ray_sampler", "fisheye_sampler", "score_positions",
            "evaluate_photo", "PHOTO_OUTPUTS", "METHODS"]
@@ -191,12 +192,11 @@ def canopy_G(triangles: np.ndarray, zenith_deg, n_azimuth: int = 72) -> np.ndarr
     if not len(v):
         return np.full(np.shape(zenith_deg), np.nan)
     va = 0.5 * np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])  # vector areas a_i n_i
-    area = np.linalg.norm(va, axis=1).sum()
     th = np.radians(np.asarray(zenith_deg, float)).reshape(-1, 1)
     ph = (np.arange(n_azimuth) + 0.5) * 2 * math.pi / n_azimuth
     d = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph),
                   np.broadcast_to(np.cos(th), (len(th), n_azimuth))], -1).reshape(-1, 3)
-    g = np.abs(d @ va.T).sum(axis=1) / area
+    g = projection_G(va, d)  # in blocks of leaves: memory bounded however many triangles
     return g.reshape(len(th), n_azimuth).mean(axis=1).reshape(np.shape(zenith_deg))
 
 

@@ -11,7 +11,7 @@ import sys
 import warnings
 from typing import Callable
 
-from .cli_canopy import register as _register_canopy
+from .cli_canopy import checked, register as _register_canopy
 from .errors import SimlidarError, SimlidarWarning
 
 Command = tuple[str, str, Callable[[argparse.ArgumentParser], None],
@@ -115,10 +115,9 @@ def _study_args(p: argparse.ArgumentParser) -> None:
 
 def _opt(kind: type, bound: str, why: str = ""):
     """A checked ``int``/``float`` option type (:func:`simlidar_mi.config.bounds.option`): the
-    range of scene key ``bound`` ("scan.footprint"), else the interval ``bound`` and ``why``.
-    Imported when the parser is built, not with this module (that would load numpy first)."""
-    from .config.bounds import BOUNDS, option
-    return option(kind, *BOUNDS[bound]) if bound in BOUNDS else option(kind, bound, why)
+    range of scene key ``bound`` ("scan.footprint"), else the interval ``bound`` ("[1, 12]") and
+    ``why``; built when a value is read (:func:`simlidar_mi.cli_canopy.checked`)."""
+    return checked("option", kind, key=bound) if bound[0] not in "[(" else checked("option", kind, bound, why)
 
 
 #: L-system generations of --preset and derive: each multiplies the segments about 3-fold.
@@ -391,87 +390,6 @@ def _forest_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _compare_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("manifest", metavar="MANIFEST.csv",
-                   help="CSV pairing photos or measured P0 with scene, camera, zenith_deg, step "
-                        "(see simlidar_mi.canopy.compare; example: scenes/strawberry_manifest.csv)")
-    p.add_argument("--out", required=True, metavar="DIR",
-                   help="output folder: comparison.csv, pairs.csv, readings.csv, comparison.png, masks")
-    p.add_argument("--no-readings", dest="readings", action="store_false",
-                   help="skip the second render of strawberry scenes under the other petiole reading "
-                        "(readings.csv)")
-
-
-@command("compare", "Virtual vs measured gap fraction from a manifest: r, RMSE, bias per view "
-         "zenith (the strawberry paper's Table 5) and the measured-vs-virtual plot (Fig. 4)",
-         _compare_args)
-def _compare_run(args: argparse.Namespace) -> int:
-    import math
-
-    from .canopy.compare import compare
-
-    res = compare(args.manifest, args.out, progress=True, readings=args.readings)
-    print(f"{'row':>4}  {'camera':<12}  {'zenith':>6}  {'step':>4}  {'measured':>8}  "
-          f"{'virtual':>7}  {'sd':>6}  {'sd/plot':>7}  {'reps':>4}  {'diff':>7}")
-    for p in res.pairs:
-        print(f"{p.row.row:>4}  {p.row.camera:<12}  {p.row.zenith_deg:>6g}  {p.row.step_label:>4}  "
-              f"{p.p0_measured:8.4f}  {p.p0_virtual:7.4f}  {p.p0_virtual_sd:6.4f}  "
-              f"{p.p0_virtual_sd_plot:7.4f}  {p.replicates:>4}  {p.difference:+7.4f}")
-
-    def f(v, fmt):
-        return "-" if not math.isfinite(v) else format(v, fmt)
-    print(f"\n{'zenith':>6}  {'n':>3}  {'r':>6}  {'rmse':>7}  {'rmse_r':>7}  {'bias':>8}  "
-          f"{'± se':>6}  {'bias_r':>7}  {'scatter':>7}  {'paper: rmse':>11}  {'bias':>6}  {'scatter':>7}")
-    for s in res.stats:
-        z = s["zenith_deg"] if isinstance(s["zenith_deg"], str) else f"{s['zenith_deg']:g}"
-        print(f"{z:>6}  {s['n']:>3}  {f(s['r'], '.3f'):>6}  {s['rmse']:7.4f}  {s['rmse_r']:7.2%}  "
-              f"{s['bias']:+8.4f}  {f(s['bias_se'], '.4f'):>6}  {s['bias_r']:+7.2%}  "
-              f"{f(s['scatter'], '.4f'):>7}  {f(s['paper_rmse'], '.3f'):>11}  "
-              f"{f(s['paper_bias'], '.3f'):>6}  {f(s['paper_scatter'], '.4f'):>7}")
-    print("\n95 % intervals (bias: t, Welch-Satterthwaite df; rmse, r: bootstrap of the replicate plots)")
-    for s in res.stats:
-        z = s["zenith_deg"] if isinstance(s["zenith_deg"], str) else f"{s['zenith_deg']:g}"
-        verdict = {"yes": "0 inside: the gap cannot be told from the noise",
-                   "no": "0 outside: the gap is more than the noise"}.get(s["bias_inside_ci"], "no interval")
-        why_r = "" if math.isfinite(s["r"]) else "  (r needs >= 2 rows per zenith, e.g. one per extraction step)"
-        print(f"{z:>6}  bias {f(s['bias_ci_low'], '+.4f')}…{f(s['bias_ci_high'], '+.4f')} "
-              f"(df {f(s['ci_df'], '.1f')})  rmse {f(s['rmse_ci_low'], '.4f')}…{f(s['rmse_ci_high'], '.4f')}  "
-              f"r {f(s['r_ci_low'], '.3f')}…{f(s['r_ci_high'], '.3f')}  [{s['ci_basis']}]  {verdict}{why_r}")
-    if res.readings:
-        from .canopy.compare import PETIOLE_READINGS, READINGS_NOTE
-        print(f"\nboth petiole readings (strawberry rows; the scenes' own: {res.own_reading}):")
-        print(f"{'reading':<8}  {'zenith':>6}  {'n':>3}  {'bias':>8}  {'± se':>6}  {'rmse':>7}  what")
-        for name, sts in res.readings.items():
-            for s in sts:
-                z = s["zenith_deg"] if isinstance(s["zenith_deg"], str) else f"{s['zenith_deg']:g}"
-                print(f"{name:<8}  {z:>6}  {s['n']:>3}  {s['bias']:+8.4f}  {f(s['bias_se'], '.4f'):>6}  "
-                      f"{s['rmse']:7.4f}  {PETIOLE_READINGS.get(name, '')}")
-        print(READINGS_NOTE)
-    print(f"wrote {', '.join(str(f) for f in res.files.values())}")
-    return 0
-
-
-def _synthetic_photo_args(p: argparse.ArgumentParser) -> None:
-    _scene_args(p)
-    p.add_argument("--out", required=True, metavar="DIR",
-                   help="output folder: synthetic_photo.csv, photo and Canopeo-mask PNGs")
-
-
-@command("synthetic-photo", "Photo-like RGB renders of a gap-fraction scene's views, classified "
-         "by Canopeo and checked against the coverage P0", _synthetic_photo_args)
-def _synthetic_photo_run(args: argparse.Namespace) -> int:
-    from .canopy.synthetic_photo import run_synthetic_photos
-
-    checks = run_synthetic_photos(args.scene, args.out, _overrides(args), progress=True)
-    print(f"{'camera':<12}  {'zenith':>6}  {'step':>4}  {'p0 coverage':>11}  {'p0 canopeo':>10}  {'diff':>7}")
-    for c in checks:
-        im = c.image
-        print(f"{im.camera.kind:<12}  {im.camera.zenith_deg:>6g}  {im.step:>4}  {c.p0_coverage:11.4f}  "
-              f"{c.p0_canopeo:10.4f}  {c.p0_canopeo - c.p0_coverage:+7.4f}")
-    print(f"wrote {args.out}/synthetic_photo.csv and {2 * len(checks)} PNG files")
-    return 0
-
-
 def _truth_args(p: argparse.ArgumentParser) -> None:
     _scene_args(p)
     p.add_argument("--out", required=True, metavar="DIR",
@@ -540,7 +458,7 @@ def _evaluate_run(args: argparse.Namespace) -> int:
     return 0
 
 
-_register_canopy(command, _scene_args, _overrides)  # gapfraction, fisheye, evaluate-photo (cli_canopy.py)
+_register_canopy(command, _scene_args, _overrides)  # gapfraction, fisheye, evaluate-photo, compare, synthetic-photo (cli_canopy.py)
 
 
 class _Parser(argparse.ArgumentParser):

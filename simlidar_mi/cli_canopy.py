@@ -1,5 +1,5 @@
 """Command line: the canopy-camera sub-commands (``gapfraction``, ``fisheye``, ``fisheye-photo``,
-``evaluate-photo``).
+``evaluate-photo``, ``compare``, ``synthetic-photo``).
 
 Kept beside cli.py so that neither grows past the module size limit; cli.py calls
 :func:`register` with its ``command`` decorator and shared argument helpers (passed in, so this
@@ -8,6 +8,31 @@ module never imports cli.py: no import cycle).
 from __future__ import annotations
 
 import argparse
+import functools
+
+
+class checked:  # noqa: N801  (used as an argparse type=, like int)
+    """An argparse ``type=`` from :mod:`simlidar_mi.config.bounds` (``factory`` "option" or
+    "option_list"; ``key`` appends that scene key's interval and reason), built when first used:
+    importing the config loads numpy, which must not happen while the parser is built (an early
+    Ctrl-C would then not know its command)."""
+
+    def __init__(self, factory: str, *args, key: str | None = None, **kw):
+        self._spec = (factory, args, key, kw)
+        self.__name__ = args[0].__name__ if factory == "option" else "numbers"  # as bounds names them
+
+    @functools.cached_property
+    def _convert(self):
+        from .config import bounds  # noqa: PLC0415
+        factory, args, key, kw = self._spec
+        return getattr(bounds, factory)(*args, *(bounds.BOUNDS[key] if key else ()), **kw)
+
+    @property
+    def bounds(self):
+        return self._convert.bounds
+
+    def __call__(self, text: str):
+        return self._convert(text)
 
 
 def register(command, scene_args, overrides) -> None:
@@ -66,27 +91,26 @@ def register(command, scene_args, overrides) -> None:
         return 0
 
     def _fisheye_photo_args(p: argparse.ArgumentParser) -> None:
-        from .config.bounds import BOUNDS, option, option_list  # not on import: it loads numpy
         p.add_argument("photos", nargs="+", metavar="PHOTO", help="fisheye photographs (JPEG, PNG, TIFF)")
         p.add_argument("--out", required=True, metavar="DIR",
                        help="output folder: fisheye_photo_gap.csv and a binary PNG per photo")
         p.add_argument("--lens", default="equidistant",
                        help="projection (equidistant, equisolid, orthographic, stereographic), a named "
                             "lens (FC-E8, Nikkor-10.5, Sigma-4.5, Sigma-8, FC-E9, Nikkor-8) or polynomial")
-        p.add_argument("--coeffs", type=option_list(*BOUNDS["fisheye.coeffs"]), default=None, metavar="K1,K2,...",
+        p.add_argument("--coeffs", type=checked("option_list", key="fisheye.coeffs"), default=None, metavar="K1,K2,...",
                        help="polynomial lens: rho = sum k_i theta^i, theta in radians, rho relative to the circle")
-        p.add_argument("--circle", type=option_list("[0, 1e6]", "pixels", sizes=(3,)), default=None, metavar="XC,YC,R",
+        p.add_argument("--circle", type=checked("option_list", "[0, 1e6]", "pixels", sizes=(3,)), default=None, metavar="XC,YC,R",
                        help="image circle in pixels from the top-left corner (default: detected; "
                             "full frame: the half-diagonal)")
         p.add_argument("--format", default="circular", choices=("circular", "fullframe"),
                        help="circular image or full-frame (diagonal spans 180 degrees)")
         p.add_argument("--method", default="blue-otsu", choices=("blue-otsu", "canopeo"),
                        help="blue-otsu: sky vs canopy looking up; canopeo: green plants looking down")
-        p.add_argument("--rings", type=option_list(*BOUNDS["fisheye.rings_deg"]), default=None, metavar="DEG,...",
+        p.add_argument("--rings", type=checked("option_list", key="fisheye.rings_deg"), default=None, metavar="DEG,...",
                        help="zenith ring edges in degrees (default 0,15,30,45,60,75,90)")
-        p.add_argument("--sectors", type=option(int, *BOUNDS["fisheye.n_sectors"]), default=8, metavar="N",
+        p.add_argument("--sectors", type=checked("option", int, key="fisheye.n_sectors"), default=8, metavar="N",
                        help="azimuth sectors (default 8)")
-        p.add_argument("--heading", type=option(float, *BOUNDS["fisheye.heading_deg"]), default=90.0, metavar="DEG",
+        p.add_argument("--heading", type=checked("option", float, key="fisheye.heading_deg"), default=90.0, metavar="DEG",
                        help="scene azimuth at the photo's top, counter-clockwise from +x (default 90: +y)")
         p.add_argument("--downscale", type=int, default=1, choices=(1, 2, 4, 8),
                        help="analyse the photo at 1/N of its size")
@@ -135,4 +159,84 @@ def register(command, scene_args, overrides) -> None:
                   f"{100 * r['coverage']:5.1f}% {r['truth_mean']:7.3f} {r['estimate_mean']:7.3f} "
                   f"{r['bias']:+7.3f} {r['rmse']:7.3f}")
         print(f"wrote {args.out}/photo_scores.csv and {len(out.files) - 1} more outputs")
+        return 0
+
+    def _compare_args(p: argparse.ArgumentParser) -> None:
+        p.add_argument("manifest", metavar="MANIFEST.csv",
+                       help="CSV pairing photos or measured P0 with scene, camera, zenith_deg, step "
+                            "(see simlidar_mi.canopy.compare; example: scenes/strawberry_manifest.csv)")
+        p.add_argument("--out", required=True, metavar="DIR",
+                       help="output folder: comparison.csv, pairs.csv, readings.csv, comparison.png, masks")
+        p.add_argument("--no-readings", dest="readings", action="store_false",
+                       help="skip the second render of strawberry scenes under the other petiole reading "
+                            "(readings.csv)")
+
+
+    @command("compare", "Virtual vs measured gap fraction from a manifest: r, RMSE, bias per view "
+             "zenith (the strawberry paper's Table 5) and the measured-vs-virtual plot (Fig. 4)",
+             _compare_args)
+    def _compare_run(args: argparse.Namespace) -> int:
+        import math
+
+        from .canopy.compare import compare
+
+        res = compare(args.manifest, args.out, progress=True, readings=args.readings)
+        print(f"{'row':>4}  {'camera':<12}  {'zenith':>6}  {'step':>4}  {'measured':>8}  "
+              f"{'virtual':>7}  {'sd':>6}  {'sd/plot':>7}  {'reps':>4}  {'diff':>7}")
+        for p in res.pairs:
+            print(f"{p.row.row:>4}  {p.row.camera:<12}  {p.row.zenith_deg:>6g}  {p.row.step_label:>4}  "
+                  f"{p.p0_measured:8.4f}  {p.p0_virtual:7.4f}  {p.p0_virtual_sd:6.4f}  "
+                  f"{p.p0_virtual_sd_plot:7.4f}  {p.replicates:>4}  {p.difference:+7.4f}")
+
+        def f(v, fmt):
+            return "-" if not math.isfinite(v) else format(v, fmt)
+        print(f"\n{'zenith':>6}  {'n':>3}  {'r':>6}  {'rmse':>7}  {'rmse_r':>7}  {'bias':>8}  "
+              f"{'± se':>6}  {'bias_r':>7}  {'scatter':>7}  {'paper: rmse':>11}  {'bias':>6}  {'scatter':>7}")
+        for s in res.stats:
+            z = s["zenith_deg"] if isinstance(s["zenith_deg"], str) else f"{s['zenith_deg']:g}"
+            print(f"{z:>6}  {s['n']:>3}  {f(s['r'], '.3f'):>6}  {s['rmse']:7.4f}  {s['rmse_r']:7.2%}  "
+                  f"{s['bias']:+8.4f}  {f(s['bias_se'], '.4f'):>6}  {s['bias_r']:+7.2%}  "
+                  f"{f(s['scatter'], '.4f'):>7}  {f(s['paper_rmse'], '.3f'):>11}  "
+                  f"{f(s['paper_bias'], '.3f'):>6}  {f(s['paper_scatter'], '.4f'):>7}")
+        print("\n95 % intervals (bias: t, Welch-Satterthwaite df; rmse, r: bootstrap of the replicate plots)")
+        for s in res.stats:
+            z = s["zenith_deg"] if isinstance(s["zenith_deg"], str) else f"{s['zenith_deg']:g}"
+            verdict = {"yes": "0 inside: the gap cannot be told from the noise",
+                       "no": "0 outside: the gap is more than the noise"}.get(s["bias_inside_ci"], "no interval")
+            why_r = "" if math.isfinite(s["r"]) else "  (r needs >= 2 rows per zenith, e.g. one per extraction step)"
+            print(f"{z:>6}  bias {f(s['bias_ci_low'], '+.4f')}…{f(s['bias_ci_high'], '+.4f')} "
+                  f"(df {f(s['ci_df'], '.1f')})  rmse {f(s['rmse_ci_low'], '.4f')}…{f(s['rmse_ci_high'], '.4f')}  "
+                  f"r {f(s['r_ci_low'], '.3f')}…{f(s['r_ci_high'], '.3f')}  [{s['ci_basis']}]  {verdict}{why_r}")
+        if res.readings:
+            from .canopy.compare import PETIOLE_READINGS, READINGS_NOTE
+            print(f"\nboth petiole readings (strawberry rows; the scenes' own: {res.own_reading}):")
+            print(f"{'reading':<8}  {'zenith':>6}  {'n':>3}  {'bias':>8}  {'± se':>6}  {'rmse':>7}  what")
+            for name, sts in res.readings.items():
+                for s in sts:
+                    z = s["zenith_deg"] if isinstance(s["zenith_deg"], str) else f"{s['zenith_deg']:g}"
+                    print(f"{name:<8}  {z:>6}  {s['n']:>3}  {s['bias']:+8.4f}  {f(s['bias_se'], '.4f'):>6}  "
+                          f"{s['rmse']:7.4f}  {PETIOLE_READINGS.get(name, '')}")
+            print(READINGS_NOTE)
+        print(f"wrote {', '.join(str(f) for f in res.files.values())}")
+        return 0
+
+
+    def _synthetic_photo_args(p: argparse.ArgumentParser) -> None:
+        scene_args(p)
+        p.add_argument("--out", required=True, metavar="DIR",
+                       help="output folder: synthetic_photo.csv, photo and Canopeo-mask PNGs")
+
+
+    @command("synthetic-photo", "Photo-like RGB renders of a gap-fraction scene's views, classified "
+             "by Canopeo and checked against the coverage P0", _synthetic_photo_args)
+    def _synthetic_photo_run(args: argparse.Namespace) -> int:
+        from .canopy.synthetic_photo import run_synthetic_photos
+
+        checks = run_synthetic_photos(args.scene, args.out, overrides(args), progress=True)
+        print(f"{'camera':<12}  {'zenith':>6}  {'step':>4}  {'p0 coverage':>11}  {'p0 canopeo':>10}  {'diff':>7}")
+        for c in checks:
+            im = c.image
+            print(f"{im.camera.kind:<12}  {im.camera.zenith_deg:>6g}  {im.step:>4}  {c.p0_coverage:11.4f}  "
+                  f"{c.p0_canopeo:10.4f}  {c.p0_canopeo - c.p0_coverage:+7.4f}")
+        print(f"wrote {args.out}/synthetic_photo.csv and {2 * len(checks)} PNG files")
         return 0

@@ -13,6 +13,8 @@ from .errors import ConfigError
 
 # What a beam or pixel met, as stored in scan products (EXR ``class`` channel, LAS classes).
 CLASS_CODES = {"escape": 0, "ground": 1, "wood": 2, "leaf": 3}
+#: "no element / no plant" in uint32 id columns (EXR ids, the LAS extra bytes' declared no_data).
+NO_ID = 0xFFFFFFFF
 
 
 @dataclass(frozen=True)

@@ -259,10 +259,14 @@ def test_both_count_modes_are_the_poisson_process_without_thinning():
     a = place_trees(SPECIES, DOMAIN, 0.0, np.random.default_rng(3), count="poisson")
     b = place_trees(SPECIES, DOMAIN, 0.0, np.random.default_rng(3), count="stand")
     assert a.count_mode == ("poisson",) * 2 and a.removed.sum() == b.removed.sum() == 0
-    # auto: "stand" with a crown rule, "poisson" without
+    # the default is the paper's count, with or without a crown rule (issue 30)
     assert place_trees(SPECIES, DOMAIN, 0.0, np.random.default_rng(3)).count_mode == ("poisson",) * 2
     assert place_trees(SPECIES, DOMAIN, 0.0, np.random.default_rng(3), crown_radius=crowns,
-                       crown_factor=0.5).count_mode == ("stand",) * 2
+                       crown_factor=0.5).count_mode == ("poisson",) * 2
+    # auto: "stand" with a crown rule, "poisson" without
+    assert place_trees(SPECIES, DOMAIN, 0.0, np.random.default_rng(3), count="auto").count_mode == ("poisson",) * 2
+    assert place_trees(SPECIES, DOMAIN, 0.0, np.random.default_rng(3), crown_radius=crowns,
+                       crown_factor=0.5, count="auto").count_mode == ("stand",) * 2
     # the stand keeps the candidates in arrival order until its target: a prefix of the stream
     np.testing.assert_array_equal(b.candidate[b.species == 0], np.arange(b.count_after[0]))
 

@@ -202,4 +202,6 @@ def test_cli_measure_preset_table_and_errors(capsys):
     assert main(["measure"]) == 2
     assert "--preset" in capsys.readouterr().err
     assert main(["measure", "scene.toml", "--preset", "honda-a"]) == 2
-    assert main(["measure", "--preset", "honda-a", "-n", "-2"]) == 2
+    with pytest.raises(SystemExit) as exc:  # -n is range-checked by its option type (argparse)
+        main(["measure", "--preset", "honda-a", "-n", "-2"])
+    assert exc.value.code == 2 and "--generations" in capsys.readouterr().err

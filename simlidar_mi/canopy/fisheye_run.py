@@ -195,9 +195,13 @@ def fisheye_scene(cfg: SceneConfig, geometry):
         warn_leaves_near_lenses(cfg, geometry.leaves, lenses, (x1 - x0, y1 - y0))
         theta = max([TILE_ZENITH_DEG] + [e for e in f["rings_deg"] if e < 90.0])
         return tiled_sky_scene(canopy, lenses, theta, key="fisheye.rings_deg", variant=cfg["scene"]["variant"])
-    from ..lidar.survey import build  # noqa: PLC0415
+    from ..scene.build import build_scene  # noqa: PLC0415
     warn_leaves_near_lenses(cfg, geometry.leaves, lenses)
-    return build(cfg, geometry, patterns=[])
+    sc = cfg["scene"]  # as lidar.survey.build with no scanner: the lenses sit inside the geometry's origin
+    return build_scene(geometry.branches, geometry.leaves, geometry.primitives,
+                       representation=sc["representation"], facets=sc["facets"],
+                       origin_m=sc["origin_m"], variant=sc["variant"], source=cfg.source,
+                       instances=geometry.instances)
 
 
 @dataclass

@@ -148,6 +148,7 @@ BOUNDS: dict[str, tuple[str, str]] = {
     "forest.max_trees": ("[1, 1e8]", "100 M trees: beyond one machine's memory"),
     "forest.leaf_table_max_rows": ("[0, 1e10]", "rows of a leaf table on disk"),
     "forest.export_facets": ("[3, 64]", "as scene.facets"),
+    "forest.memory_limit_gb": ("(0, 1e6)", "GB: or 'auto', 90 % of physical memory"),
     "forest.export_max_triangles": ("[0, 1e10]", "triangles of one exported mesh file"),
     "forest.preview_max_trees": ("[1, 1e6]", "trees drawn in one picture"),
     "species.background_per_m2": ("[0, 100]", "trees per m²: more than one per 0.01 m²"),

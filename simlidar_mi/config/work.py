@@ -38,6 +38,8 @@ BYTES_PER_SAMPLE = 4
 #: Bytes per sub-ray of a scan chunk on the host (range, class, ids, normals, energies: float32)
 #: and the echo reader's per-sub-ray arrays.
 BYTES_PER_SUBRAY = 200
+#: sub-rays a scan traces at once (lidar.scan's chunks): ~1 M, ~0.2 GB with the echoes (4 M: ~0.75 GB; BENCHMARKS §8b).
+DEFAULT_CHUNK_RAYS = 1 << 20
 #: Bytes per forest candidate point of the thinning (x, y, marks; float64).
 BYTES_PER_CANDIDATE = 64
 #: L-system segments of one apple tree at 5 generations (scenes/apple_orchard.toml: 1066) and
@@ -204,7 +206,6 @@ def fisheye(cfg, b: Budget, sampler: str = "fisheye") -> None:
 
 def scan_subrays(cfg, b: Budget) -> None:
     """A scan chunk's sub-rays: (chunk of beams) × dot-matrix sub-beams × sub-rays per beam."""
-    from ..lidar.scan import DEFAULT_CHUNK_RAYS
     s = cfg["sensor"]
     dots = (cfg["scan"]["footprint"] + 1) ** 2
     per_beam = dots * max(1, s["beam_samples"] if s["divergence_mrad"] > 0 else 1)

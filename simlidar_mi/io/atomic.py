@@ -117,21 +117,37 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def _read_nofollow(path: Path, limit: int = 1 << 16) -> bytes:
-    """The first ``limit`` bytes of the regular file ``path``, its last component never
-    followed as a link (OSError when it is one, or not a regular file)."""
+def read_nofollow(path: str | Path, limit: int | None = 1 << 16) -> bytes:
+    """The first ``limit`` bytes (None: all) of the regular file ``path``, its last component
+    never followed as a link (OSError when it is one, or not a regular file)."""
     fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     try:
         if not stat.S_ISREG(os.fstat(fd).st_mode):
             raise OSError(errno.EINVAL, "not a regular file", str(path))
-        return os.read(fd, limit)
+        if limit is not None:
+            return os.read(fd, limit)
+        with os.fdopen(os.dup(fd), "rb") as fh:
+            return fh.read()
     finally:
         os.close(fd)
 
 
+def refuse_linked_dir(folder: str | Path, what: str) -> None:
+    """Refuse (OutputError) a ``folder`` that is a link or not a folder: ``what`` is written into
+    it, and through a link it would land in (and replace files of) a folder elsewhere."""
+    try:
+        st = os.lstat(folder)
+    except FileNotFoundError:
+        return
+    if not stat.S_ISDIR(st.st_mode):
+        kind = "a symbolic link" if stat.S_ISLNK(st.st_mode) else "not a folder"
+        raise OutputError(f"{folder} is {kind}: {what} and will not follow or replace it; remove it, "
+                          "or use another output folder")
+
+
 def _owner_text(lock_path: Path) -> str:
     try:
-        info = json.loads(_read_nofollow(lock_path).decode("utf-8"))
+        info = json.loads(read_nofollow(lock_path).decode("utf-8"))
         return (f"process {info['pid']} on {info['host']} ({info['command']}, "
                 f"since {info['started']})")
     except (OSError, ValueError, KeyError, TypeError):

@@ -85,8 +85,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..geometry import CLASS_CODES
-from ..lidar.waveform import NO_ID  # "no element / no plant": the no_data of branch_id, tree_id
+from ..geometry import CLASS_CODES, NO_ID  # NO_ID: the no_data of branch_id, tree_id
 from .atomic import atomic_file
 from .las_fields import (SCALES_M, BeamAngles, ScaleChooser, echo_intensity, firing_order, firing_sort,
                          intensity_text, scan_intensity_scale)

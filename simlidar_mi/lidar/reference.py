@@ -13,7 +13,7 @@ from ..geometry import Branches
 from .scan import ScanSettings
 
 ESCAPE, GROUND, WOOD = 0, 1, 2
-NO_ID = 0xFFFFFFFF
+from ..geometry import NO_ID  # noqa: E402  (one definition: uint32 "none")
 
 
 def ray_cylinder_pairs(o: np.ndarray, d: np.ndarray, p0: np.ndarray, p1: np.ndarray,

@@ -32,7 +32,7 @@ from .sensor import SensorModel
 from .waveform import Echoes
 
 CLASS_NAMES = {v: k for k, v in CLASS_CODES.items()}
-NO_ID = 0xFFFFFFFF
+from ..geometry import NO_ID  # noqa: E402  (one definition: uint32 "none")
 
 
 @dataclass(frozen=True)
@@ -511,7 +511,7 @@ def _range_integrator(mi, built: BuiltScene, pattern: BeamPattern):
     return integrator
 
 
-DEFAULT_CHUNK_RAYS = 1 << 20  # ~1 M sub-rays per trace: ~0.2 GB with the echoes (4 M: ~0.75 GB; BENCHMARKS §8b)
+from ..config.work import DEFAULT_CHUNK_RAYS  # noqa: E402  (the work estimate sizes chunks by it too)
 
 
 def physical_tracer(built: BuiltScene, settings_or_pattern: ScanSettings | BeamPattern, model: SensorModel,

@@ -40,7 +40,6 @@ the scene's own footprint and weights each beam by its share of sub-beams that h
 """
 from __future__ import annotations
 
-import errno
 import functools
 import hashlib
 import itertools
@@ -48,7 +47,6 @@ import json
 import logging
 import os
 import re
-import stat
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,8 +58,8 @@ from .._runtime.cluster import code_version  # noqa: F401  (rows record it; test
 from .._version import __version__  # noqa: F401
 from .._runtime.progress import make_progress
 from ..config import SceneConfig, load_scene
-from ..errors import ConfigError, OutputError
-from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
+from ..errors import ConfigError
+from ..io.atomic import atomic_file, read_nofollow, refuse_linked_dir, staged_dir, write_csv, writes_output
 
 log = logging.getLogger(__name__)
 
@@ -212,29 +210,12 @@ def run_one(scene: str, overrides: list[str], rows_dir: str | None, readings: bo
     return row
 
 
-def _check_rows_dir(rows_dir: Path) -> None:
-    """Refuse a ``rows`` that is a link or not a folder: rows are written into it, and through a
-    link they would land in (and replace files of) a folder elsewhere."""
-    try:
-        st = os.lstat(rows_dir)
-    except FileNotFoundError:
-        return
-    if not stat.S_ISDIR(st.st_mode):
-        what = "a symbolic link" if stat.S_ISLNK(st.st_mode) else "not a folder"
-        raise OutputError(f"{rows_dir} is {what}: the study writes its rows there and will not follow "
-                          "or replace it; remove it, or use another output folder")
-
-
 def _read_row(path: Path, quiet: bool = False) -> dict | None:
     """The row saved at ``path``; None when there is none, or when it cannot be read (a file cut
     short by a crash or a full disk, another program's): then it counts as missing, is scanned
     again and overwritten, and a warning says so."""
     try:  # never through a link: a row named by a link is not read, and is replaced when rescanned
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-        with os.fdopen(fd, "rb") as fh:
-            if not stat.S_ISREG(os.fstat(fd).st_mode):
-                raise OSError(errno.EINVAL, "not a regular file")
-            row = json.loads(fh.read())
+        row = json.loads(read_nofollow(path, None))
     except FileNotFoundError:
         return None
     except (OSError, ValueError) as exc:
@@ -553,7 +534,7 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
     keys = [_key(t, readings, version) for t in tables]
     out = Path(out_dir)
     rows_dir = out / "rows"
-    _check_rows_dir(rows_dir)
+    refuse_linked_dir(rows_dir, "the study writes its rows there")
     if rows_dir.is_dir():
         reasons, n_other = _stale(rows_dir, grid, keys, tables, readings, version)
         if reasons:

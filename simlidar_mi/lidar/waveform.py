@@ -57,7 +57,7 @@ C_M_S = 299_792_458.0
 BINS_PER_FWHM = 8
 #: The pulse kernel is evaluated out to this many σ either side of a sub-ray's range.
 KERNEL_SIGMAS = 6.0
-NO_ID = 0xFFFFFFFF
+from ..geometry import NO_ID  # noqa: E402  (one definition: uint32 "none")
 _SIGMA_PER_FWHM = 1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0)))
 #: Pieces of about this many sub-rays keep the kernel temporaries in cache.
 _TILE_SUBRAYS = 1 << 12

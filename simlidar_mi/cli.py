@@ -60,6 +60,7 @@ def _scan_args(p: argparse.ArgumentParser) -> None:
 
 @command("scan", "Tractor LiDAR scan of a scene: range EXR, range PNG, LAS points, measures", _scan_args)
 def _scan_run(args: argparse.Namespace) -> int:
+    from .lidar.scene_counts import describe
     from .lidar.survey import run_scan
 
     run = run_scan(args.scene, args.out, _overrides(args), write_las=not args.no_las,
@@ -67,9 +68,11 @@ def _scan_run(args: argparse.Namespace) -> int:
                    scheduler=args.scheduler, tile_rows=args.tile_rows)
     m = run.measures
     grids = [(m["N"], m["M"])] if "N" in m else [(leg["N"], leg["M"]) for leg in m["legs"]]
-    trees = f", {m['n_instances']} instanced trees" if m.get("n_instances") else ""
-    print(f"{' + '.join(f'{n}×{k}' for n, k in grids)} beams ({m['platform']}), {m['n_branches']} branches "
-          f"({m['representation']}), {m['n_leaf_triangles']} leaf triangles{trees}, hits {m['hits']}")
+    print(f"{' + '.join(f'{n}×{k}' for n, k in grids)} beams ({m['platform']}), "
+          f"{m['n_branches'] + m.get('n_branches_placed', 0):,} branches ({m['representation']}), "
+          f"{describe(m)}")
+    print("hits: " + ", ".join(f"{m['hits'][k]:,} {k}" for k in ("wood", "leaf", "ground") if k in m["hits"])
+          + f"; {m['hits'].get('escape', 0):,} beams hit nothing (escape)")
     areas = [f"{name} = {m[key]:.6g} m²" for name, key in
              (("A_IM", "A_IM_m2"), ("A_PR", "A_PR_m2"), ("A_L", "A_L_m2")) if key in m]
     if areas:
@@ -218,11 +221,16 @@ def _measure_run(args: argparse.Namespace) -> int:
     per_tree = m.get("per_tree", [])
     keys = [k for k in ("n_branches", "V_L_m3", "A_L_m2", "A_PR_m2", "A_PR_exact_m2") if k in m]
     leaf = m.get("leaf_area_per_tree_m2")  # a leaf-on orchard: one more column
-    print("tree    " + "  ".join(f"{k:>14}" for k in keys) + (f"  {'leaf_area_m2':>14}" if leaf else ""))
-    for j, row in enumerate(per_tree):
-        print(f"{row.get('tree_id', ''):<6}  " + "  ".join(f"{row[k]:>14.6g}" for k in keys)
-              + (f"  {leaf[j]:>14.6g}" if leaf and j < len(leaf) else ""))
-    print("total   " + "  ".join(f"{m[k]:>14.6g}" for k in keys) + (f"  {m['leaf_area_m2']:>14.6g}" if leaf else ""))
+    if m.get("n_branches") or "primitive_leaf_area_m2" not in m:  # no table of zeros for a mesh scene
+        print("tree    " + "  ".join(f"{k:>14}" for k in keys) + (f"  {'leaf_area_m2':>14}" if leaf else ""))
+        for j, row in enumerate(per_tree):
+            print(f"{row.get('tree_id', ''):<6}  " + "  ".join(f"{row[k]:>14.6g}" for k in keys)
+                  + (f"  {leaf[j]:>14.6g}" if leaf and j < len(leaf) else ""))
+        print("total   " + "  ".join(f"{m[k]:>14.6g}" for k in keys)
+              + (f"  {m['leaf_area_m2']:>14.6g}" if leaf else ""))
+    if "primitive_leaf_area_m2" in m:  # meshes, boxes, cylinders of [[primitive]]: their surfaces
+        print(f"primitives: {m['n_leaf_triangles_meshes']:,} leaf triangles in meshes, leaf area "
+              f"{m['primitive_leaf_area_m2']:.6g} m² (one-sided), wood surface {m['primitive_wood_area_m2']:.6g} m²")
     if leaf:
         print(f"{m['n_leaves']} leaves, one-sided leaf area {m['leaf_area_m2']:.6g} m²; LAI of the row "
               f"{m['LAI_row']:.4g} = leaf area / {m['row_ground_area_m2']:.6g} m² "

@@ -286,8 +286,10 @@ def _photo_gap_args(p: argparse.ArgumentParser) -> None:
                    help="central fraction kept in each dimension (0.5) or a pixel box")
     p.add_argument("--json", action="store_true",
                    help="print a JSON list of {file, method, threshold, cover, p0, ...}")
-    p.add_argument("--mask-dir", default="photo_masks", metavar="DIR",
-                   help="where to write <stem>_<method>_mask.png (default ./photo_masks/)")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="write each photo's mask, <stem>_<method>_mask.png, into DIR (default: no "
+                        "files written, the results only)")
+    p.add_argument("--mask-dir", dest="out", default=None, help=argparse.SUPPRESS)  # its older name
     p.add_argument("--downscale", type=int, default=1, choices=[1, 2, 4, 8], metavar="F",
                    help="analyse at 1/F of the size (1, 2, 4, 8; JPEGs decode at that size): "
                         "less memory and time, but P0 moves (fine grass at 512 px: 0.03 at 2, "
@@ -304,14 +306,15 @@ def _photo_gap_run(args: argparse.Namespace) -> int:
     from .canopy.photo import photo_gap
     from .io.atomic import check_output_dir
 
-    check_output_dir(args.mask_dir)  # before any photo is read
+    if args.out is not None:
+        check_output_dir(args.out)  # before any photo is read
     results, failed = [], 0
     prog = make_progress(len(args.photos) > 1)  # one photo: its own line is the progress
     with prog.stage("photo-gap", len(args.photos), "photo") as st:
         for photo in args.photos:
             try:  # one bad photo should not hide the others' results
-                results.append(photo_gap(photo, args.method, args.crop, mask_dir=args.mask_dir,
-                                         downscale=args.downscale,
+                results.append(photo_gap(photo, args.method, args.crop, mask_dir=args.out,
+                                         write_mask=args.out is not None, downscale=args.downscale,
                                          progress=len(args.photos) == 1 and sys.stderr.isatty()))
             except PhotoError as exc:
                 failed += 1
@@ -330,7 +333,7 @@ def _photo_gap_run(args: argparse.Namespace) -> int:
         for r in results:
             t = "-" if r.threshold is None else f"{r.threshold:.4g}"
             print(f"{str(r.file):<{w}}  {r.method:<9}  {t:>9}  {r.cover:6.4f}  {r.p0:6.4f}  "
-                  f"{r.n_pixels:>9}  {r.mask_file}")
+                  f"{r.n_pixels:>9}  {r.mask_file or '-'}")
     return 2 if failed else 0
 
 
@@ -503,11 +506,11 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:  # the program itself, not a caller's main([...]): process-wide settings
         start_program()
     args = build_parser().parse_args(argv)
-    for dest in ("out", "mask_dir"):  # an empty path would silently mean the current folder
-        if isinstance(getattr(args, dest, None), str) and not getattr(args, dest).strip():
-            print(f"simlidar-mi {args.command}: error: --{dest.replace('_', '-')} {getattr(args, dest)!r} "
-                  "names no output: give a path ('.' for the current folder)", file=sys.stderr)
-            return 2
+    out = getattr(args, "out", None)
+    if isinstance(out, str) and not out.strip():  # an empty path would silently mean the current folder
+        print(f"simlidar-mi {args.command}: error: --out {out!r} names no output: give a path ('.' for "
+              "the current folder)", file=sys.stderr)
+        return 2
     raise_on_interrupt()  # from here Ctrl-C and SIGTERM unwind, so staging folders and locks go
     try:
         with warnings.catch_warnings():

@@ -77,6 +77,13 @@ def test_obj_label_patterns_that_match_nothing_are_warned_with_the_names_found(t
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert read_mesh(p, "obj", labels={"leaf": ["leaves*"]}).face_class.tolist() == [2, 3]
+    # a PLY's label values alike: the values its faces hold are listed
+    q = _ply(tmp_path / "t.ply", [[0, 1, 2], [0, 2, 3]], face_props={"part": np.array([0, 2], np.uint8)})
+    with pytest.warns(SimlidarWarning) as said:
+        read_mesh(q, "ply", labels={"wood": [0], "leaf": [1]}, label_property="part")
+    assert [str(w.message) for w in said] == [
+        f"{q}: labels.leaf values [1] match no face's part, so no face is leaf (unmatched faces are wood); "
+        "its faces hold part 0, 2"]
 
 
 def test_obj_keeps_float64_coordinates(tmp_path):

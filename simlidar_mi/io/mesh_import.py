@@ -102,7 +102,7 @@ def read_mesh(path, kind: str, *, label: str = "wood", labels: dict | None = Non
             code = _obj_classes(names, labels, label, len(f), path) if labels else None
         else:
             v, f, props = read_ply_arrays(path)
-            code = _ply_classes(props, labels, label_property, label, bad) if labels else None
+            code = _ply_classes(props, labels, label_property, label, bad, path) if labels else None
     except OSError as exc:
         raise bad(f"cannot read it: {exc.strerror or exc}") from exc
     except UnicodeDecodeError as exc:
@@ -567,7 +567,7 @@ def _ply_counts(path) -> dict[str, int]:
     return counts
 
 
-def _ply_classes(props: dict, labels: dict, prop: str | None, label: str, bad) -> np.ndarray:
+def _ply_classes(props: dict, labels: dict, prop: str | None, label: str, bad, path) -> np.ndarray:
     if prop is None:
         raise bad("labels of a PLY mesh need label_property (the face property to read)")
     if prop not in props:
@@ -575,5 +575,12 @@ def _ply_classes(props: dict, labels: dict, prop: str | None, label: str, bad) -
     val = np.asarray(props[prop])
     code = np.full(len(val), CLASS_CODES[label], np.uint8)
     for cls, values in reversed(list(labels.items())):  # the first listed class wins
-        code[np.isin(val, np.asarray(values))] = CLASS_CODES[cls]
+        hit = np.isin(val, np.asarray(values))
+        code[hit] = CLASS_CODES[cls]
+        if not hit.any():  # as for OBJ names: say so, with what the file holds
+            found = np.unique(val)
+            warnings.warn(SimlidarWarning(
+                f"{path}: labels.{cls} values {list(values)} match no face's {prop}, so no face is "
+                f"{cls} (unmatched faces are {label}); its faces hold {prop} "
+                + ", ".join(_few([f"{x:g}" for x in found.tolist()]))))
     return code

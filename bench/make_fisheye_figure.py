@@ -2,7 +2,7 @@
 
 Left: ``simlidar-mi fisheye scenes/forest_small.toml`` through the FC-E8 lens (position 4, the
 plot's centre); middle and right: hemispheR's chestnut photo (Coolpix 4500 + FC-E8, © 2022
-Francesco Chianucci, MIT licence; in ../shared/data/photos, not shipped) and its classified mask
+Francesco Chianucci, MIT licence; in examples/photos with its licence) and its classified mask
 from ``simlidar-mi fisheye-photo``.  Run from the clone's root::
 
     .venv/bin/python bench/make_fisheye_figure.py OUT_DIR
@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from PIL import Image  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-PHOTO = REPO.parent / "shared/data/photos/hemispheR/circular_coolpix4500+FC-E8_chestnut.jpg"
+PHOTO = REPO / "examples/photos/hemispheR/circular_coolpix4500+FC-E8_chestnut.jpg"
 CLI = Path(sys.executable).with_name("simlidar-mi")
 
 

@@ -60,6 +60,7 @@ def _scan_args(p: argparse.ArgumentParser) -> None:
 
 @command("scan", "Tractor LiDAR scan of a scene: range EXR, range PNG, LAS points, measures", _scan_args)
 def _scan_run(args: argparse.Namespace) -> int:
+    from .lidar.scene_counts import describe
     from .lidar.survey import run_scan
 
     run = run_scan(args.scene, args.out, _overrides(args), write_las=not args.no_las,
@@ -67,9 +68,11 @@ def _scan_run(args: argparse.Namespace) -> int:
                    scheduler=args.scheduler, tile_rows=args.tile_rows)
     m = run.measures
     grids = [(m["N"], m["M"])] if "N" in m else [(leg["N"], leg["M"]) for leg in m["legs"]]
-    trees = f", {m['n_instances']} instanced trees" if m.get("n_instances") else ""
-    print(f"{' + '.join(f'{n}×{k}' for n, k in grids)} beams ({m['platform']}), {m['n_branches']} branches "
-          f"({m['representation']}), {m['n_leaf_triangles']} leaf triangles{trees}, hits {m['hits']}")
+    print(f"{' + '.join(f'{n}×{k}' for n, k in grids)} beams ({m['platform']}), "
+          f"{m['n_branches'] + m.get('n_branches_placed', 0):,} branches ({m['representation']}), "
+          f"{describe(m)}")
+    print("hits: " + ", ".join(f"{m['hits'][k]:,} {k}" for k in ("wood", "leaf", "ground") if k in m["hits"])
+          + f"; {m['hits'].get('escape', 0):,} beams hit nothing (escape)")
     areas = [f"{name} = {m[key]:.6g} m²" for name, key in
              (("A_IM", "A_IM_m2"), ("A_PR", "A_PR_m2"), ("A_L", "A_L_m2")) if key in m]
     if areas:
@@ -218,11 +221,16 @@ def _measure_run(args: argparse.Namespace) -> int:
     per_tree = m.get("per_tree", [])
     keys = [k for k in ("n_branches", "V_L_m3", "A_L_m2", "A_PR_m2", "A_PR_exact_m2") if k in m]
     leaf = m.get("leaf_area_per_tree_m2")  # a leaf-on orchard: one more column
-    print("tree    " + "  ".join(f"{k:>14}" for k in keys) + (f"  {'leaf_area_m2':>14}" if leaf else ""))
-    for j, row in enumerate(per_tree):
-        print(f"{row.get('tree_id', ''):<6}  " + "  ".join(f"{row[k]:>14.6g}" for k in keys)
-              + (f"  {leaf[j]:>14.6g}" if leaf and j < len(leaf) else ""))
-    print("total   " + "  ".join(f"{m[k]:>14.6g}" for k in keys) + (f"  {m['leaf_area_m2']:>14.6g}" if leaf else ""))
+    if m.get("n_branches") or "primitive_leaf_area_m2" not in m:  # no table of zeros for a mesh scene
+        print("tree    " + "  ".join(f"{k:>14}" for k in keys) + (f"  {'leaf_area_m2':>14}" if leaf else ""))
+        for j, row in enumerate(per_tree):
+            print(f"{row.get('tree_id', ''):<6}  " + "  ".join(f"{row[k]:>14.6g}" for k in keys)
+                  + (f"  {leaf[j]:>14.6g}" if leaf and j < len(leaf) else ""))
+        print("total   " + "  ".join(f"{m[k]:>14.6g}" for k in keys)
+              + (f"  {m['leaf_area_m2']:>14.6g}" if leaf else ""))
+    if "primitive_leaf_area_m2" in m:  # meshes, boxes, cylinders of [[primitive]]: their surfaces
+        print(f"primitives: {m['n_leaf_triangles_meshes']:,} leaf triangles in meshes, leaf area "
+              f"{m['primitive_leaf_area_m2']:.6g} m² (one-sided), wood surface {m['primitive_wood_area_m2']:.6g} m²")
     if leaf:
         print(f"{m['n_leaves']} leaves, one-sided leaf area {m['leaf_area_m2']:.6g} m²; LAI of the row "
               f"{m['LAI_row']:.4g} = leaf area / {m['row_ground_area_m2']:.6g} m² "
@@ -278,8 +286,10 @@ def _photo_gap_args(p: argparse.ArgumentParser) -> None:
                    help="central fraction kept in each dimension (0.5) or a pixel box")
     p.add_argument("--json", action="store_true",
                    help="print a JSON list of {file, method, threshold, cover, p0, ...}")
-    p.add_argument("--mask-dir", default="photo_masks", metavar="DIR",
-                   help="where to write <stem>_<method>_mask.png (default ./photo_masks/)")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="write each photo's mask, <stem>_<method>_mask.png, into DIR (default: no "
+                        "files written, the results only)")
+    p.add_argument("--mask-dir", dest="out", default=None, help=argparse.SUPPRESS)  # its older name
     p.add_argument("--downscale", type=int, default=1, choices=[1, 2, 4, 8], metavar="F",
                    help="analyse at 1/F of the size (1, 2, 4, 8; JPEGs decode at that size): "
                         "less memory and time, but P0 moves (fine grass at 512 px: 0.03 at 2, "
@@ -296,14 +306,15 @@ def _photo_gap_run(args: argparse.Namespace) -> int:
     from .canopy.photo import photo_gap
     from .io.atomic import check_output_dir
 
-    check_output_dir(args.mask_dir)  # before any photo is read
+    if args.out is not None:
+        check_output_dir(args.out)  # before any photo is read
     results, failed = [], 0
     prog = make_progress(len(args.photos) > 1)  # one photo: its own line is the progress
     with prog.stage("photo-gap", len(args.photos), "photo") as st:
         for photo in args.photos:
             try:  # one bad photo should not hide the others' results
-                results.append(photo_gap(photo, args.method, args.crop, mask_dir=args.mask_dir,
-                                         downscale=args.downscale,
+                results.append(photo_gap(photo, args.method, args.crop, mask_dir=args.out,
+                                         write_mask=args.out is not None, downscale=args.downscale,
                                          progress=len(args.photos) == 1 and sys.stderr.isatty()))
             except PhotoError as exc:
                 failed += 1
@@ -322,7 +333,7 @@ def _photo_gap_run(args: argparse.Namespace) -> int:
         for r in results:
             t = "-" if r.threshold is None else f"{r.threshold:.4g}"
             print(f"{str(r.file):<{w}}  {r.method:<9}  {t:>9}  {r.cover:6.4f}  {r.p0:6.4f}  "
-                  f"{r.n_pixels:>9}  {r.mask_file}")
+                  f"{r.n_pixels:>9}  {r.mask_file or '-'}")
     return 2 if failed else 0
 
 
@@ -495,11 +506,11 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:  # the program itself, not a caller's main([...]): process-wide settings
         start_program()
     args = build_parser().parse_args(argv)
-    for dest in ("out", "mask_dir"):  # an empty path would silently mean the current folder
-        if isinstance(getattr(args, dest, None), str) and not getattr(args, dest).strip():
-            print(f"simlidar-mi {args.command}: error: --{dest.replace('_', '-')} {getattr(args, dest)!r} "
-                  "names no output: give a path ('.' for the current folder)", file=sys.stderr)
-            return 2
+    out = getattr(args, "out", None)
+    if isinstance(out, str) and not out.strip():  # an empty path would silently mean the current folder
+        print(f"simlidar-mi {args.command}: error: --out {out!r} names no output: give a path ('.' for "
+              "the current folder)", file=sys.stderr)
+        return 2
     raise_on_interrupt()  # from here Ctrl-C and SIGTERM unwind, so staging folders and locks go
     try:
         with warnings.catch_warnings():

@@ -377,8 +377,11 @@ def test_plugin_failures_are_one_line_and_odd_estimates_are_refused_or_reported(
                         (f"{tmp_path / 'raises_on_import.py'}:f", "RuntimeError: no licence")):
         with pytest.raises(ConfigError) as e:
             load_plugin(spec)
-        assert e.value.key == "--estimator" and e.value.value == spec and words in str(e.value)
-        assert "\n" not in str(e.value)
+        first, *rest = str(e.value).split("\n")
+        assert e.value.key == "--estimator" and e.value.value == spec and words in first
+    assert rest == ["  in your code (most recent call last):",  # the module's own frame, none of ours
+                    f'    File "{tmp_path / "raises_on_import.py"}", line 1, in <module>',
+                    "      raise RuntimeError('no licence')"]
     out, result = cylinder_scan
     grid = VoxelGrid.covering([1.9, -0.1, 0.4], [2.1, 0.1, 1.6], 0.05)
     truth = grid_dataset(grid, {"PAD_m2_m3": np.ones(grid.shape)})
@@ -389,7 +392,10 @@ def test_plugin_failures_are_one_line_and_odd_estimates_are_refused_or_reported(
 
     with pytest.raises(ConfigError) as e:
         evaluate_beams(grid, truth, beams, scan_dir=out, plugins=[raises])
-    assert e.value.key == "--estimator" and str(e.value).endswith("ZeroDivisionError: division by zero")
+    first, *rest = str(e.value).split("\n")
+    assert e.value.key == "--estimator" and first.endswith("ZeroDivisionError: division by zero")
+    assert rest[0] == "  in your code (most recent call last):" and "in raises" in rest[1]
+    assert not any("simlidar_mi" in line for line in rest)  # the user's frames, not ours
     with pytest.raises(ConfigError) as e:
         evaluate_beams(grid, truth, beams, scan_dir=out,
                        plugins=[lambda s, g: {"PAD_m2_m3": np.full(g.shape, np.inf)}])
@@ -415,3 +421,20 @@ def test_plugin_failures_are_one_line_and_odd_estimates_are_refused_or_reported(
                        "scored as given")
     assert run.get("negative")["bias"] == pytest.approx(-3.0)  # scored as given: -2 against 1
     assert len(said) == 2  # the built-in estimators give neither
+
+
+def test_a_plugin_that_raises_shows_its_own_frames_not_ours(tmp_path):
+    """'the estimator failed: ValueError: my bug' alone left the user guessing which line of
+    theirs failed: the error names it, with their frames only (innermost last)."""
+    from simlidar_mi.truth.scoring import call_plugin, load_plugin
+    (tmp_path / "mine.py").write_text("def helper(x):\n    raise ValueError('my bug')\n\n\n"
+                                      "def f(scan_dir, grid):\n    return helper(1)\n")
+    spec = f"{tmp_path / 'mine.py'}:f"
+    with pytest.raises(ConfigError) as e:
+        call_plugin(load_plugin(spec), spec, tmp_path, VoxelGrid.covering([0, 0, 0], [1, 1, 1], 0.5))
+    lines = str(e.value).split("\n")
+    assert lines[0].endswith("the estimator failed: ValueError: my bug")
+    files = [ln.strip() for ln in lines if ln.strip().startswith("File ")]
+    assert files == [f'File "{tmp_path / "mine.py"}", line 6, in f',
+                     f'File "{tmp_path / "mine.py"}", line 2, in helper']
+    assert "raise ValueError('my bug')" in lines[-1] and "simlidar_mi" not in "".join(lines[1:])

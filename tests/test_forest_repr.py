@@ -159,3 +159,17 @@ def test_canopy_G_is_exact_and_memory_bounded():
         ref = np.mean([np.abs(va @ np.array([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)])).sum()
                        for p in ph]) / np.linalg.norm(va, axis=1).sum()
         assert got == pytest.approx(ref, rel=1e-12)
+
+
+def test_an_instanced_forest_reports_the_leaf_triangles_it_places(small):
+    """scan said '0 leaf triangles' for an instanced forest (its leaves live in prototypes):
+    the count is now the triangles every tree places, the stand's own count."""
+    from simlidar_mi.lidar.scene_counts import describe, leaf_triangle_counts
+    cfg, geo = small
+    m = leaf_triangle_counts(geo)
+    forest = make_forest(cfg)
+    assert len(geo.leaves) == 0 and m["n_leaf_triangles"] == m["n_leaf_triangles_placed"] \
+        == int(forest.n_leaf_triangles.sum()) > m["n_leaf_triangles_prototypes"] > 0
+    assert m["n_branches_placed"] == int(forest.n_branches.sum())
+    assert describe(m) == (f"{m['n_leaf_triangles']:,} leaf triangles ({m['n_leaf_triangles']:,} placed by "
+                           f"{len(forest):,} instanced trees from {m['n_leaf_triangles_prototypes']:,} built)")

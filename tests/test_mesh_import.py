@@ -2,13 +2,14 @@
 from __future__ import annotations
 
 import os
+import warnings
 
 import numpy as np
 import plyfile
 import pytest
 
 from simlidar_mi.config import load_scene
-from simlidar_mi.errors import ConfigError
+from simlidar_mi.errors import ConfigError, SimlidarWarning
 from simlidar_mi.geometry import CLASS_CODES
 from simlidar_mi.io import mesh_import
 from simlidar_mi.io.mesh_import import read_mesh
@@ -55,9 +56,34 @@ def test_obj_faces_are_fans_in_file_order(tmp_path, text):
 def test_obj_labels_without_names_leave_the_primitive_label(tmp_path):
     p = tmp_path / "plain.obj"
     p.write_text(QUAD + "f 1 2 3 4\n")
-    assert read_mesh(p, "obj", label="leaf", labels={"wood": ["Bark*"]}).face_class is None
+    with pytest.warns(SimlidarWarning, match="names no usemtl, g or o"):
+        assert read_mesh(p, "obj", label="leaf", labels={"wood": ["Bark*"]}).face_class is None
     p.write_text("g Bark.001\n" + QUAD + "f 1 2 3\ng other\nf 1 3 4\n")
     assert read_mesh(p, "obj", label="leaf", labels={"wood": ["Bark*"]}).face_class.tolist() == [2, 3]
+
+
+def test_obj_label_patterns_that_match_nothing_are_warned_with_the_names_found(tmp_path):
+    """Patterns that match no name made every face wood without a word: a warning names the
+    patterns and the file's names; patterns that match say nothing."""
+    p = tmp_path / "tree.obj"
+    p.write_text("o tree\nusemtl bark_mat\n" + QUAD + "f 1 2 3\nusemtl leaves_mat\nf 1 3 4\n")
+    with pytest.warns(SimlidarWarning) as said:
+        m = read_mesh(p, "obj", labels={"leaf": ["Leaf*"]})
+    assert m.face_class is None  # every face wood, as before: but now said
+    assert len(said) == 1 and str(said[0].message) == (
+        f"{p}: labels.leaf patterns ['Leaf*'] match no name in the file, so no face is leaf (unmatched "
+        "faces are wood); the file names usemtl bark_mat, leaves_mat; o tree (patterns are "
+        "case-sensitive, '*' any text)")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert read_mesh(p, "obj", labels={"leaf": ["leaves*"]}).face_class.tolist() == [2, 3]
+    # a PLY's label values alike: the values its faces hold are listed
+    q = _ply(tmp_path / "t.ply", [[0, 1, 2], [0, 2, 3]], face_props={"part": np.array([0, 2], np.uint8)})
+    with pytest.warns(SimlidarWarning) as said:
+        read_mesh(q, "ply", labels={"wood": [0], "leaf": [1]}, label_property="part")
+    assert [str(w.message) for w in said] == [
+        f"{q}: labels.leaf values [1] match no face's part, so no face is leaf (unmatched faces are wood); "
+        "its faces hold part 0, 2"]
 
 
 def test_obj_keeps_float64_coordinates(tmp_path):

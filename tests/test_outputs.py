@@ -159,7 +159,7 @@ def test_photo_gap_checks_its_mask_folder_first(tmp_path, capsys):
     taken = tmp_path / "masks"
     taken.write_text("x")
     rc = main(["photo-gap", str(tmp_path / "missing.jpg"), "--method", "canopeo",
-               "--mask-dir", str(taken)])
+               "--out", str(taken)])
     assert rc == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and str(taken) in err and "missing.jpg" not in err

@@ -28,6 +28,8 @@ PHOTOS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "photo
 needs_photos = pytest.mark.skipif(
     not PHOTOS.is_dir(),
     reason=f"real test photos not found at {PHOTOS} (shared data folder beside the repo)")
+# the two MIT-licensed photos shipped in the repository (examples/photos/README.md): no ../shared needed
+EXAMPLE_PHOTOS = Path(__file__).resolve().parents[1] / "examples" / "photos"
 TOL = 0.002  # JPEG decoders differ by +-1 in pixel values (PROVENANCE.md)
 
 
@@ -100,9 +102,8 @@ def test_canopeo_ratio_tests_only_reproduce_notebook(name: str, published: float
     assert r.cover == pytest.approx(published, abs=TOL)
 
 
-@needs_photos
 def test_blue_otsu_img1_matches_cover2(masks: Path) -> None:
-    r = photo_gap(PHOTOS / "coveR2" / "IMG1.JPG", "blue-otsu", mask_dir=masks)
+    r = photo_gap(EXAMPLE_PHOTOS / "coveR2" / "IMG1.JPG", "blue-otsu", mask_dir=masks)
     assert r.threshold == 104
     assert r.p0 == pytest.approx(0.435, abs=TOL)
     assert r.cover == pytest.approx(0.565, abs=TOL)  # coveR2 README: FC 0.565
@@ -485,18 +486,23 @@ def test_cli_reports_bad_files_and_continues(tmp_path: Path,
     assert [d["file"] for d in json.loads(cap.out)] == [str(good)]
 
 
-def test_cli_default_mask_dir_is_cwd(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                     capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_writes_masks_only_under_out(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """photo-gap wrote ./photo_masks into whatever folder it ran in: now nothing is written
+    without --out, and the masks go under --out when given (the photo's folder never)."""
     photos = tmp_path / "photos"
     photos.mkdir()
     good = _save_rgb(photos / "g.png", np.full((32, 32, 3), (40, 150, 40)))
     work = tmp_path / "work"
     work.mkdir()
     monkeypatch.chdir(work)
-    assert main(["photo-gap", str(good), "--method", "canopeo"]) == 0
-    assert (work / "photo_masks" / "g_canopeo_mask.png").is_file()
+    assert main(["photo-gap", str(good), "--method", "canopeo", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)[0]["mask_file"] is None
+    assert os.listdir(work) == [] and os.listdir(photos) == ["g.png"]
+    assert main(["photo-gap", str(good), "--method", "canopeo", "--out", "res"]) == 0
+    assert os.listdir(work) == ["res"] and os.listdir(work / "res") == ["g_canopeo_mask.png"]
+    assert capsys.readouterr().out.splitlines()[1].endswith(str(Path("res") / "g_canopeo_mask.png"))
     assert os.listdir(photos) == ["g.png"]
-    assert "g_canopeo_mask.png" in capsys.readouterr().out
 
 
 # --- large photos: strips, orientation, downscale, size limits ----------------------

@@ -12,10 +12,11 @@ from simlidar_mi.canopy.fisheye import gap_table, make_fisheye, render_fisheye
 from simlidar_mi.canopy.photo_fisheye import detect_circle, fisheye_photo_gap, run_fisheye_photos
 from simlidar_mi.errors import PhotoError
 from simlidar_mi.geometry import Branches, Leaves
-from tests.conftest import SHARED
+from tests.conftest import REPO, SHARED
 
 HEMI = SHARED / "data" / "photos" / "hemispheR"
-CHESTNUT = HEMI / "circular_coolpix4500+FC-E8_chestnut.jpg"
+# shipped with its MIT licence in examples/photos (its README): these tests need no ../shared
+CHESTNUT = REPO / "examples" / "photos" / "hemispheR" / "circular_coolpix4500+FC-E8_chestnut.jpg"
 BEECH = HEMI / "fullframe_D90_Nikkor-10.5_beech.jpg"
 GRASS = HEMI / "circular_downward_D90-8-15.jpg"
 needs_photos = pytest.mark.skipif(not HEMI.is_dir(), reason=f"hemispheR photos absent ({HEMI})")
@@ -62,7 +63,6 @@ def test_a_rendered_image_saved_as_a_photo_gives_the_same_table(tmp_path):
     np.testing.assert_allclose(real.gap[:4], np.tile([0.0, 0.0, 1.0, 1.0], (4, 1)), atol=0.02)
 
 
-@needs_photos
 def test_chestnut_circular_fc_e8():
     # hemispheR's camera_fisheye('Coolpix4500+FC-E8'): xc 1136, yc 852, rc 754 (full-size pixels)
     r = fisheye_photo_gap(CHESTNUT, "FC-E8", circle=(1136, 852, 754), downscale=4, keep_labels=True)
@@ -130,7 +130,6 @@ def test_a_photo_and_a_virtual_image_give_the_same_lai(tmp_path):
     assert 0 < got["lai2200_acf"] <= 1.0 + 1e-9
 
 
-@needs_photos
 def test_chestnut_lai_by_every_method(tmp_path):
     out = tmp_path / "dhp"
     (r,) = run_fisheye_photos([CHESTNUT], out, lens="FC-E8", downscale=4, lai=True)

@@ -173,3 +173,35 @@ def test_terminal_shows_a_bar(tmp_path):
     assert "gapfraction: rendering" in err and "/2 [" in err and "\r" in err
     assert not _stage_lines(err.replace("\r", "\n"), "gapfraction: rendering: 2 plots (")
     assert b"%|" not in out
+
+
+def test_ticks_print_a_line_per_item_or_per_five_percent_when_piped():
+    out = io.StringIO()
+    with Progress("lines", out).stage("few", 3, "orchard", ticks=True) as st:
+        for _ in range(3):
+            st.update()
+    lines = [re.sub(r"[\d.]+ s\)", "T s)", ln) for ln in out.getvalue().splitlines()]
+    assert lines == ["few: 1/3 orchards done (33 %, T s)", "few: 2/3 orchards done (67 %, T s)",
+                     "few: 3/3 orchards done (100 %, T s)", "few: 3 orchards (T s)"]
+    out = io.StringIO()
+    with Progress("lines", out).stage("many", 96, "orchard", ticks=True) as st:
+        for _ in range(96):
+            st.update()
+    ticks = [ln for ln in out.getvalue().splitlines() if " done " in ln]
+    assert len(ticks) == 20 and ticks[0].startswith("many: 5/96 orchards done (5 %") \
+        and ticks[-1].startswith("many: 96/96 orchards done (100 %")
+
+
+def test_a_piped_study_prints_a_line_per_finished_orchard(tmp_path):
+    """`study` said nothing for minutes when its stderr went to a pipe or a log: one line per
+    finished orchard now (no timing asserted)."""
+    grid = [["orchard.tree.iterations=3", "orchard.n_trees=1", "scan.dtheta_deg=2.0", f"scan.dy_m={dy}"]
+            for dy in (0.05, 0.06, 0.07)]
+    code = ("import sys\nfrom simlidar_mi.lidar import study\nfrom simlidar_mi.cli import main\n"
+            f"study.paper_grid = lambda: {grid!r}\nmain(sys.argv[1:])\n")
+    proc = subprocess.run([sys.executable, "-c", code, "study", str(SCENES / "apple_orchard.toml"),
+                           "--out", str(tmp_path / "s"), "--no-readings"],
+                          capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    ticks = [re.sub(r" \(.*\)$", "", ln) for ln in proc.stderr.splitlines() if " done (" in ln]
+    assert ticks == [f"study: scanning: {k}/3 orchards done" for k in (1, 2, 3)]

@@ -197,10 +197,12 @@ def test_study_rows_carry_every_reading_and_the_old_reading_is_the_old_study(tmp
     assert all(f"A_IM_{k}_m2" in header for k in READINGS)
 
 
-def test_study_progress_is_one_stderr_line_per_stage_when_piped(tmp_path, capsys):
+def test_study_progress_is_a_stderr_line_per_orchard_and_per_stage_when_piped(tmp_path, capsys):
     grid = [["orchard.tree.iterations=4", "orchard.n_trees=1", "scan.dtheta_deg=1.0", "scan.dy_m=0.01",
              f"orchard.tree.d_min_m={d}"] for d in (0.005, 0.006)]
     run_study(SCENES / "apple_orchard.toml", tmp_path / "s", grid, readings=False, progress="lines")
     out, err = capsys.readouterr()
     assert out == ""  # results go to files; stdout stays clean (Dask's own bar printed there)
-    assert re.fullmatch(r"study: scanning: 2 orchards \(\d+\.\d s\)\n", err)
+    assert re.fullmatch(r"study: scanning: 1/2 orchards done \(50 %, \d+\.\d s\)\n"
+                        r"study: scanning: 2/2 orchards done \(100 %, \d+\.\d s\)\n"
+                        r"study: scanning: 2 orchards \(\d+\.\d s\)\n", err)

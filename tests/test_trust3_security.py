@@ -224,7 +224,7 @@ def test_no_las_leaves_a_points_las_this_program_never_wrote(tmp_path, caplog):
     ["synthetic-photo", str(SCENES / "strawberry_plot.toml")], ["forest", str(SCENES / "forest_small.toml")],
     ["compare", str(SCENES / "strawberry_manifest.csv")], ["truth", CYLINDER], ["preview", CYLINDER],
     ["evaluate", CYLINDER], ["evaluate-photo", str(SCENES / "strawberry_plot.toml")],
-    ["fisheye-photo", "missing.jpg"],
+    ["fisheye-photo", "missing.jpg"], ["photo-gap", "missing.jpg", "--method", "canopeo"],
 ])
 @pytest.mark.parametrize("empty", ["", "  "])
 def test_an_empty_out_is_refused_in_one_line(tmp_path, monkeypatch, capsys, argv, empty):
@@ -239,14 +239,15 @@ def test_every_command_with_out_is_covered():
     sub = next(a for a in build_parser()._actions if a.dest == "command").choices
     with_out = {name for name, p in sub.items() if any("--out" in a.option_strings for a in p._actions)}
     covered = {"scan", "study", "gapfraction", "fisheye", "synthetic-photo", "forest", "compare",
-               "truth", "preview", "evaluate", "evaluate-photo", "fisheye-photo"}
+               "truth", "preview", "evaluate", "evaluate-photo", "fisheye-photo", "photo-gap"}
     assert with_out <= covered, with_out - covered
 
 
 def test_an_empty_mask_dir_is_refused(tmp_path, monkeypatch, capsys):
+    """--mask-dir, photo-gap's older name for --out, is refused empty as --out is."""
     monkeypatch.chdir(tmp_path)
     assert main(["photo-gap", "missing.jpg", "--method", "canopeo", "--mask-dir", ""]) == 2
-    assert "--mask-dir" in _one_line(capsys)
+    assert "--out ''" in _one_line(capsys) and list(tmp_path.iterdir()) == []
 
 
 def test_the_library_refuses_an_empty_output_folder(tmp_path, monkeypatch):

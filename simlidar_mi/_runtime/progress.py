@@ -7,7 +7,8 @@ accepts what :func:`make_progress` does:
 - ``False`` / ``None`` (the library default): silent;
 - ``True``: a tqdm bar on stderr when stderr is a terminal, else one summary line per
   finished stage on stderr (``stage: 16 replicates in 12.9 s``), so logs of piped or
-  background runs show where time went without carriage-return clutter;
+  background runs show where time went without carriage-return clutter; a stage of
+  minutes (``ticks=True``: the study's orchards) adds a line per item or per 5 %;
 - ``"bar"`` / ``"lines"``: that mode regardless of the terminal; a :class:`Progress`.
 
 Stdout is never written: it holds the commands' results (JSON, tables).  A stage that
@@ -33,8 +34,9 @@ class Stage:
     """
 
     def __init__(self, owner: "Progress", desc: str, total: int | None, unit: str,
-                 delay_s: float = 0.0) -> None:
+                 delay_s: float = 0.0, ticks: bool = False) -> None:
         self.owner, self.desc, self.total, self.unit = owner, desc, total, unit
+        self.ticks = ticks and bool(total)  # piped: a line per item (per 5 % of more than 20)
         self.n = 0
         self.note = ""
         self.t0 = self._t_step = time.perf_counter()
@@ -57,6 +59,12 @@ class Stage:
             if note is not None:
                 self._bar.set_postfix_str(note, refresh=False)
             self._bar.update(n)
+        elif self.ticks and self.owner.mode == "lines":
+            step = 1 if self.total <= 20 else self.total / 20
+            if int(self.n / step) > int((self.n - n) / step) or self.n >= self.total:
+                unit = self.unit if self.total == 1 else _plural(self.unit)
+                self.owner.line(f"{self.desc}: {self.n}/{self.total} {unit} done "
+                                f"({100 * self.n / self.total:.0f} %, {time.perf_counter() - self.t0:.1f} s)")
 
     def step(self, note: str) -> None:
         """A named step finished (``generated 4912 branches``): one line when piped."""
@@ -107,9 +115,11 @@ class Progress:
         return self.mode != "off"
 
     def stage(self, desc: str, total: int | None = None, unit: str = "step",
-              delay_s: float = 0.0) -> Stage:
-        """A stage; on a terminal its bar appears only after ``delay_s`` (short work stays quiet)."""
-        return Stage(self, desc, total, unit, delay_s)
+              delay_s: float = 0.0, ticks: bool = False) -> Stage:
+        """A stage; on a terminal its bar appears only after ``delay_s`` (short work stays quiet).
+        ``ticks``: when piped, also one line per finished item (per 5 % of more than 20 items),
+        for stages of minutes (``study``), not only the summary at the end."""
+        return Stage(self, desc, total, unit, delay_s, ticks)
 
     def iter(self, items: Iterable, desc: str, total: int | None = None,
              unit: str = "item") -> Iterator:

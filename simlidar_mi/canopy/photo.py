@@ -420,8 +420,8 @@ def _analysed_box(parsed: float | Box | None, photo: UprightPhoto, file: Path) -
 def photo_gap(path: str | os.PathLike[str], method: Method = "canopeo", crop: Crop = None, *,
               canopeo_rg: float = 0.95, canopeo_bg: float = 0.95, canopeo_exg: float = 20.0,
               mask_path: str | os.PathLike[str] | None = None,
-              mask_dir: str | os.PathLike[str] | None = None, downscale: int = 1,
-              progress: bool = False) -> PhotoGapResult:
+              mask_dir: str | os.PathLike[str] | None = None, write_mask: bool = True,
+              downscale: int = 1, progress: bool = False) -> PhotoGapResult:
     """Gap fraction (P0) and vegetation cover of one photo.
 
     The photo is worked on in strips of about :data:`TILE_PIXELS` pixels, so memory is
@@ -456,6 +456,9 @@ def photo_gap(path: str | os.PathLike[str], method: Method = "canopeo", crop: Cr
         Directory for ``<photo stem>_<method>_mask.png`` when ``mask_path`` is
         not given; default ``./photo_masks/`` (never beside the photo, whose
         folder may be read-only).
+    write_mask : bool
+        False: no mask is written (``mask_file`` None); ``simlidar-mi photo-gap`` writes masks
+        only into its ``--out`` folder.
     downscale : {1, 2, 4, 8}
         Analyse the photo at 1/downscale of its size in each dimension (JPEGs are
         decoded at that size, so memory falls by downscale²). Averaging mixes leaf
@@ -500,12 +503,14 @@ def photo_gap(path: str | os.PathLike[str], method: Method = "canopeo", crop: Cr
         raise PhotoError(f"{p}: {n} pixels to analyse{at} once the {n_clear} transparent ones "
                          f"are left out; at least {MIN_PIXELS} are needed to classify a photo")
     cover = n_veg / n
-    out = Path(mask_path) if mask_path is not None else default_mask_path(
-        p, method, mask_dir if mask_dir is not None else DEFAULT_MASK_DIR)
-    try:
-        out = write_label_png(out, labels, MASK_COLOURS)
-    except SimlidarError as exc:
-        raise PhotoError(f"{p}: cannot save the classification mask: {exc}") from exc
+    out = None
+    if write_mask:
+        out = Path(mask_path) if mask_path is not None else default_mask_path(
+            p, method, mask_dir if mask_dir is not None else DEFAULT_MASK_DIR)
+        try:
+            out = write_label_png(out, labels, MASK_COLOURS)
+        except SimlidarError as exc:
+            raise PhotoError(f"{p}: cannot save the classification mask: {exc}") from exc
     params: tuple[tuple[str, float], ...] = ()
     if method == "canopeo":
         params = (("rg", float(canopeo_rg)), ("bg", float(canopeo_bg)),

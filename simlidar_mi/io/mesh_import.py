@@ -21,12 +21,13 @@ import fnmatch
 import os
 import stat
 import tempfile
+import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, SimlidarWarning
 from ..geometry import CLASS_CODES, Mesh, Primitive
 
 __all__ = ["MESH_SUFFIXES", "MAX_MESH_BYTES", "read_mesh", "primitive_mesh_data", "mesh_drop", "ship_meshes",
@@ -98,10 +99,10 @@ def read_mesh(path, kind: str, *, label: str = "wood", labels: dict | None = Non
     try:
         if kind == "obj":
             v, f, names = parse_obj_file(path, names=bool(labels))
-            code = _obj_classes(names, labels, label, len(f)) if labels else None
+            code = _obj_classes(names, labels, label, len(f), path) if labels else None
         else:
             v, f, props = read_ply_arrays(path)
-            code = _ply_classes(props, labels, label_property, label, bad) if labels else None
+            code = _ply_classes(props, labels, label_property, label, bad, path) if labels else None
     except OSError as exc:
         raise bad(f"cannot read it: {exc.strerror or exc}") from exc
     except UnicodeDecodeError as exc:
@@ -456,7 +457,7 @@ def _number_like(tokens, typ):
     return pc.if_else(good, tokens, pa.scalar(None, pa.string()))
 
 
-def _obj_classes(names: dict, labels: dict, label: str, n: int) -> np.ndarray:
+def _obj_classes(names: dict, labels: dict, label: str, n: int, path) -> np.ndarray:
     """Class code per triangle: the first of usemtl, g, o whose name a ``labels`` pattern matches."""
     code = np.full(n, -1, np.int16)
     for tag in ("usemtl", "g", "o"):
@@ -470,7 +471,27 @@ def _obj_classes(names: dict, labels: dict, label: str, n: int) -> np.ndarray:
                     table[k] = CLASS_CODES[cls]
                     break
         code = np.where(code < 0, table[idx], code)
+    _warn_unmatched(names, labels, label, path)
     return np.where(code < 0, CLASS_CODES[label], code).astype(np.uint8)
+
+
+def _warn_unmatched(names: dict, labels: dict, label: str, path) -> None:
+    """Warn, naming the patterns and the names the file holds, when a class's patterns match
+    no usemtl, g or o name: its faces would silently take the primitive's ``label``."""
+    found = {tag: [str(nm) for nm in names[tag][0]] for tag in ("usemtl", "g", "o") if tag in names}
+    every = [nm for nms in found.values() for nm in nms]
+    for cls, pats in labels.items():
+        if any(fnmatch.fnmatchcase(nm, str(p)) for nm in every for p in pats):
+            continue
+        listed = "; ".join(f"{tag} {', '.join(_few(nms))}" for tag, nms in found.items() if nms)
+        warnings.warn(SimlidarWarning(
+            f"{path}: labels.{cls} patterns {[str(p) for p in pats]} match no name in the file, so no "
+            f"face is {cls} (unmatched faces are {label}); the file names "
+            + (listed if listed else "no usemtl, g or o") + " (patterns are case-sensitive, '*' any text)"))
+
+
+def _few(names: list[str], n: int = 12) -> list[str]:
+    return names if len(names) <= n else names[:n] + [f"... ({len(names) - n} more)"]
 
 
 # ----------------------------------------------------------------------------------- PLY
@@ -546,7 +567,7 @@ def _ply_counts(path) -> dict[str, int]:
     return counts
 
 
-def _ply_classes(props: dict, labels: dict, prop: str | None, label: str, bad) -> np.ndarray:
+def _ply_classes(props: dict, labels: dict, prop: str | None, label: str, bad, path) -> np.ndarray:
     if prop is None:
         raise bad("labels of a PLY mesh need label_property (the face property to read)")
     if prop not in props:
@@ -554,5 +575,12 @@ def _ply_classes(props: dict, labels: dict, prop: str | None, label: str, bad) -
     val = np.asarray(props[prop])
     code = np.full(len(val), CLASS_CODES[label], np.uint8)
     for cls, values in reversed(list(labels.items())):  # the first listed class wins
-        code[np.isin(val, np.asarray(values))] = CLASS_CODES[cls]
+        hit = np.isin(val, np.asarray(values))
+        code[hit] = CLASS_CODES[cls]
+        if not hit.any():  # as for OBJ names: say so, with what the file holds
+            found = np.unique(val)
+            warnings.warn(SimlidarWarning(
+                f"{path}: labels.{cls} values {list(values)} match no face's {prop}, so no face is "
+                f"{cls} (unmatched faces are {label}); its faces hold {prop} "
+                + ", ".join(_few([f"{x:g}" for x in found.tolist()]))))
     return code

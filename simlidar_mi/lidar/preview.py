@@ -9,6 +9,7 @@ from .._runtime.mitsuba import check_variant
 from .._runtime.progress import make_progress
 from ..config import SceneConfig, load_scene
 from ..io.atomic import atomic_file, writes_output
+from .scene_counts import generated_line
 from .survey import build, generate
 
 
@@ -25,7 +26,7 @@ def preview(cfg: SceneConfig | str | Path, path: str | Path, *, width: int = 102
     check_variant(cfg["scene"]["variant"], cfg.source)  # before any work
     step = make_progress(progress).stage("preview", 4, "stage").step
     geometry = generate(cfg)
-    step(f"generated {len(geometry.branches)} branches, {len(geometry.leaves)} leaf triangles")
+    step(generated_line(geometry))
     built = build(cfg, geometry)
     step(f"built {built.representation} scene")
     mi = mitsuba(cfg["scene"]["variant"])

@@ -562,7 +562,7 @@ def run_study(scene: str | Path, out_dir: str | Path, grid: list[list[str]] | No
                 if workers > 1:
                     log.warning("study: workers=%d ignored: the Dask cluster's workers scan", workers)
                 calls = [(o, readings, version) for o, _ in todo]
-                with make_progress(progress).stage("study: scanning", len(todo), "orchard") as st:
+                with make_progress(progress).stage("study: scanning", len(todo), "orchard", ticks=True) as st:
                     # each row is saved here the moment it arrives: an interrupted study resumes
                     run_on_client(client, _cluster_task, calls, shared=_scene_bundle(scene, cfgs),
                                   on_result=lambda row: (_save_row(rows_dir, row), st.update()))
@@ -600,7 +600,7 @@ def _run_local(scene: str, todo: list[tuple[list[str], str]], rows_dir: Path, re
         opts = {"scheduler": "processes", "num_workers": workers,
                 "initializer": functools.partial(_die_with_parent, os.getpid())}
     # one tick per finished orchard, through the package's progress (never on stdout)
-    with make_progress(progress).stage("study: scanning", len(todo), "orchard") as st, \
+    with make_progress(progress).stage("study: scanning", len(todo), "orchard", ticks=True) as st, \
             Callback(posttask=lambda *_: st.update()):
         dask.compute(*tasks, **opts)
 

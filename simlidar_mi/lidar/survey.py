@@ -28,6 +28,7 @@ from ..errors import ConfigError, SimlidarWarning
 from ..geometry import Branches, Leaves, Primitive
 from ..io.mesh_import import mesh_drop, primitive_mesh_data, ship_meshes, unship_meshes
 from ..io.atomic import atomic_file, staged_dir, writes_output
+from .scene_counts import generated_line, leaf_triangle_counts, primitive_surfaces, warn_if_unseen
 from .patterns import AIRBORNE_PULSE_RATE_HZ, AIRBORNE_SPEED_M_S, scan_patterns, scanner_positions_m  # noqa: F401
 
 log = logging.getLogger(__name__)
@@ -249,8 +250,11 @@ def measure(cfg: SceneConfig, geometry: SceneGeometry | None = None) -> dict:
     a leaf-on orchard adds its leaf area per tree and the row's LAI (plants/apple_leaves.py)."""
     from ..plants.measures import wood_measures  # noqa: PLC0415
     from ..plants.apple_leaves import orchard_leaf_measures  # noqa: PLC0415
-    geometry = geometry or generate(cfg, read_meshes=False)  # the measures read no mesh
-    return {**wood_measures(geometry.branches).to_dict(), **orchard_leaf_measures(cfg, geometry.leaves)}
+    geometry = geometry or generate(cfg, read_meshes=False)  # meshes are read below, when there are some
+    out = {**wood_measures(geometry.branches).to_dict(), **orchard_leaf_measures(cfg, geometry.leaves)}
+    if geometry.primitives:  # a mesh tree's leaves and wood, as truth counts them
+        out.update(primitive_surfaces(geometry.primitives, geometry.source))
+    return out
 
 
 @dataclass
@@ -293,6 +297,7 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
             measures, files = run.measures(), {}
         else:
             measures, files = run.write(write_las=write_las, write_png=write_png)
+        warn_if_unseen(cfg, measures["hits"], run.geometry)
         run.bar("written")
         results = run.results
         return ScanRun(results[0] if len(results) == 1 else results, measures, files)
@@ -353,7 +358,7 @@ class _ScanStages:
                               value=cfg["scan"]["max_beams"])
         warn_scanner_inside_wood(geometry, patterns)
         self.seconds["generate"] = time.perf_counter() - t
-        self.bar(f"generated {len(geometry.branches)} branches, {len(geometry.leaves)} leaf triangles")
+        self.bar(generated_line(geometry))
         if self.out_dir is not None and len(geometry.branches) + len(geometry.leaves) >= FORK_MEASURES_MIN:
             self.geo_job = Forked("measuring the wood", scene_measures, cfg, geometry, patterns)
 
@@ -601,7 +606,7 @@ def scan_measures(cfg: SceneConfig, geometry: SceneGeometry, built, results, sce
         "representation": built.representation, "facets": built.facets,
         "origin_m": [float(x) for x in built.origin_m],
         "n_branches": int(len(geometry.branches)), "n_dropped_zero_length": built.n_dropped,
-        "n_leaf_triangles": int(len(geometry.leaves)),
+        **leaf_triangle_counts(geometry),  # generated, in meshes, placed by instances (lidar.scene_counts)
         "n_instances": int(built.n_instances), "n_triangles_built": int(built.n_triangles),
         "platform": cfg["platform"]["kind"], "footprint": first.pattern.footprint,
         "hit_rule": first.pattern.hit_rule,

@@ -50,6 +50,7 @@ import importlib
 import importlib.util
 import shlex
 import subprocess
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -127,8 +128,8 @@ def load_plugin(spec: str):
     except ImportError as exc:
         raise ConfigError(f"cannot import the estimator's module: {exc}", key="--estimator", value=spec) from None
     except Exception as exc:  # noqa: BLE001  (a SyntaxError, or the module's own code failing: one line)
-        raise ConfigError(f"importing the estimator's module failed: {_one_line(exc)}", key="--estimator",
-                          value=spec) from None
+        raise ConfigError(f"importing the estimator's module failed: {_one_line(exc)}{_user_frames(exc)}",
+                          key="--estimator", value=spec) from None
     f = getattr(module, func, None)
     if not callable(f):
         raise ConfigError(f"module {mod_name!r} has no function {func!r}", key="--estimator", value=spec)
@@ -186,8 +187,21 @@ def call_plugin(f, spec: str, scan_dir: Path, grid: VoxelGrid) -> dict[str, np.n
     try:
         out = f(Path(scan_dir), grid)
     except Exception as exc:  # noqa: BLE001  (the plug-in's own failure, whatever it is)
-        raise ConfigError(f"the estimator failed: {_one_line(exc)}", key="--estimator", value=spec) from None
+        raise ConfigError(f"the estimator failed: {_one_line(exc)}{_user_frames(exc)}", key="--estimator",
+                          value=spec) from None
     return check_estimate(out, grid, spec)
+
+
+def _user_frames(exc: BaseException) -> str:
+    """The traceback of ``exc`` cut to the caller's own frames (not simlidar_mi's, not
+    importlib's), innermost last, as indented lines after the error line; '' when none."""
+    ours = Path(__file__).resolve().parents[1]
+    frames = [fr for fr in traceback.extract_tb(exc.__traceback__)
+              if not fr.filename.startswith("<") and ours not in Path(fr.filename).resolve().parents]
+    if not frames:
+        return ""
+    lines = "".join(traceback.format_list(frames)).rstrip("\n").splitlines()
+    return "\n  in your code (most recent call last):\n" + "\n".join("  " + ln for ln in lines)
 
 
 def _one_line(exc: BaseException) -> str:

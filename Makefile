@@ -43,15 +43,25 @@ test-tools:
 	  echo "WARNING: the CF and netCDF classic checks need: sudo apt-get install -y $(TEST_APT)"; \
 	fi
 
-# The install shows pip's own progress on a terminal and one line per stage when piped.
+# The install shows pip's own progress on a terminal and one line per stage when piped. `make demo`
+# installs the package and what it runs on (STAMP); `make test` and `make docs` add their extras
+# on top (.installed-test, .installed-docs), so a demo does not wait for the test tools.
 $(STAMP): pyproject.toml
 	@command -v $(PY) >/dev/null || { echo "python3 is required"; exit 1; }
 	@[ -x $(VPY) ] || { echo "[1/3] creating $(VENV)"; $(PY) -m venv $(VENV); } || { echo "venv failed: apt-get install -y python3-venv"; exit 1; }
 	@echo "[2/3] upgrading pip"; $(VPY) -m pip install -q --upgrade pip
-	@echo "[3/3] installing simlidar-mi and its dependencies (first time: a few minutes)"; \
-	if [ -t 1 ]; then q=; else q=-q; fi; $(VPY) -m pip install $$q -e '.[test]'
+	@echo "[3/3] installing simlidar-mi and what it runs on (Mitsuba 3, Dr.Jit, NumPy, SciPy," \
+	  "laspy, xarray, Dask, ...; first time: a few minutes)"; \
+	if [ -t 1 ]; then q=; else q=-q; fi; $(VPY) -m pip install $$q -e .
 	@touch $(STAMP)
 	@echo "installed: $$($(VPY) -c 'import simlidar_mi; print(simlidar_mi.__version__)' 2>/dev/null) in $(VENV)"
+
+EXTRAS_test := pytest, hypothesis, sybil, Sphinx, GDAL (rasterio), the CF checkers, OpenImageIO, lazrs, build
+EXTRAS_docs := Sphinx, MyST, furo
+$(VENV)/.installed-%: $(STAMP) pyproject.toml
+	@echo "installing the $* extras ($(EXTRAS_$*); first time: a few minutes)"; \
+	if [ -t 1 ]; then q=; else q=-q; fi; $(VPY) -m pip install $$q -e '.[$*]'
+	@touch $@
 
 # An editable install compiles no bytecode, and PYTHONDONTWRITEBYTECODE (set in many containers)
 # stops Python from caching it: every command would compile the package again (~0.05-0.08 s).
@@ -66,13 +76,13 @@ demo: llvm $(STAMP) bytecode
 	$(VENV)/bin/simlidar-mi compare scenes/strawberry_manifest.csv --out $(OUT)/compare
 	@echo "outputs in $(OUT)/"
 
-test: llvm test-tools $(STAMP) bytecode
+test: llvm test-tools $(VENV)/.installed-test bytecode
 	$(VPY) -m pytest -q
 
 # The documentation (docs/, Sphinx + MyST) with its references generated from the code; any
 # warning (a broken page, reference or generated table) fails the build; -E reads every page
 # again, as an incremental build does not repeat the warnings of pages it did not re-read.
-docs: llvm $(STAMP) bytecode
+docs: llvm $(VENV)/.installed-docs bytecode
 	$(VENV)/bin/sphinx-build -E -b html -W --keep-going docs docs/_build/html
 	@echo "docs in docs/_build/html/index.html"
 

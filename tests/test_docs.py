@@ -376,3 +376,40 @@ def test_faults_check_finds_a_missing_test():
             ("a case", "a line", "tests/no_such_file.py::test_x"),
             ("a case", "a line", "tests/test_docs.py::test_faults_table_names_tests_that_exist")]
     assert _missing_tests(rows) == ["tests/test_docs.py::test_no_such_test", "tests/no_such_file.py::test_x"]
+
+
+# --- (e) every command has its Python function on the commands page ---------------------
+COMMANDS_PAGE = DOCS / "reference" / "commands.md"
+# calls a command's source and its example share without being its entry point
+NOT_AN_ENTRY = {*dir(__builtins__ if isinstance(__builtins__, dict) else vars(__builtins__)),
+                *dir(dict), "load_scene", "bounds_m", "format_measures", "paper_grid"}
+
+
+def _command_sections(text: str) -> dict[str, str]:
+    """Each ``(api-NAME)=`` section of the commands page: its text up to the next one."""
+    parts = re.split(r"^\(api-([a-z0-9-]+)\)=$", text, flags=re.M)
+    return dict(zip(parts[1::2], parts[2::2]))
+
+
+def test_every_command_has_a_python_entry_with_an_example():
+    """One section a command, holding a runnable python block that calls the function the command
+    itself calls (read from the command's source), and that function's documentation."""
+    import inspect
+
+    from simlidar_mi.cli import COMMANDS
+    sections = _command_sections(COMMANDS_PAGE.read_text())
+    assert [n for n, *_ in COMMANDS if n not in sections] == []
+    for name, _help, _args, run in COMMANDS:
+        body = sections[name]
+        code = "\n".join(c for lang, c in _blocks_of(body) if lang == "python")
+        assert code, f"{name}: no python example"
+        called = [f for f in re.findall(r"\b([a-z_][a-z0-9_]*)\(", inspect.getsource(run))
+                  if re.search(rf"\b{f}\(", code) and f not in NOT_AN_ENTRY]
+        assert called, f"{name}: the example calls none of the functions the command calls"
+        assert any(f"{f}`" in body or f".. autofunction:: " in body and f"{f}\n" in body for f in called), \
+            (name, called)
+
+
+def _blocks_of(text: str) -> list[tuple[str, str]]:
+    lines = text.splitlines()
+    return [(lang, "\n".join(lines[first:last - 1])) for lang, first, last in _fences(text)]

@@ -413,3 +413,49 @@ def test_every_command_has_a_python_entry_with_an_example():
 def _blocks_of(text: str) -> list[tuple[str, str]]:
     lines = text.splitlines()
     return [(lang, "\n".join(lines[first:last - 1])) for lang, first, last in _fences(text)]
+
+
+# --- (f) links into the benchmarks page name a section that exists -----------------------
+def benchmark_anchors(text: str) -> set[str]:
+    """The heading ids MyST gives BENCHMARKS.md (included by docs/benchmarks.md): GitHub-style
+    slugs of its headings to conf.py's ``myst_heading_anchors`` level, the ids GitHub gives too."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("docs_conf", DOCS / "conf.py")
+    conf = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(conf)
+    from markdown_it import MarkdownIt
+    from mdit_py_plugins.anchors import anchors_plugin
+    from myst_parser.slugs import github_slugify
+    md = MarkdownIt("commonmark").use(anchors_plugin, min_level=1, max_level=conf.myst_heading_anchors,
+                                      slug_func=github_slugify)
+    return {t.attrs["id"] for t in md.parse(text) if t.type == "heading_open" and "id" in t.attrs}
+
+
+def benchmark_links(pages: dict[str, str]) -> list[tuple[str, str, str]]:
+    """(page, link text, anchor or '') of every link into the benchmarks page."""
+    return [(name, " ".join(m.group(1).split()), m.group(3) or "")
+            for name, text in pages.items()
+            for m in re.finditer(r"\[([^\]]*)\]\(([^)#]*(?:benchmarks|BENCHMARKS)\.md)(?:#([^)]*))?\)", text)]
+
+
+def bad_benchmark_links(pages: dict[str, str], anchors: set[str]) -> list[str]:
+    return [f"{page}: [{text}] -> {anchor or 'the top of the page'}" for page, text, anchor in benchmark_links(pages)
+            if anchor not in anchors and not (page == "README.md" and not anchor)]
+
+
+def test_every_benchmarks_link_names_an_existing_section():
+    """A "benchmarks: X" link lands on its section (MyST heading anchors), not the top of a
+    2,000-line page; only the README's links to the whole file (BENCHMARKS.md) have none."""
+    pages = {str(p.relative_to(DOCS)): p.read_text() for p in PAGES}
+    pages["README.md"] = (REPO / "README.md").read_text()
+    assert len(benchmark_links(pages)) >= 36
+    assert bad_benchmark_links(pages, benchmark_anchors((REPO / "BENCHMARKS.md").read_text())) == []
+
+
+def test_benchmark_link_check_finds_a_bad_anchor():
+    anchors = benchmark_anchors("# Top\n## 10c. Canopy ground truth\n### The §5 study: 96 orchards\n")
+    assert anchors == {"top", "10c-canopy-ground-truth", "the-5-study-96-orchards"}
+    pages = {"guide/x.md": "see [benchmarks: truth](../benchmarks.md#10c-canopy-ground-truth) and "
+                           "[benchmarks: study](../benchmarks.md) and [b](../benchmarks.md#no-such)"}
+    assert bad_benchmark_links(pages, anchors) == ["guide/x.md: [benchmarks: study] -> the top of the page",
+                                                   "guide/x.md: [b] -> no-such"]

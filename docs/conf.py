@@ -27,6 +27,8 @@ myst_enable_extensions = ["dollarmath", "amsmath"]
 myst_dmath_double_inline = True  # $$...$$ inside a paragraph is a displayed formula too
 html_theme = "furo"
 html_title = f"simlidar-mi {release}"
+html_static_path = ["_static"]
+html_css_files = ["simlidar.css"]  # long commands wrap in code blocks (see the file)
 smartquotes = False  # TOML values, `--set` options and quotes are shown exactly as typed
 
 # The API reference documents what `import simlidar_mi` exposes, in the source order.

@@ -459,3 +459,12 @@ def test_benchmark_link_check_finds_a_bad_anchor():
                            "[benchmarks: study](../benchmarks.md) and [b](../benchmarks.md#no-such)"}
     assert bad_benchmark_links(pages, anchors) == ["guide/x.md: [benchmarks: study] -> the top of the page",
                                                    "guide/x.md: [b] -> no-such"]
+
+
+def test_long_commands_wrap_in_the_built_pages(built):
+    """A shell block's long command wraps (pre-wrap) rather than running off behind a scroll bar."""
+    css = (built / "_static" / "simlidar.css").read_text()
+    rule = css[css.index("div.highlight-sh pre"):]
+    assert "white-space: pre-wrap" in rule[:rule.index("}")]
+    page = (built / "guide" / "hemispherical.html").read_text()
+    assert "_static/simlidar.css" in page and 'class="highlight-sh' in page

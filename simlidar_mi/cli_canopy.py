@@ -35,6 +35,30 @@ class checked:  # noqa: N801  (used as an argparse type=, like int)
         return self._convert(text)
 
 
+def r_note(stats) -> str:
+    """The line under ``compare``'s table saying why r shows "-" where it does: r is Pearson's
+    correlation of measured against virtual P0 across one zenith's rows (the strawberry paper's:
+    across its four leaf densities), so a zenith with one row, or with rows whose values do not
+    vary, has none."""
+    import math  # noqa: PLC0415
+    undefined = [s for s in stats if not math.isfinite(s["r"])]
+    if not undefined:
+        return "r: Pearson's r of measured against virtual P0 across each zenith's rows"
+    one = [s for s in undefined if s["n"] < 2]
+
+    def zeniths(ss):
+        return ", ".join(f"'{s['zenith_deg']}' (the zeniths pooled)" if isinstance(s["zenith_deg"], str)
+                         else f"{s['zenith_deg']:g}°" for s in ss)
+    parts = []
+    if one:
+        parts.append(f"one row at {zeniths(one)}")
+    if len(one) < len(undefined):
+        parts.append(f"values that do not vary at {zeniths([s for s in undefined if s['n'] >= 2])}")
+    return ("r: '-' where it is undefined (" + "; ".join(parts) + "): r correlates measured and "
+            "virtual P0 across one zenith's rows, so it needs two or more rows there, e.g. one per "
+            "extraction step (the paper's Table 5: its four leaf densities)")
+
+
 def register(command, scene_args, overrides) -> None:
     """Register this module's sub-commands through cli.py's ``command`` decorator."""
 
@@ -172,8 +196,9 @@ def register(command, scene_args, overrides) -> None:
                             "(readings.csv)")
 
 
-    @command("compare", "Virtual vs measured gap fraction from a manifest: r, RMSE, bias per view "
-             "zenith (the strawberry paper's Table 5) and the measured-vs-virtual plot (Fig. 4)",
+    @command("compare", "Virtual vs measured gap fraction from a manifest: RMSE, bias and (with two "
+             "or more rows per zenith) r per view zenith (the strawberry paper's Table 5) and the "
+             "measured-vs-virtual plot (Fig. 4)",
              _compare_args)
     def _compare_run(args: argparse.Namespace) -> int:
         import math
@@ -198,15 +223,15 @@ def register(command, scene_args, overrides) -> None:
                   f"{s['bias']:+8.4f}  {f(s['bias_se'], '.4f'):>6}  {s['bias_r']:+7.2%}  "
                   f"{f(s['scatter'], '.4f'):>7}  {f(s['paper_rmse'], '.3f'):>11}  "
                   f"{f(s['paper_bias'], '.3f'):>6}  {f(s['paper_scatter'], '.4f'):>7}")
+        print(r_note(res.stats))
         print("\n95 % intervals (bias: t, Welch-Satterthwaite df; rmse, r: bootstrap of the replicate plots)")
         for s in res.stats:
             z = s["zenith_deg"] if isinstance(s["zenith_deg"], str) else f"{s['zenith_deg']:g}"
             verdict = {"yes": "0 inside: the gap cannot be told from the noise",
                        "no": "0 outside: the gap is more than the noise"}.get(s["bias_inside_ci"], "no interval")
-            why_r = "" if math.isfinite(s["r"]) else "  (r needs >= 2 rows per zenith, e.g. one per extraction step)"
             print(f"{z:>6}  bias {f(s['bias_ci_low'], '+.4f')}…{f(s['bias_ci_high'], '+.4f')} "
                   f"(df {f(s['ci_df'], '.1f')})  rmse {f(s['rmse_ci_low'], '.4f')}…{f(s['rmse_ci_high'], '.4f')}  "
-                  f"r {f(s['r_ci_low'], '.3f')}…{f(s['r_ci_high'], '.3f')}  [{s['ci_basis']}]  {verdict}{why_r}")
+                  f"r {f(s['r_ci_low'], '.3f')}…{f(s['r_ci_high'], '.3f')}  [{s['ci_basis']}]  {verdict}")
         if res.readings:
             from .canopy.compare import PETIOLE_READINGS, READINGS_NOTE
             print(f"\nboth petiole readings (strawberry rows; the scenes' own: {res.own_reading}):")

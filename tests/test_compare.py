@@ -325,6 +325,11 @@ def test_cli_compare(scenes: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["compare", str(m), "--out", str(scenes / "cli")]) == 0
     text = capsys.readouterr().out
     assert "rmse" in text and "all" in text and "comparison.csv" in text
+    # one row per zenith: r is "-" there, and the line under the table says why (issue 32)
+    table = text.split("\n\n")[1].splitlines()
+    assert [ln.split()[2] for ln in table[1:3]] == ["-", "-"]
+    assert table[-1].startswith("r: '-' where it is undefined (one row at 0°, 15°; values that do not "
+                                "vary at 'all' (the zeniths pooled)): r correlates measured and virtual")
     bad = _manifest(scenes, "scene,camera,zenith_deg,step,p0_measured\n"
                     "rl.toml,fisheye,0,0,0.3\n", "bad.csv")
     assert main(["compare", str(bad), "--out", str(scenes / "cli2")]) == 2

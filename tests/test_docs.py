@@ -376,3 +376,95 @@ def test_faults_check_finds_a_missing_test():
             ("a case", "a line", "tests/no_such_file.py::test_x"),
             ("a case", "a line", "tests/test_docs.py::test_faults_table_names_tests_that_exist")]
     assert _missing_tests(rows) == ["tests/test_docs.py::test_no_such_test", "tests/no_such_file.py::test_x"]
+
+
+# --- (e) every command has its Python function on the commands page ---------------------
+COMMANDS_PAGE = DOCS / "reference" / "commands.md"
+# calls a command's source and its example share without being its entry point
+NOT_AN_ENTRY = {*dir(__builtins__ if isinstance(__builtins__, dict) else vars(__builtins__)),
+                *dir(dict), "load_scene", "bounds_m", "format_measures", "paper_grid"}
+
+
+def _command_sections(text: str) -> dict[str, str]:
+    """Each ``(api-NAME)=`` section of the commands page: its text up to the next one."""
+    parts = re.split(r"^\(api-([a-z0-9-]+)\)=$", text, flags=re.M)
+    return dict(zip(parts[1::2], parts[2::2]))
+
+
+def test_every_command_has_a_python_entry_with_an_example():
+    """One section a command, holding a runnable python block that calls the function the command
+    itself calls (read from the command's source), and that function's documentation."""
+    import inspect
+
+    from simlidar_mi.cli import COMMANDS
+    sections = _command_sections(COMMANDS_PAGE.read_text())
+    assert [n for n, *_ in COMMANDS if n not in sections] == []
+    for name, _help, _args, run in COMMANDS:
+        body = sections[name]
+        code = "\n".join(c for lang, c in _blocks_of(body) if lang == "python")
+        assert code, f"{name}: no python example"
+        called = [f for f in re.findall(r"\b([a-z_][a-z0-9_]*)\(", inspect.getsource(run))
+                  if re.search(rf"\b{f}\(", code) and f not in NOT_AN_ENTRY]
+        assert called, f"{name}: the example calls none of the functions the command calls"
+        assert any(f"{f}`" in body or f".. autofunction:: " in body and f"{f}\n" in body for f in called), \
+            (name, called)
+
+
+def _blocks_of(text: str) -> list[tuple[str, str]]:
+    lines = text.splitlines()
+    return [(lang, "\n".join(lines[first:last - 1])) for lang, first, last in _fences(text)]
+
+
+# --- (f) links into the benchmarks page name a section that exists -----------------------
+def benchmark_anchors(text: str) -> set[str]:
+    """The heading ids MyST gives BENCHMARKS.md (included by docs/benchmarks.md): GitHub-style
+    slugs of its headings to conf.py's ``myst_heading_anchors`` level, the ids GitHub gives too."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("docs_conf", DOCS / "conf.py")
+    conf = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(conf)
+    from markdown_it import MarkdownIt
+    from mdit_py_plugins.anchors import anchors_plugin
+    from myst_parser.slugs import github_slugify
+    md = MarkdownIt("commonmark").use(anchors_plugin, min_level=1, max_level=conf.myst_heading_anchors,
+                                      slug_func=github_slugify)
+    return {t.attrs["id"] for t in md.parse(text) if t.type == "heading_open" and "id" in t.attrs}
+
+
+def benchmark_links(pages: dict[str, str]) -> list[tuple[str, str, str]]:
+    """(page, link text, anchor or '') of every link into the benchmarks page."""
+    return [(name, " ".join(m.group(1).split()), m.group(3) or "")
+            for name, text in pages.items()
+            for m in re.finditer(r"\[([^\]]*)\]\(([^)#]*(?:benchmarks|BENCHMARKS)\.md)(?:#([^)]*))?\)", text)]
+
+
+def bad_benchmark_links(pages: dict[str, str], anchors: set[str]) -> list[str]:
+    return [f"{page}: [{text}] -> {anchor or 'the top of the page'}" for page, text, anchor in benchmark_links(pages)
+            if anchor not in anchors and not (page == "README.md" and not anchor)]
+
+
+def test_every_benchmarks_link_names_an_existing_section():
+    """A "benchmarks: X" link lands on its section (MyST heading anchors), not the top of a
+    2,000-line page; only the README's links to the whole file (BENCHMARKS.md) have none."""
+    pages = {str(p.relative_to(DOCS)): p.read_text() for p in PAGES}
+    pages["README.md"] = (REPO / "README.md").read_text()
+    assert len(benchmark_links(pages)) >= 36
+    assert bad_benchmark_links(pages, benchmark_anchors((REPO / "BENCHMARKS.md").read_text())) == []
+
+
+def test_benchmark_link_check_finds_a_bad_anchor():
+    anchors = benchmark_anchors("# Top\n## 10c. Canopy ground truth\n### The §5 study: 96 orchards\n")
+    assert anchors == {"top", "10c-canopy-ground-truth", "the-5-study-96-orchards"}
+    pages = {"guide/x.md": "see [benchmarks: truth](../benchmarks.md#10c-canopy-ground-truth) and "
+                           "[benchmarks: study](../benchmarks.md) and [b](../benchmarks.md#no-such)"}
+    assert bad_benchmark_links(pages, anchors) == ["guide/x.md: [benchmarks: study] -> the top of the page",
+                                                   "guide/x.md: [b] -> no-such"]
+
+
+def test_long_commands_wrap_in_the_built_pages(built):
+    """A shell block's long command wraps (pre-wrap) rather than running off behind a scroll bar."""
+    css = (built / "_static" / "simlidar.css").read_text()
+    rule = css[css.index("div.highlight-sh pre"):]
+    assert "white-space: pre-wrap" in rule[:rule.index("}")]
+    page = (built / "guide" / "hemispherical.html").read_text()
+    assert "_static/simlidar.css" in page and 'class="highlight-sh' in page

@@ -476,7 +476,7 @@ def plot_comparison(pairs: Sequence[Pair], stats: Sequence[dict[str, Any]], path
         ax.set_aspect("equal")
         ax.set_xlabel("measured P0")
         ax.set_ylabel("virtual P0")
-        r = "–" if not math.isfinite(s["r"]) else f"{s['r']:.3f}"
+        r = "– (needs ≥ 2 rows)" if not math.isfinite(s["r"]) else f"{s['r']:.3f}"
         ci = ("" if not math.isfinite(s.get("bias_ci_low", math.nan))
               else f"\n95 % CI {s['bias_ci_low']:+.3f}…{s['bias_ci_high']:+.3f}")
         ax.set_title(f"θ = {z:g}°   n = {s['n']}\nr = {r}, RMSE = {s['rmse']:.3f}, "

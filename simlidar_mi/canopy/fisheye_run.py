@@ -226,8 +226,28 @@ def run_fisheye(cfg: SceneConfig, built, bounds_m, out_dir: str | Path | None = 
                 write_images: bool = True, progress=False) -> FisheyeRun:
     """Render every ``[fisheye]`` position of ``built`` (the scene of ``cfg``) and tabulate its rings.
 
-    ``bounds_m``: (lo, hi) of the geometry (``SceneGeometry.bounds_m()``), for the default area
-    and the down-looking height.  With ``out_dir``, write the files of the module docstring."""
+    The ``fisheye`` command is this call after :func:`simlidar_mi.truth.run.truth_geometry` and
+    :func:`fisheye_scene` (see the commands reference for the three calls).
+
+    Parameters
+    ----------
+    cfg : the loaded scene; its ``[fisheye]`` keys give the lens, resolution, samples per pixel,
+        positions (grid, transect or points), rings and sectors.
+    built : the scene the lenses see (:func:`fisheye_scene`).
+    bounds_m : (lo, hi) of the geometry (``SceneGeometry.bounds_m()``), for the default area
+        and the down-looking height.
+    out_dir : with a folder, fisheye_gap.csv, fisheye_positions.csv and, with ``write_images``,
+        fisheye_<k>.exr (coverage, pixel angles, lens and pose in the header) and fisheye_<k>.png
+        (sky, plant, outside the circle) per position, all together when complete.
+    progress : see :func:`simlidar_mi._runtime.progress.make_progress` (a count of images).
+
+    Returns
+    -------
+    FisheyeRun
+        ``images`` (one :class:`~simlidar_mi.canopy.fisheye.FisheyeImage` per position, with its
+        camera), ``tables`` (their ring × sector gap fractions: ``ring_gap``, ``ring_lo_deg``,
+        ``ring_hi_deg``, ...), ``files`` and ``seconds``.
+    """
     f = cfg["fisheye"]
     cameras = fisheye_cameras(cfg, *bounds_m)
     prog = make_progress(progress)

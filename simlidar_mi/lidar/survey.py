@@ -247,7 +247,13 @@ def warn_scanner_inside_wood(geometry: SceneGeometry, patterns: list) -> int:
 
 def measure(cfg: SceneConfig, geometry: SceneGeometry | None = None) -> dict:
     """Geometry measures (V_L, A_L, A_PR, A_PR_exact) in total and per tree, from geometry alone;
-    a leaf-on orchard adds its leaf area per tree and the row's LAI (plants/apple_leaves.py)."""
+    a leaf-on orchard adds its leaf area per tree and the row's LAI (plants/apple_leaves.py).
+
+    The ``measure`` command (without ``--preset``). ``geometry``: an already generated
+    :func:`generate` result, else the scene's is generated (meshes unread). Returns a dict:
+    ``n_branches``, ``V_L_m3``, ``A_L_m2``, ``A_PR_m2``, ``A_PR_exact_m2``, ``per_tree`` (a list of
+    the same per tree) and, for leaves, ``n_leaves``, ``leaf_area_m2``, ``leaf_area_per_tree_m2``,
+    ``LAI_row``, ``row_ground_area_m2``."""
     from ..plants.measures import wood_measures  # noqa: PLC0415
     from ..plants.apple_leaves import orchard_leaf_measures  # noqa: PLC0415
     geometry = geometry or generate(cfg, read_meshes=False)  # meshes are read below, when there are some

@@ -314,7 +314,23 @@ def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_
     estimators (multi-return ones when the scan has echoes, with echo ``weights``), the
     plug-ins ``estimators`` ("module:function") and ``commands``, and write the files of
     the module docstring to ``out_dir``. TRV and LWA use ``row_spacing_m``, else the
-    scene's (:func:`simlidar_mi.truth.run.row_spacing_of`)."""
+    scene's (:func:`simlidar_mi.truth.run.row_spacing_of`).
+
+    The other options are the command's: ``G`` the mean projection of unit plant area along the
+    beams (0.5: spherical leaf angles), ``min_beams`` the beams that must enter a voxel for it
+    to be scored, ``weights`` the echo weights of the multi-return estimators ("equal" or
+    "energy"); ``min_points``, the returns that make a voxel occupied (``vcp``, the envelope),
+    and ``saturated`` (``"cap"``: T = 1/(N + 1) in a voxel every
+    beam was stopped in, ``"nan"``: no estimate) tune the built-in estimators.
+    Bad options, scenes and plug-ins are refused before the scan.
+
+    Returns
+    -------
+    EvaluateRun
+        ``scores`` (one row per estimator and scale, ``voxel`` or ``profile``: n, coverage of
+        the true area, R², RMSE, bias; :meth:`EvaluateRun.get` picks one), ``estimates``,
+        ``summary`` (the grid, the truth's totals, the envelope, seconds) and ``files``.
+    """
     from ..config import SceneConfig, load_scene  # noqa: PLC0415
     from ..lidar.survey import run_scan, scan_patterns  # noqa: PLC0415
     from .compute import compute_truth  # noqa: PLC0415

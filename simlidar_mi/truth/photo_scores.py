@@ -384,8 +384,28 @@ def _refuse_outside(cfg, positions: np.ndarray, bounds, what: str, top_m: float)
 
 @writes_output("out_dir")
 def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
-    """Compute ``scene``'s truth, run the LAI methods at the ``[fisheye]`` positions with the
-    ``[lai_methods]`` settings and write the files of the module docstring to ``out_dir``."""
+    """The ``evaluate-photo`` command: virtual hemispherical photographs scored against the truth.
+
+    Computes ``scene``'s truth, renders a fisheye image at each ``[fisheye]`` position, runs the
+    gap-fraction LAI methods on it with the ``[lai_methods]`` settings (Miller, 57.5°,
+    Lang–Xiang, LAI-2200, Chen–Cihlar with a sun direction) and scores each against the truth's
+    LAI and PAI over the camera's footprint and over the plot.
+
+    Parameters
+    ----------
+    scene : a scene file's path or a loaded :class:`~simlidar_mi.config.SceneConfig`.
+    out_dir : photo_scores.csv, photo_scores.json, photo_scores.png and photo_positions.csv are
+        written there, all together when complete.
+    overrides : ``"section.key=value"`` strings, as ``--set`` takes them.
+    progress : see :func:`simlidar_mi._runtime.progress.make_progress`.
+
+    Returns
+    -------
+    PhotoRun
+        ``scores`` (one row per method, target LAI or PAI, and scale ``position`` or
+        ``plot``: n, coverage, truth and estimate means, bias, RMSE; :meth:`PhotoRun.get`
+        picks one), ``positions`` (per camera), ``summary`` and ``files``.
+    """
     from .._runtime.progress import make_progress  # noqa: PLC0415
     from ..canopy.fisheye_run import fisheye_cameras, fisheye_positions, warn_leaves_near_lenses  # noqa: PLC0415
     from ..canopy.canopy import canopies_from_config  # noqa: PLC0415

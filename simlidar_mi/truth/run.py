@@ -36,6 +36,11 @@ TRUTH_OUTPUTS = (r"truth\.nc", r"truth_summary\.csv", r"truth_profiles\.png")
 
 @dataclass
 class TruthRun:
+    """What :func:`run_truth` computed: ``dataset``, the ``xarray.Dataset`` written as truth.nc
+    (leaf and wood area, wood volume, LAD and PAD per voxel, canopy height and width per slice);
+    ``summary``, the rows of truth_summary.csv (``quantity``, ``value``, ``unit``); ``files``,
+    the paths written (empty without an output folder)."""
+
     dataset: object
     summary: list[dict]
     files: dict = field(default_factory=dict)
@@ -148,8 +153,24 @@ def _figure(ds, prof: dict, path: Path, title: str) -> None:
 @writes_output("out_dir")
 def run_truth(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
               overrides: list[str] | tuple = (), progress=False) -> TruthRun:
-    """Compute the truth of a scene file; with ``out_dir`` write truth.nc, truth_summary.csv
-    and truth_profiles.png there (atomically). Keys: ``[truth]`` (config/keys_truth.py)."""
+    """The exact canopy truth of a scene on a voxel grid: the ``truth`` command.
+
+    Parameters
+    ----------
+    cfg : a scene file's path or a loaded :class:`~simlidar_mi.config.SceneConfig`; its
+        ``[truth]`` keys (voxel size, margin, row axis, canopy base, occupancy, row spacing,
+        ground area) shape the grid and the summary.
+    out_dir : with a folder, truth.nc, truth_summary.csv and truth_profiles.png are written
+        there, all together when complete (a failure leaves the folder as it was).
+    overrides : ``"section.key=value"`` strings, as ``--set`` takes them (with a path only).
+    progress : see :func:`simlidar_mi._runtime.progress.make_progress`.
+
+    Returns
+    -------
+    TruthRun
+        The dataset, the summary rows (totals, LAI over the ground area, mean canopy height
+        and width, TRV and LWA with a row spacing) and the files.
+    """
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, list(overrides))
     t = cfg["truth"]

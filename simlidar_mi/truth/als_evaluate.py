@@ -211,6 +211,10 @@ def evaluate_als(scene, points: str | Path, out_dir: str | Path, overrides: Sequ
 
     xyz = np.column_stack([pts["x"], pts["y"], pts["z"]])
     true_ground = pts["classification"] == LAS_GROUND
+    # DTMs and CHMs from the points over the grid and a margin (the TINs cost most of the run)
+    pad = 2.0 * grid.cell_m + 1.0
+    near = ((pts["x"] >= grid.x0_m - pad) & (pts["x"] <= grid.x0_m + grid.nx * grid.cell_m + pad)
+            & (pts["y"] >= grid.y0_m - pad) & (pts["y"] <= grid.y0_m + grid.ny * grid.cell_m + pad))
     under = truth.tree_id >= 0
     run = AlsRun()
     dtms = {}
@@ -224,7 +228,7 @@ def evaluate_als(scene, points: str | Path, out_dir: str | Path, overrides: Sequ
         else:
             pred = _ground_mask(_call(f, name, "--ground-method", dict(pts)), len(xyz), name)
         secs = time.perf_counter() - t0
-        dtm = G.dtm_from_ground(xyz[pred], grid)
+        dtm = G.dtm_from_ground(xyz[pred & near], grid)
         dtms[name] = dtm
         rows = G.dtm_scores(dtm, truth.dtm, under, grid.cell_m)
         run.dtm += [{"method": name, **r} for r in rows]
@@ -236,8 +240,8 @@ def evaluate_als(scene, points: str | Path, out_dir: str | Path, overrides: Sequ
 
     t0 = time.perf_counter()
     h = pts["z"] - height_m(pts["x"], pts["y"])
-    first = pts["return_number"] <= 1
-    chm_plain = T.chm_plain(pts["x"], pts["y"], h, grid)
+    first = (pts["return_number"] <= 1) & near
+    chm_plain = T.chm_plain(pts["x"][near], pts["y"][near], h[near], grid)
     seconds["chm_plain"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     chm_pf = T.chm_pitfree(pts["x"][first], pts["y"][first], h[first], grid)

@@ -93,8 +93,8 @@ class RasterGrid:
 
     def transform(self):
         """The GDAL/rasterio affine geotransform (north-up)."""
-        from rasterio.transform import from_origin  # noqa: PLC0415
-        return from_origin(self.x0_m, self.y0_m + self.ny * self.cell_m, self.cell_m, self.cell_m)
+        from affine import Affine  # noqa: PLC0415  (rasterio's own dependency)
+        return Affine(self.cell_m, 0.0, self.x0_m, 0.0, -self.cell_m, self.y0_m + self.ny * self.cell_m)
 
     def to_dict(self) -> dict:
         return {"x0_m": self.x0_m, "y0_m": self.y0_m, "cell_m": self.cell_m, "nx": self.nx, "ny": self.ny}

@@ -205,7 +205,9 @@ def evaluate_als(scene, points: str | Path, out_dir: str | Path, overrides: Sequ
     grid = _grid(cfg, pts, cell_m)
     t0 = time.perf_counter()
     with shown.stage("evaluate-als: truth rasters", grid.ny, "row") as bar:
-        truth = surface_rasters(built, grid, height_m, k, variant=cfg["scene"]["variant"], progress=bar.update)
+        one = geometry.trees is not None and len(geometry.trees["tree_id"]) == 1
+        truth = surface_rasters(built, grid, height_m, k, variant=cfg["scene"]["variant"], progress=bar.update,
+                                lone_tree=0 if one else None)
     del built
     seconds["truth_rasters"] = time.perf_counter() - t0
 

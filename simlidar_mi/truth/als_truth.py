@@ -131,10 +131,12 @@ def _vertical_pattern(origins_m: np.ndarray, escape_m: float):
                        row_span_m=np.zeros(3), col_span_deg=0.0, escape_m=escape_m, ground=False)
 
 
-def first_hits_down(built, x_m: np.ndarray, y_m: np.ndarray, variant: str | None = None
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def first_hits_down(built, x_m: np.ndarray, y_m: np.ndarray, variant: str | None = None,
+                    lone_tree: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Height of the first surface (NaN: none) and its tree id (uint32, NO_ID: none or no tree)
-    met by a vertical ray cast down at each (x, y) from above the scene's bounding box."""
+    met by a vertical ray cast down at each (x, y) from above the scene's bounding box.
+    A scene of one plant has no tree ids in the scene builder's tables: ``lone_tree`` is then
+    the id of every hit (a forest of one tree: 0)."""
     from ..lidar.scan import BeamTracer  # noqa: PLC0415
     x_m, y_m = np.asarray(x_m, np.float64).ravel(), np.asarray(y_m, np.float64).ravel()
     z = np.full(len(x_m), np.nan)
@@ -152,15 +154,18 @@ def first_hits_down(built, x_m: np.ndarray, y_m: np.ndarray, variant: str | None
         z[a:b] = np.where(hit, top - out["range"].astype(np.float64), np.nan)
         if out["tree"] is not None:
             tree[a:b] = np.where(hit, out["tree"], NO_ID)
+        elif lone_tree is not None:
+            tree[a:b] = np.where(hit, np.uint32(lone_tree), NO_ID)
     return z, tree
 
 
 def surface_rasters(built, grid: RasterGrid, height_m: HeightFn | None = None,
                     subsamples: int = DEFAULT_SUBSAMPLES, variant: str | None = None,
-                    progress=None) -> SurfaceTruth:
+                    progress=None, lone_tree: int | None = None) -> SurfaceTruth:
     """DTM, DSM, CHM and top tree id of ``built`` (a :class:`~simlidar_mi.scene.build.BuiltScene`)
     on ``grid`` (module docstring); ``height_m`` the terrain (default: z = 0).  Raster rows are
-    traced a band at a time; ``progress(rows)`` is called after each band."""
+    traced a band at a time; ``progress(rows)`` is called after each band; ``lone_tree``:
+    see :func:`first_hits_down`."""
     height_m = height_m or flat_ground(0.0)
     k = int(subsamples)
     if k < 1:
@@ -178,7 +183,7 @@ def surface_rasters(built, grid: RasterGrid, height_m: HeightFn | None = None,
         xs = (xc[r0:r1, :, None, None] + off[None, None, None, :]) + np.zeros((1, 1, k, 1))
         ys = (yc[r0:r1, :, None, None] - off[None, None, :, None]) + np.zeros((1, 1, 1, k))
         ground = np.asarray(height_m(xs, ys), np.float64).reshape(xs.shape)
-        z, tree = first_hits_down(built, xs, ys, variant)
+        z, tree = first_hits_down(built, xs, ys, variant, lone_tree)
         z, tree = z.reshape(xs.shape), tree.reshape(xs.shape)
         above = np.isfinite(z) & (z > ground)
         surf = np.where(above, z, ground).reshape(r1 - r0, nx, k * k)

@@ -231,7 +231,7 @@ def test_evaluate_als_end_to_end_on_a_small_airborne_forest(tmp_path):
                  "dtm_csf.tif", "chm_pitfree.tif", "dtm_error.png", "chm_trees.png", "detection_by_height.png"):
         assert name in files, name
     summary = json.loads((tmp_path / "als" / "als_scores.json").read_text())
-    assert summary["n_trees"] >= 5 and (summary["grid"]["nx"], summary["grid"]["ny"]) == (80, 40)
+    assert summary["n_trees"] >= 3 and (summary["grid"]["nx"], summary["grid"]["ny"]) == (80, 40)
     with rasterio.open(tmp_path / "als" / "truth_chm.tif") as r:
         chm = r.read(1)
         assert r.crs is None and r.shape == (40, 80)

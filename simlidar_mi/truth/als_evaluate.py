@@ -225,10 +225,11 @@ def evaluate_als(scene, points: str | Path, out_dir: str | Path, overrides: Sequ
         t0 = time.perf_counter()
         if f is None:
             pred = true_ground
-        elif name in ("csf", "pmf"):
+        elif f in (G.csf_ground, G.pmf_ground):
             pred = f(xyz)
         else:
-            pred = _ground_mask(_call(f, name, "--ground-method", dict(pts)), len(xyz), name)
+            shown_pts = {k: v for k, v in pts.items() if k != "classification"}  # not the answer
+            pred = _ground_mask(_call(f, name, "--ground-method", shown_pts), len(xyz), name)
         secs = time.perf_counter() - t0
         dtm = G.dtm_from_ground(xyz[pred & near], grid)
         dtms[name] = dtm
@@ -265,7 +266,7 @@ def evaluate_als(scene, points: str | Path, out_dir: str | Path, overrides: Sequ
         for chm_name, chm in (("pitfree", chm_pf), ("truth", truth.chm)):
             for name, f in detectors:
                 t0 = time.perf_counter()
-                if name in ("lmf", "watershed"):
+                if f in (T.local_maxima_trees, T.watershed_trees):
                     det = f(chm, grid, min_height_m=min_height_m)
                 else:
                     det = _tree_array(_call(f, name, "--tree-method", chm, grid), name)

@@ -250,7 +250,7 @@ def register(command, scene_args, overrides) -> None:
         p.add_argument("--cell", type=checked("option", float, key="truth.raster_cell_m"), default=None, metavar="M",
                        help="raster cell in metres (default [truth] raster_cell_m, 0.5)")
         p.add_argument("--subsamples", type=checked("option", int, key="truth.raster_subsamples"), default=None,
-                       metavar="K", help="K x K vertical truth rays a cell (default [truth] raster_subsamples, 3)")
+                       metavar="K", help="K x K vertical truth rays a cell (default [truth] raster_subsamples, 8)")
         p.add_argument("--ground-method", action="append", default=[], metavar="MODULE:FUNC",
                        help="also score f(points) -> bool array (True: ground); points: dict of x, y, z, "
                             "return_number, number_of_returns, intensity (repeatable; MODULE may be a .py path)")

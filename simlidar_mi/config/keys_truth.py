@@ -23,7 +23,7 @@ SECTIONS = {
                               "when that is known; else the grid footprint)"),
         "raster_cell_m": Key(FLOAT, 0.5, positive, "cell side of the truth rasters (DTM, DSM, CHM, top "
                              "tree id) and of the CHMs and DTMs evaluate-als builds, metres"),
-        "raster_subsamples": Key(INT, 3, at_least(1), "vertical rays per cell side for the truth DSM, CHM "
+        "raster_subsamples": Key(INT, 8, at_least(1), "vertical rays per cell side for the truth DSM, CHM "
                                  "and tree-id rasters (k x k rays a cell)"),
     },
 }

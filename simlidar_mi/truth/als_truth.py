@@ -40,7 +40,7 @@ from ..geometry import NO_ID
 
 HeightFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 #: Sub-samples a cell per side by default (k × k vertical rays a cell).
-DEFAULT_SUBSAMPLES = 3
+DEFAULT_SUBSAMPLES = 8  # BENCHMARKS.md §17: the max-in-cell CHM of a porous crown grows with k
 #: Rays traced at once (bounds the sensor tables and the per-ray arrays: ~60 bytes a ray).
 CHUNK_RAYS = 1 << 21
 NODATA_ID = -1

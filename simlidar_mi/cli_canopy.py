@@ -1,5 +1,5 @@
 """Command line: the canopy-camera sub-commands (``gapfraction``, ``fisheye``, ``fisheye-photo``,
-``evaluate-photo``, ``compare``, ``synthetic-photo``).
+``evaluate-photo``, ``compare``, ``synthetic-photo``) and ``evaluate-als``.
 
 Kept beside cli.py so that neither grows past the module size limit; cli.py calls
 :func:`register` with its ``command`` decorator and shared argument helpers (passed in, so this
@@ -264,4 +264,51 @@ def register(command, scene_args, overrides) -> None:
             print(f"{im.camera.kind:<12}  {im.camera.zenith_deg:>6g}  {im.step:>4}  {c.p0_coverage:11.4f}  "
                   f"{c.p0_canopeo:10.4f}  {c.p0_canopeo - c.p0_coverage:+7.4f}")
         print(f"wrote {args.out}/synthetic_photo.csv and {2 * len(checks)} PNG files")
+        return 0
+
+    def _evaluate_als_args(p: argparse.ArgumentParser) -> None:
+        scene_args(p)
+        p.add_argument("--points", required=True, metavar="LAS",
+                       help="the scan's points (points.las of `scan`: its classification is the true class)")
+        p.add_argument("--out", required=True, metavar="DIR",
+                       help="output folder: als_scores.json, *_scores.csv, truth_*.tif, dtm_*.tif, chm_*.tif, PNGs")
+        p.add_argument("--cell", type=checked("option", float, key="truth.raster_cell_m"), default=None, metavar="M",
+                       help="raster cell in metres (default [truth] raster_cell_m, 0.5)")
+        p.add_argument("--subsamples", type=checked("option", int, key="truth.raster_subsamples"), default=None,
+                       metavar="K", help="K x K vertical truth rays a cell (default [truth] raster_subsamples, 8)")
+        p.add_argument("--ground-method", action="append", default=[], metavar="MODULE:FUNC",
+                       help="also score f(points) -> bool array (True: ground); points: dict of x, y, z, "
+                            "return_number, number_of_returns, intensity (repeatable; MODULE may be a .py path)")
+        p.add_argument("--tree-method", action="append", default=[], metavar="MODULE:FUNC",
+                       help="also score f(chm, grid) -> (n, 3) tree tops x, y, height (repeatable)")
+        p.add_argument("--max-distance", type=checked("option", float, "(0, 100]", "metres"), default=3.0,
+                       metavar="M", help="largest horizontal distance of a matched tree pair (default 3 m)")
+        p.add_argument("--max-height-diff", type=checked("option", float, "(0, 100]", "metres"), default=3.0,
+                       metavar="M", help="largest height difference of a matched tree pair (default 3 m)")
+        p.add_argument("--min-height", type=checked("option", float, "[0, 200]", "metres"), default=2.0,
+                       metavar="M", help="lowest CHM height a detected tree may have (default 2 m)")
+        p.add_argument("--no-images", action="store_true", help="write no PNGs")
+
+    @command("evaluate-als", "Score ground filters (CSF, PMF), CHMs and tree detectors of an airborne "
+             "scan against the scene's exact terrain, canopy and trees", _evaluate_als_args)
+    def _evaluate_als_run(args: argparse.Namespace) -> int:
+        from .truth.als_evaluate import evaluate_als
+
+        run = evaluate_als(args.scene, args.points, args.out, overrides(args), ground_plugins=args.ground_method,
+                           tree_plugins=args.tree_method, cell_m=args.cell, subsamples=args.subsamples,
+                           max_distance_m=args.max_distance, max_height_diff_m=args.max_height_diff,
+                           min_height_m=args.min_height, images=not args.no_images, progress=True)
+        print(f"{'ground filter':<16} {'type I':>8} {'type II':>8} {'total':>8} {'kappa':>7} {'DTM RMSE':>9} "
+              f"{'bias':>8}")
+        for r in run.ground:
+            print(f"{r['method']:<16} {r['type_I']:8.4f} {r['type_II']:8.4f} {r['total_error']:8.4f} "
+                  f"{r['kappa']:7.4f} {r['dtm_rmse_m']:9.4f} {r['dtm_bias_m']:+8.4f}")
+        for r in run.chm:
+            print(f"CHM {r['chm']:<8} {r['stratum']:<7} RMSE {r['rmse_m']:.3f} m, bias {r['bias_m']:+.3f} m")
+        print(f"{'tree detector':<24} {'rate':>6} {'prec.':>6} {'F':>6} {'h RMSE':>7} {'h bias':>7}")
+        for r in run.trees:
+            if r["group"] == "all":
+                print(f"{r['method']:<24} {r['detection_rate']:6.3f} {r['precision']:6.3f} {r['f_score']:6.3f} "
+                      f"{r['height_rmse_m']:7.3f} {r['height_bias_m']:+7.3f}")
+        print(f"wrote {args.out}/als_scores.json and {len(run.files) - 1} more outputs")
         return 0

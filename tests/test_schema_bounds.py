@@ -217,7 +217,8 @@ def test_each_option_past_its_range_or_nan_is_one_line_exit_2(command, action, b
     from simlidar_mi.cli import build_parser
     opt = action.option_strings[-1]
     needs = {"fisheye-photo": ["x.jpg", "--out", "o"], "photo-gap": ["x.jpg", "--method", "canopeo"],
-             "derive": ["-n", "3"], "measure": [], "preview": ["s.toml"], "study": ["s.toml", "--out", "o"]}
+             "derive": ["-n", "3"], "measure": [], "preview": ["s.toml"], "study": ["s.toml", "--out", "o"],
+             "evaluate-als": ["s.toml", "--points", "p.las", "--out", "o"]}
     base = needs.get(command, ["s.toml", "--out", "o"])
     is_list = action.type.__name__ == "numbers"
     n = 3 if opt == "--circle" else 1

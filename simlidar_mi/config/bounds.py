@@ -287,6 +287,8 @@ BOUNDS: dict[str, tuple[str, str]] = {
     "truth.margin_m": ("[0, 1e4]", "metres around the geometry"),
     "truth.row_spacing_m": SIZE,
     "truth.ground_area_m2": ("(0, 1e12]", "m²: a million km²"),
+    "truth.raster_cell_m": ("[0.01, 1000]", "metres: 1 cm (finer than any scan's point spacing) to 1 km"),
+    "truth.raster_subsamples": ("[1, 32]", "rays per cell side: 1024 rays a cell"),
     # [fisheye], [lai_methods]
     "fisheye.coeffs": ("[-100, 100]", "lens polynomial coefficients (published lenses: |k| < 2)"),
     "fisheye.resolution": PIXELS,

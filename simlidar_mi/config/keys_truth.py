@@ -1,7 +1,7 @@
 """Scene-file keys of ``[truth]``: the canopy ground-truth grid (``simlidar-mi truth``)."""
 from __future__ import annotations
 
-from .keys_base import FLOAT, STR, Key, nonneg, one_of, positive
+from .keys_base import FLOAT, INT, STR, Key, at_least, nonneg, one_of, positive
 
 SECTIONS = {
     "truth": {
@@ -21,5 +21,9 @@ SECTIONS = {
                               "and a vineyard's rows × vines × vine_spacing_m × row_spacing_m, as "
                               "`measure` counts them; else the grid's row length × row_spacing_m "
                               "when that is known; else the grid footprint)"),
+        "raster_cell_m": Key(FLOAT, 0.5, positive, "cell side of the truth rasters (DTM, DSM, CHM, top "
+                             "tree id) and of the CHMs and DTMs evaluate-als builds, metres"),
+        "raster_subsamples": Key(INT, 8, at_least(1), "vertical rays per cell side for the truth DSM, CHM "
+                                 "and tree-id rasters (k x k rays a cell)"),
     },
 }

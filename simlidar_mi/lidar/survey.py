@@ -52,6 +52,7 @@ class SceneGeometry:
     seconds: float = 0.0
     instances: object = None  # mitsuba_scene.Instances for instanced forests
     source: str | None = None  # the scene file, for messages
+    trees: dict | None = None  # a forest's trees.csv columns (Forest.trees_columns), when it has one
 
     def boxes_m(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned boxes (lo, hi), each (n, 3), of every branch (with radius), leaf
@@ -165,7 +166,7 @@ def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
     are read here, once (``read_meshes=False``: when first needed, for callers that may not)."""
     t0 = time.perf_counter()
     parts: list[Branches] = []
-    leaves, instances = Leaves.empty(), None
+    leaves, instances, trees = Leaves.empty(), None, None
     if cfg.has("orchard") or cfg.has("orchard.tree") or cfg.has("orchard.leaves"):
         from ..plants.apple import AppleTreeParams, orchard  # noqa: PLC0415
         try:
@@ -181,7 +182,9 @@ def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
     if cfg.has("forest") or cfg.arrays.get("species"):
         from ..forest.stand import make_forest  # noqa: PLC0415
         from ..forest.representation import scene_parts  # noqa: PLC0415
-        fb, forest_leaves, instances = scene_parts(make_forest(cfg), cfg.source)
+        forest = make_forest(cfg)
+        fb, forest_leaves, instances = scene_parts(forest, cfg.source)
+        trees = forest.trees_columns()  # arrays only: the Forest itself is freed as before
         parts.append(fb)
         leaves = Leaves.concat([leaves, forest_leaves])
     prims = []
@@ -198,7 +201,7 @@ def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
         leaves = Leaves.concat([leaves, vy.leaves])
         prims += vy.clusters  # grape clusters: cylinder primitives after the file's own
     return SceneGeometry(Branches.concat(parts), leaves, prims, time.perf_counter() - t0, instances,
-                         cfg.source)
+                         cfg.source, trees)
 
 
 def build(cfg: SceneConfig, geometry: SceneGeometry, patterns: list | None = None):

@@ -28,6 +28,7 @@ from ..errors import ConfigError, SimlidarWarning
 from ..geometry import Branches, Leaves, Primitive
 from ..io.mesh_import import mesh_drop, primitive_mesh_data, ship_meshes, unship_meshes
 from ..io.atomic import atomic_file, staged_dir, writes_output
+from ..io.terrain import check_inside, terrain_of
 from .patterns import AIRBORNE_PULSE_RATE_HZ, AIRBORNE_SPEED_M_S, scan_patterns, scanner_positions_m  # noqa: F401
 
 log = logging.getLogger(__name__)
@@ -51,6 +52,7 @@ class SceneGeometry:
     seconds: float = 0.0
     instances: object = None  # mitsuba_scene.Instances for instanced forests
     source: str | None = None  # the scene file, for messages
+    terrain: object = None  # io.terrain.Terrain of [terrain] (the ground mesh), None: the [ground] plane
 
     def boxes_m(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned boxes (lo, hi), each (n, 3), of every branch (with radius), leaf
@@ -165,6 +167,7 @@ def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
     t0 = time.perf_counter()
     parts: list[Branches] = []
     leaves, instances = Leaves.empty(), None
+    terrain = terrain_of(cfg)
     if cfg.has("orchard") or cfg.has("orchard.tree") or cfg.has("orchard.leaves"):
         from ..plants.apple import AppleTreeParams, orchard  # noqa: PLC0415
         try:
@@ -174,13 +177,16 @@ def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
         o = cfg["orchard"]
         parts.append(orchard(params, n_trees=o["n_trees"], spacing_m=o["spacing_m"],
                              row_x_m=o["row_x_m"], y_start_m=o["y_start_m"], seed=cfg.seed))
+        if terrain is not None:  # each tree's foot at the terrain height under it (before its leaves)
+            ys = o["y_start_m"] + o["spacing_m"] * np.arange(o["n_trees"])
+            parts[-1] = stand_on(parts[-1], terrain, np.full(len(ys), o["row_x_m"]), ys, cfg.source)
         if cfg["orchard.leaves"]["season"] != "dormant":  # dormant: the wood alone, as before
             from ..plants.apple_leaves import orchard_leaves_from_config  # noqa: PLC0415
             leaves = orchard_leaves_from_config(cfg, parts[-1])
     if cfg.has("forest") or cfg.arrays.get("species"):
         from ..forest.stand import make_forest  # noqa: PLC0415
         from ..forest.representation import scene_parts  # noqa: PLC0415
-        fb, forest_leaves, instances = scene_parts(make_forest(cfg), cfg.source)
+        fb, forest_leaves, instances = scene_parts(make_forest(cfg, terrain=terrain), cfg.source)
         parts.append(fb)
         leaves = Leaves.concat([leaves, forest_leaves])
     prims = []
@@ -197,7 +203,20 @@ def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
         leaves = Leaves.concat([leaves, vy.leaves])
         prims += vy.clusters  # grape clusters: cylinder primitives after the file's own
     return SceneGeometry(Branches.concat(parts), leaves, prims, time.perf_counter() - t0, instances,
-                         cfg.source)
+                         cfg.source, terrain)
+
+
+def stand_on(branches: Branches, terrain, x_m, y_m, source=None) -> Branches:
+    """Plants ``tree_id`` = k (feet at (x_m[k], y_m[k], 0)) raised by the terrain height under
+    their feet, so each stands on it; rows of other ids (trellis) stay."""
+    check_inside(terrain, x_m, y_m, "plants", source)
+    dz = terrain.height_m(x_m, y_m)
+    k = branches.tree_id
+    own = (k >= 0) & (k < len(dz))
+    shift = np.zeros(len(k))
+    shift[own] = dz[k[own]]
+    lift = np.column_stack([np.zeros((len(k), 2)), shift])
+    return Branches(branches.p0 + lift, branches.p1 + lift, branches.diameter, branches.order, k)
 
 
 def build(cfg: SceneConfig, geometry: SceneGeometry, patterns: list | None = None):
@@ -219,7 +238,8 @@ def build(cfg: SceneConfig, geometry: SceneGeometry, patterns: list | None = Non
                        representation=sc["representation"], facets=sc["facets"],
                        origin_m=sc["origin_m"], variant=sc["variant"], source=cfg.source,
                        instances=geometry.instances,
-                       scanner_m=np.concatenate(scanner) if scanner else None)
+                       scanner_m=np.concatenate(scanner) if scanner else None,
+                       terrain=geometry.terrain)
 
 
 def warn_scanner_inside_wood(geometry: SceneGeometry, patterns: list) -> int:

@@ -279,3 +279,27 @@ azimuth_deg = [0, 360, 2]
     d = pats[0].world_dirs()
     p = (o + r.range_m[..., None].astype(np.float64) * d)[g_hit]
     np.testing.assert_allclose(p[:, 2], t.height_m(p[:, 0], p[:, 1]), atol=2e-3)
+
+
+# --- the truth knows the terrain ------------------------------------------------------------------
+
+@pytest.mark.parametrize("row_axis", ["x", "y"])
+def test_truth_canopy_height_is_measured_above_the_terrain(row_axis):
+    """Two occupied voxel columns on a 45° slope (z = x): each slice's height is its highest
+    column's top above the terrain under that column, not above a plane."""
+    from simlidar_mi.truth.grid import VoxelGrid, grid_dataset
+    from simlidar_mi.truth.row_metrics import canopy_profiles
+    t = analytic_terrain((-10, 10, -10, 10), 1.0, slope_deg=45.0, aspect_deg=270.0)
+    grid = VoxelGrid((0.0, 0.0, 0.0), 0.5, (8, 8, 20))
+    occ = np.zeros(grid.shape, bool)
+    occ[1, 2, 3:9] = True    # column x = 0.75, top z = 4.5 → 3.75 above the terrain
+    occ[6, 2, 6:12] = True   # column x = 3.25, top z = 6.0 → 2.75 above it
+    p = canopy_profiles(occ, grid, row_axis=row_axis, base="ground", terrain=t)
+    flat = canopy_profiles(occ, grid, row_axis=row_axis, base="ground")
+    if row_axis == "y":  # one slice (y index 2) holds both columns: the higher above its terrain
+        assert p["height_m"][2] == pytest.approx(3.75) and flat["height_m"][2] == pytest.approx(6.0)
+    else:                # slices along x: each column alone
+        assert p["height_m"][1] == pytest.approx(3.75) and p["height_m"][6] == pytest.approx(2.75)
+    ds = grid_dataset(grid, {}, terrain=t)
+    np.testing.assert_allclose(ds["terrain_z_m"].values, np.broadcast_to(grid.centres(0)[None, :], (8, 8)))
+    assert "standard_name" not in ds["z"].attrs

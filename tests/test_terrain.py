@@ -303,3 +303,36 @@ def test_truth_canopy_height_is_measured_above_the_terrain(row_axis):
     ds = grid_dataset(grid, {}, terrain=t)
     np.testing.assert_allclose(ds["terrain_z_m"].values, np.broadcast_to(grid.centres(0)[None, :], (8, 8)))
     assert "standard_name" not in ds["z"].attrs
+
+
+def test_vineyard_rows_follow_the_terrain():
+    """Each vine raised whole by the terrain height under its trunk, each post standing on the
+    terrain, each wire running post to post at its height above the posts' feet."""
+    from simlidar_mi.plants.vineyard import ORDER_TRELLIS, VineyardParams, vineyard
+    P = VineyardParams(n_rows=2, vines_per_row=4)
+    t = analytic_terrain((-10, 20, -10, 20), 0.5, slope_deg=15.0, aspect_deg=180.0, hills=[(3.0, 3.0, 1.0, 2.0)])
+    flat, v = vineyard(P, seed=4), vineyard(P, seed=4, terrain=t)
+    for r in range(P.n_rows):
+        for k in range(P.vines_per_row):
+            tid = r * P.vines_per_row + k
+            dz = t.height_m(P.row_x_m(r), P.vine_y_m(k))
+            a, b = (w.branches.subset(w.branches.tree_id == tid) for w in (flat, v))
+            np.testing.assert_allclose(b.p0, a.p0 + [0.0, 0.0, dz], atol=1e-12)
+            la, lb = (w.leaves.subset(w.leaves.plant_id == tid) for w in (flat, v))
+            np.testing.assert_allclose(lb.vertices, la.vertices + [0.0, 0.0, dz], atol=1e-12)
+    tr = v.branches.subset(v.branches.order == ORDER_TRELLIS)
+    posts = tr.subset(tr.diameter == P.post_diameter_m)
+    np.testing.assert_allclose(posts.p0[:, 2], t.height_m(posts.p0[:, 0], posts.p0[:, 1]), atol=1e-12)
+    np.testing.assert_allclose(posts.p1[:, 2] - posts.p0[:, 2], P.post_height_m)
+    wires = tr.subset(tr.diameter == P.wire_diameter_m)
+    n_bays = P.n_posts_per_row - 1
+    assert len(wires) == P.n_rows * (1 + 2 * len(P.catch_wire_heights_m)) * n_bays
+    for end in (wires.p0, wires.p1):
+        h = end[:, 2] - t.height_m(_row_x(P, end[:, 0]), end[:, 1])
+        assert set(np.round(h, 9)) <= {P.fruiting_wire_height_m, *P.catch_wire_heights_m}
+
+
+def _row_x(P, x):
+    """The row axis a wire at x belongs to (catch wires sit ± half their spacing beside it)."""
+    rows = np.array([P.row_x_m(r) for r in range(P.n_rows)])
+    return rows[np.argmin(np.abs(x[:, None] - rows[None, :]), axis=1)]

@@ -198,7 +198,7 @@ def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
         prims.append(prim)
     if cfg.has("vineyard") or cfg.has("vineyard.canopy"):  # VSP vineyard (plants/vineyard.py)
         from ..plants.vineyard import vineyard_from_config  # noqa: PLC0415
-        vy = vineyard_from_config(cfg)
+        vy = vineyard_from_config(cfg, terrain)
         parts.append(vy.branches)
         leaves = Leaves.concat([leaves, vy.leaves])
         prims += vy.clusters  # grape clusters: cylinder primitives after the file's own

@@ -143,7 +143,7 @@ class Terrain:
         x0, x1, y0, y1 = self.extent_m
         z0, z1 = self.z_range_m
         return (f"terrain {self.source}: {self.shape[1]} × {self.shape[0]} nodes, cell {self.dx_m:g} × "
-                f"{self.dy_m:g} m, x {x0:.6g}…{x1:.6g}, y {y0:.6g}…{y1:.6g}, z {z0:.6g}…{z1:.6g} m"
+                f"{self.dy_m:g} m, x {x0:.10g}…{x1:.10g}, y {y0:.10g}…{y1:.10g}, z {z0:.6g}…{z1:.6g} m"
                 + (f", {self.n_filled} nodata cells filled" if self.n_filled else ""))
 
 
@@ -237,13 +237,14 @@ def read_dem(path, nodata: str = "refuse", source: str | None = None, key: str =
     if n_bad:
         if nodata != "nearest":
             j, i = np.argwhere(bad)[0]
-            raise ConfigError(f"the DEM has {n_bad} nodata cell(s), the first at x = {x0 + i * dx:.6g}, "
-                              f"y = {y0 + j * dy:.6g}; set terrain.nodata = \"nearest\" to fill them",
+            raise ConfigError(f"the DEM has {n_bad} nodata cell(s), the first at x = {x0 + i * dx:.10g}, "
+                              f"y = {y0 + j * dy:.10g}; set terrain.nodata = \"nearest\" to fill them",
                               file=src, key=key, value=str(path))
         from scipy.ndimage import distance_transform_edt  # noqa: PLC0415
         _, (jj, ii) = distance_transform_edt(bad, sampling=(dy, dx), return_indices=True)
         band = band[jj, ii]
-        warnings.warn(SimlidarWarning(f"{src}: terrain.file {path}: filled {n_bad} nodata cell(s) "
+        where = src if src == str(path) else f"{src}: terrain.file {path}"
+        warnings.warn(SimlidarWarning(f"{where}: filled {n_bad} nodata cell(s) "
                                       "from the nearest valid cell (terrain.nodata = \"nearest\")"), stacklevel=2)
     return Terrain(x0, y0, dx, dy, band, crs_text, str(path), n_bad)
 
@@ -296,6 +297,6 @@ def check_inside(terrain: Terrain, x_m, y_m, what: str, source=None, key: str = 
     if out.any():
         k = int(np.argmax(out))
         x0, x1, y0, y1 = terrain.extent_m
-        raise ConfigError(f"{int(out.sum())} {what} stand outside the terrain (x {x0:.6g}…{x1:.6g}, "
-                          f"y {y0:.6g}…{y1:.6g}), the first at ({float(x.flat[k]):.6g}, {float(y.flat[k]):.6g})",
+        raise ConfigError(f"{int(out.sum())} {what} stand outside the terrain (x {x0:.10g}…{x1:.10g}, "
+                          f"y {y0:.10g}…{y1:.10g}), the first at ({float(x.flat[k]):.10g}, {float(y.flat[k]):.10g})",
                           file=source, key=key, value=[x0, x1, y0, y1])

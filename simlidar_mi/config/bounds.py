@@ -159,7 +159,7 @@ BOUNDS: dict[str, tuple[str, str]] = {
     "species.leaves_per_branch_tree_cv": ("[0, 0.3]", "a coefficient of variation of at most 30 %"),
     # [ground], [terrain], [scan]
     "ground.z_m": COORD,
-    "terrain.extent_m": COORD, "terrain.centre_m": COORD, "terrain.hills": COORD,
+    "terrain.extent_m": COORD, "terrain.centre_m": COORD, "terrain.hills_m": COORD,
     "terrain.cell_m": ("(0, 1000]", "metres: a grid cell larger than any plot"),
     "terrain.slope_deg": ("[0, 89]", "degrees: a vertical wall has no height function"),
     "terrain.aspect_deg": ANGLE, "terrain.line_azimuth_deg": ANGLE,

@@ -41,7 +41,7 @@ SECTIONS = {
         "slope_deg": Key(FLOAT, 0.0, within(0, 89), "analytic plane: slope, degrees from horizontal"),
         "aspect_deg": Key(FLOAT, 0.0, _azimuth, "analytic plane: the downhill direction, degrees "
                           "clockwise from north (+y); 90 faces east (+x)"),
-        "hills": Key(LIST, [], _hills, "Gaussian hills [[x_m, y_m, height_m, sigma_m], …]: "
+        "hills_m": Key(LIST, [], _hills, "Gaussian hills [[x_m, y_m, height_m, sigma_m], …]: "
                      "height·exp(−r²/2σ²) each (a negative height: a hollow)"),
         "line_azimuth_deg": Key(FLOAT, 0.0, _azimuth, "ditch/step line direction, degrees clockwise "
                                 "from north (+y), through centre_m"),

@@ -257,7 +257,7 @@ def terrain_of(cfg) -> Terrain | None:
     if not cfg.has("terrain"):
         return None
     t = cfg["terrain"]
-    analytic = ("extent_m", "cell_m", "centre_m", "slope_deg", "aspect_deg", "hills", "line_azimuth_deg",
+    analytic = ("extent_m", "cell_m", "centre_m", "slope_deg", "aspect_deg", "hills_m", "line_azimuth_deg",
                 "ditch_depth_m", "ditch_width_m", "step_m")
     if t["file"] is not None:
         given = [k for k in analytic if cfg.gave(f"terrain.{k}")]
@@ -279,11 +279,11 @@ def terrain_of(cfg) -> Terrain | None:
             extent = list(DEFAULT_EXTENT_M)
     relief = {k: t[k] for k in ("slope_deg", "aspect_deg", "line_azimuth_deg", "ditch_depth_m",
                                 "ditch_width_m", "step_m")}
-    relief["hills"] = [tuple(h) for h in t["hills"]]
+    relief["hills"] = [tuple(h) for h in t["hills_m"]]
     if t["centre_m"] is not None:
         relief["centre_m"] = tuple(t["centre_m"])
     parts = [f"slope {t['slope_deg']:g}° to {t['aspect_deg']:g}°" if t["slope_deg"] else "",
-             f"{len(t['hills'])} hill(s)" if t["hills"] else "",
+             f"{len(t['hills_m'])} hill(s)" if t["hills_m"] else "",
              f"ditch {t['ditch_depth_m']:g} m deep" if t["ditch_depth_m"] else "",
              f"step {t['step_m']:g} m" if t["step_m"] else ""]
     what = "analytic (" + (", ".join(p for p in parts if p) or "flat") + ")"

@@ -11,7 +11,7 @@ import pytest
 from simlidar_mi.config import load_scene
 from simlidar_mi.errors import ConfigError, SimlidarWarning
 from simlidar_mi.geometry import CLASS_CODES, NO_ID, Branches
-from simlidar_mi.io.terrain import Terrain, analytic_terrain, read_dem, relief_m, terrain_of
+from simlidar_mi.io.terrain import Terrain, analytic_terrain, ground_height, read_dem, relief_m, terrain_of
 from simlidar_mi.lidar.platforms import airborne_pattern, static_pattern
 from simlidar_mi.lidar.scan import scan
 from simlidar_mi.scene.build import build_scene
@@ -336,3 +336,13 @@ def _row_x(P, x):
     """The row axis a wire at x belongs to (catch wires sit ± half their spacing beside it)."""
     rows = np.array([P.row_x_m(r) for r in range(P.n_rows)])
     return rows[np.argmin(np.abs(x[:, None] - rows[None, :]), axis=1)]
+
+
+def test_ground_height_of_a_scene_with_and_without_terrain():
+    flat = ground_height(load_scene(text="[ground]\nz_m = 2.5\n"))
+    assert flat(np.zeros((2, 3)), 1.0).tolist() == [[2.5] * 3] * 2
+    assert terrain_of(load_scene(text="[ground]\nz_m = 2.5\n")) is None
+    cfg = load_scene(text="[ground]\nz_m = 2.5\n[terrain]\nslope_deg = 45\naspect_deg = 270\n")
+    h = ground_height(cfg)
+    np.testing.assert_allclose(h(np.array([-10.0, 0.0, 10.0]), 0.0), [-7.5, 2.5, 12.5], atol=1e-12)
+    assert terrain_of(cfg).extent_m == (-50.0, 50.0, -50.0, 50.0)

@@ -596,7 +596,8 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     seconds["place"] = time.perf_counter() - t0 - t_grow
 
     t0 = time.perf_counter()
-    info: dict[str, Any] = {"n_candidates": int(placement.count_before.sum())}
+    info: dict[str, Any] = {"n_candidates": int(placement.count_before.sum()),
+                            **({"terrain": terrain.describe()} if terrain is not None else {})}
     if params.instancing:
         keys = [(int(j), int(k)) for j, k in zip(sp, proto_of(cand))]
         used = sorted(set(keys))

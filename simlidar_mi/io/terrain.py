@@ -24,7 +24,8 @@ import numpy as np
 
 from ..errors import ConfigError, SimlidarWarning
 
-__all__ = ["Terrain", "terrain_of", "read_dem", "analytic_terrain", "DEFAULT_EXTENT_M", "FOREST_MARGIN_M"]
+__all__ = ["Terrain", "terrain_of", "ground_height", "read_dem", "analytic_terrain", "relief_m", "check_inside",
+           "DEFAULT_EXTENT_M", "FOREST_MARGIN_M"]
 
 DEFAULT_EXTENT_M = (-50.0, 50.0, -50.0, 50.0)
 FOREST_MARGIN_M = 20.0
@@ -288,6 +289,16 @@ def terrain_of(cfg) -> Terrain | None:
              f"step {t['step_m']:g} m" if t["step_m"] else ""]
     what = "analytic (" + (", ".join(p for p in parts if p) or "flat") + ")"
     return analytic_terrain(extent, t["cell_m"], what, z_m=float(cfg["ground"]["z_m"]), **relief)
+
+
+def ground_height(cfg):
+    """The ground's height function of a scene, ``f(x_m, y_m) -> float64 array``: its
+    terrain's :meth:`Terrain.height_m`, else the ``[ground]`` plane's constant ``z_m``."""
+    terrain = terrain_of(cfg)
+    if terrain is not None:
+        return terrain.height_m
+    z = float(cfg["ground"]["z_m"])
+    return lambda x_m, y_m: np.full(np.broadcast(np.asarray(x_m), np.asarray(y_m)).shape, z)
 
 
 def check_inside(terrain: Terrain, x_m, y_m, what: str, source=None, key: str = "terrain.extent_m") -> None:

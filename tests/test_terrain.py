@@ -51,6 +51,18 @@ def test_a_plane_is_reproduced_exactly_at_any_cell():
     assert t.height_m(0.0, 5.0) == pytest.approx(0.0, abs=1e-12)
 
 
+def test_heights_in_chunks_are_the_heights_at_once(monkeypatch):
+    import simlidar_mi.io.terrain as terrain_module
+    t = analytic_terrain((0, 30, 0, 20), 0.7, hills=[(10.0, 8.0, 4.0, 3.0)], step_m=1.0)
+    x, y = np.meshgrid(np.linspace(-1, 31, 97), np.linspace(-1, 21, 53))
+    whole = t.height_m(x, y)
+    monkeypatch.setattr(terrain_module, "CHUNK", 64)
+    chunked = t.height_m(x, y)
+    assert chunked.shape == x.shape and chunked.tobytes() == whole.tobytes()
+    on = t.contains(x, y)
+    assert np.isnan(whole[~on]).all() and np.isfinite(whole[on]).all() and 0 < on.sum() < on.size
+
+
 def test_heights_interpolate_on_the_meshs_own_triangles():
     t = Terrain(10.0, 20.0, 2.0, 1.0, np.array([[0.0, 4.0], [2.0, 10.0]]))
     # nodes, then the lower-right triangle (00, 10, 11) and the upper-left (00, 11, 01)

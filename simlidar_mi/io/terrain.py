@@ -29,6 +29,8 @@ __all__ = ["Terrain", "terrain_of", "ground_height", "read_dem", "analytic_terra
 
 DEFAULT_EXTENT_M = (-50.0, 50.0, -50.0, 50.0)
 FOREST_MARGIN_M = 20.0
+#: Points :meth:`Terrain.height_m` interpolates at once (its temporaries stay in cache).
+CHUNK = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -90,11 +92,23 @@ class Terrain:
         return i, j, fx - i, fy - j, inside
 
     def height_m(self, x_m, y_m) -> np.ndarray:
-        """Terrain height (float64, metres) under each point (x, y), vectorised; NaN outside
-        :attr:`extent_m`.  Linear on the mesh's triangles (module docstring)."""
+        """Terrain height (float64, metres) under each point (x, y), vectorised (broadcast); NaN
+        outside :attr:`extent_m`.  Linear on the mesh's triangles (module docstring); computed
+        :data:`CHUNK` points at a time (bounded temporaries)."""
+        x, y = np.broadcast_arrays(np.asarray(x_m, np.float64), np.asarray(y_m, np.float64))
+        if x.size <= CHUNK:
+            return self._height(x, y)
+        xf, yf = x.ravel(), y.ravel()
+        out = np.empty(xf.size)
+        for a in range(0, xf.size, CHUNK):
+            out[a:a + CHUNK] = self._height(xf[a:a + CHUNK], yf[a:a + CHUNK])
+        return out.reshape(x.shape)
+
+    def _height(self, x_m, y_m) -> np.ndarray:
         i, j, u, v, inside = self._locate(x_m, y_m)
-        z = self.z_m
-        z00, z10, z01, z11 = z[j, i], z[j, i + 1], z[j + 1, i], z[j + 1, i + 1]
+        nx, zf = self.z_m.shape[1], self.z_m.ravel()
+        k = j * nx + i  # flat gathers: a third of the time of z[j, i]
+        z00, z10, z01, z11 = zf.take(k), zf.take(k + 1), zf.take(k + nx), zf.take(k + nx + 1)
         lower = u >= v  # triangle (00, 10, 11) below the diagonal, else (00, 11, 01)
         h = np.where(lower, z00 + u * (z10 - z00) + v * (z11 - z10),
                      z00 + v * (z01 - z00) + u * (z11 - z01))

@@ -138,3 +138,20 @@ def dbh_m(tree: RandomTree, breast_m: float = BREAST_HEIGHT_M) -> float:
         return float("nan")
     k = np.flatnonzero(on)
     return float(b.diameter[k[np.argmin(np.minimum(z0, z1)[k])]])
+
+
+def crown_bases_m(forest) -> np.ndarray:
+    """(n,) crown base height of each tree of a :class:`~simlidar_mi.forest.stand.Forest` above its
+    trunk foot (:func:`crown_base_m`, instance scale applied)."""
+    if forest.instancing:  # once a prototype (a 300 m stand: 12 a species, not 30 000 trees)
+        per = np.array([crown_base_m(t) for t in forest.prototypes] or [np.nan])
+        return per[forest.prototype] * forest.instance_scale
+    return np.array([crown_base_m(t) for t in forest.trees]) * forest.instance_scale
+
+
+def dbhs_m(forest) -> np.ndarray:
+    """(n,) DBH of each tree of a forest (:func:`dbh_m` at 1.3 m above the placed trunk's foot)."""
+    s = forest.instance_scale
+    if forest.instancing and (s == 1).all():
+        return np.array([dbh_m(t) for t in forest.prototypes] or [np.nan])[forest.prototype]
+    return np.array([dbh_m(forest.local_tree(i), BREAST_HEIGHT_M / s[i]) * s[i] for i in range(len(forest))])

@@ -54,7 +54,7 @@ from ..io.terrain import check_inside, terrain_of
 from ..plants.foliage import needle_area_factor
 from ..plants.random_tree import RandomTree, iter_random_trees, random_tree
 from ..plants.tree_leaves import LeafTable
-from .foliage import BREAST_HEIGHT_M, crown_base_m, crown_hull, dbh_m, foliage_summary, polygon_area_m2
+from .foliage import crown_bases_m, crown_hull, dbhs_m, foliage_summary, polygon_area_m2
 from .params import ForestParams, forest_params_from_scene, prototype_scale, prototype_seed, tree_seed
 from .placement import Placement, crown_overlap_share, place_trees
 from .representation import GROWN_BYTES_PER_TRIANGLE, check_memory, representation
@@ -331,23 +331,12 @@ class Forest:
                 "scale": self.instance_scale.astype(np.float64),
                 "tree_id": np.arange(len(self), dtype=np.int32)}
 
-    def crown_base_m(self) -> np.ndarray:
-        """(n,) crown base height above the trunk foot: the lowest leaf vertex (NaN for a
-        leafless tree), as placed (instance scale applied)."""
-        return np.array([crown_base_m(self.local_tree(i)) for i in range(len(self))]) * self.instance_scale
-
-    def dbh_m(self) -> np.ndarray:
-        """(n,) diameter at breast height (1.3 m above the trunk foot) of the placed trunk: the
-        order-1 segment spanning that height; NaN for a tree whose trunk does not reach it."""
-        s = self.instance_scale
-        return np.array([dbh_m(self.local_tree(i), BREAST_HEIGHT_M / s[i]) * s[i] for i in range(len(self))])
-
     def trees_columns(self) -> dict[str, np.ndarray]:
         """The columns of ``trees.csv``."""
         names = np.array(self.species_names, dtype=object)
         return {"tree_id": np.arange(len(self)), "species": names[self.species] if len(self) else
                 np.zeros(0, object), "x": self.x_m, "y": self.y_m, "z_base_m": self.base_z_m,
-                "height_m": self.height_m, "crown_base_m": self.crown_base_m(), "dbh_m": self.dbh_m(),
+                "height_m": self.height_m, "crown_base_m": crown_bases_m(self), "dbh_m": dbhs_m(self),
                 "n_branches": self.n_branches, "n_leaves": self.n_leaves, "seed": self.geometry_seed,
                 "prototype": self.prototype, "yaw_deg": self.yaw_deg, "scale": self.scale,
                 "crown_radius_m": self.crown_radius_m, "branching": self.branching,

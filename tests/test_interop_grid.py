@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from simlidar_mi.config import load_scene
 from simlidar_mi.truth.grid import VoxelGrid, ascii_text, grid_dataset, grid_values, write_grid
 
 REPO = Path(__file__).resolve().parent.parent
@@ -135,8 +136,10 @@ def test_every_scene_truth_is_cf_classic_and_a_gdal_grid(scene, tmp_path, cf_che
     got = cf_checker(path)
     assert got["errors"] == 0 and got["warnings"] == 0, got["messages"]
     _check_classic_and_ascii(path, tmp_path)
-    _check_gdal(path, "LAD_m2_m3")
-    _check_gdal(path, "PAD_m2_m3")
+    crs = load_scene(REPO / "scenes" / scene)["scene"]["crs"]  # scenes/orchard_on_dem.toml's DEM is in UTM
+    epsg = int(crs.split(":")[1]) if crs else None
+    _check_gdal(path, "LAD_m2_m3", epsg)
+    _check_gdal(path, "PAD_m2_m3", epsg)
 
 
 def test_truth_coordinates_say_what_they_are_in_cf_terms(tmp_path):

@@ -53,6 +53,11 @@ RUNS = {
                                                         "platform.waypoints_m=[[0.5, -0.5, 1.5], [0.5, 1.5, 1.5]]"],
                               "rotating"),
     "static_tripod": ("calibration_cylinder", CALIB_STATIC, "static"),
+    # issue 31: a terrain (UTM DEM with a CRS; Gaussian hills under a forest)
+    "orchard_on_dem": ("orchard_on_dem", ["platform.elevation_deg=[-40.0, 50.0, 2.0]",
+                                          "platform.azimuth_deg=[-60.0, 60.0, 2.0]"], "static"),
+    "forest_hills": ("forest_hills", ["platform.start_xy_m=[20.0, 18.0]", "platform.end_xy_m=[20.0, 22.0]"],
+                     "airborne"),
     "rosette_mid70": ("calibration_cylinder", ['platform.kind="rosette"', "platform.position_m=[1.0, 0.0, 1.0]"],
                       "rosette"),
 }

@@ -74,7 +74,7 @@ RUNS = [
     ("evaluate-photo", lambda o: ["evaluate-photo", "scenes/random_leaves_spherical.toml", "--out", o,
                                   *SMALL_FISHEYE], set()),
     ("photo-gap", lambda o: ["photo-gap", "scenes/photos/strawberry_full_nadir.jpg", "--method", "canopeo",
-                             "--mask-dir", o], set()),
+                             "--out", o], set()),
     # a virtual hemispherical image (the binary PNG `fisheye` writes) stands for a field photo
     ("fisheye-photo", lambda o: ["fisheye-photo", f"{o}_fisheye/fisheye_0.png", "--out", o],
      {"fisheye_photo_lai.csv"}),  # only with --lai

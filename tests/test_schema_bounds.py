@@ -44,6 +44,8 @@ EXAMPLES = {
     "primitive.min_m": [0.0, 0.0, 0.0], "primitive.max_m": [1.0, 1.0, 1.0],
     "species.bumps": [{"C_per_m2": 0.01, "x0_m": 0.0, "y0_m": 0.0, "h_m2": 1.0, "l_m2": 1.0}],
     "orchard.leaves.angle_distribution": [[45.0, 1.0], [90.0, 1.0]],
+    "terrain.extent_m": [-10.0, 10.0, -10.0, 10.0], "terrain.centre_m": [0.0, 0.0],
+    "terrain.hills_m": [[0.0, 0.0, 1.0, 1.0]],
 }
 #: What an [[array]] table needs besides the key under test.
 ARRAY_BASE = {"primitive": {"type": "box", "min_m": [0.0, 0.0, 0.0], "max_m": [1.0, 1.0, 1.0]},

@@ -38,6 +38,7 @@ from ..config import SceneConfig
 from ..errors import ConfigError, SimlidarError
 from ..io.atomic import staged_dir, write_csv, writes_output
 from ..io.exr import header_value, read_exr
+from ..io.terrain import check_inside, terrain_of
 from .fisheye import TABLE_COLUMNS, FisheyeCamera, FisheyeImage, GapTable, make_fisheye, render_fisheye
 
 __all__ = ["CSV_COLUMNS", "FisheyeRun", "fisheye_positions", "fisheye_cameras", "fisheye_scene", "run_fisheye",
@@ -100,7 +101,12 @@ def fisheye_positions(cfg: SceneConfig, lo_m, hi_m) -> np.ndarray:
             p = RandomLeavesParams(r["n_leaves"], r["leaf_area_m2"], tuple(r["plot_size_m"]),
                                    tuple(r["height_range_m"]), r["angle_law"], r["shape"], r["n_sides"])
             z = min(z, float(lo[2]) - BELOW_LEAF_LENGTHS * 2.0 * p.leaf_radius_m)
-    return np.column_stack([xy, np.full(len(xy), z)])
+    z = np.full(len(xy), z)
+    if f["looking"] == "up" and cfg.has("terrain"):  # on a terrain: the same height above it, lens by lens
+        t = terrain_of(cfg)
+        check_inside(t, xy[:, 0], xy[:, 1], "lenses", cfg.source)
+        z += t.height_m(xy[:, 0], xy[:, 1]) - ground
+    return np.column_stack([xy, z])
 
 
 def fisheye_cameras(cfg: SceneConfig, lo_m, hi_m) -> list[FisheyeCamera]:
@@ -201,7 +207,7 @@ def fisheye_scene(cfg: SceneConfig, geometry):
     return build_scene(geometry.branches, geometry.leaves, geometry.primitives,
                        representation=sc["representation"], facets=sc["facets"],
                        origin_m=sc["origin_m"], variant=sc["variant"], source=cfg.source,
-                       instances=geometry.instances)
+                       instances=geometry.instances, terrain=getattr(geometry, "terrain", None))
 
 
 @dataclass

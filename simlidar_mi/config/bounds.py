@@ -157,8 +157,15 @@ BOUNDS: dict[str, tuple[str, str]] = {
     "species.leaf_length_tree_cv": ("[0, 0.3]", "a coefficient of variation of at most 30 %"),
     "species.n_daughters_tree_cv": ("[0, 0.3]", "a coefficient of variation of at most 30 %"),
     "species.leaves_per_branch_tree_cv": ("[0, 0.3]", "a coefficient of variation of at most 30 %"),
-    # [ground], [scan]
+    # [ground], [terrain], [scan]
     "ground.z_m": COORD,
+    "terrain.extent_m": COORD, "terrain.centre_m": COORD, "terrain.hills_m": COORD,
+    "terrain.cell_m": ("(0, 1000]", "metres: a grid cell larger than any plot"),
+    "terrain.slope_deg": ("[0, 89]", "degrees: a vertical wall has no height function"),
+    "terrain.aspect_deg": ANGLE, "terrain.line_azimuth_deg": ANGLE,
+    "terrain.ditch_depth_m": ("[0, 1e4]", "metres: deeper than any ditch"),
+    "terrain.ditch_width_m": ("(0, 1e4]", "metres: wider than any ditch"),
+    "terrain.step_m": ("[-1e4, 1e4]", "metres: higher than any cliff"),
     "scan.x0_m": COORD, "scan.z0_m": COORD, "scan.y_start_m": COORD, "scan.y_end_m": COORD,
     "scan.dy_m": ("(0, 1000]", "metres between sweeps"),
     "scan.gap": ("[0, 1e9]", "sweeps skipped"),

@@ -432,11 +432,13 @@ from .keys_lai import SECTIONS as _LAI  # noqa: E402
 from .keys_orchard import SECTIONS as _ORCHARD  # noqa: E402  ([orchard.leaves]; [orchard] row_spacing_m)
 from .keys_fisheye import SECTIONS as _FISHEYE  # noqa: E402
 from .keys_truth import SECTIONS as _TRUTH  # noqa: E402
+from .keys_terrain import SECTIONS as _TERRAIN  # noqa: E402
 from .keys_vineyard import SECTIONS as _VINEYARD  # noqa: E402
 
 _merge(_ORCHARD)
 _merge(_VINEYARD)
 _merge(_TRUTH)
+_merge(_TERRAIN)
 _merge(_FISHEYE)
 _merge(_LAI)
 

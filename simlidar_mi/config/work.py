@@ -148,6 +148,12 @@ def geometry(cfg, b: Budget) -> None:
         cand = lam * (x1 - x0) * (y1 - y0)  # the thinning's dominating Poisson process
         b.memory(f"{cand:.3g} candidate trees on the {x1 - x0:g} m × {y1 - y0:g} m domain",
                  cand * BYTES_PER_CANDIDATE, ["forest.domain_m"])
+    if cfg.has("terrain") and cfg["terrain"]["file"] is None:  # a DEM's size is its file's
+        t = cfg["terrain"]
+        x0, x1, y0, y1 = t["extent_m"] or ([a + s * 20.0 for a, s in zip(cfg["forest"]["domain_m"], (-1, 1, -1, 1))]
+                                           if cfg.has("forest") else [-50.0, 50.0, -50.0, 50.0])
+        tris = 2.0 * ((x1 - x0) / t["cell_m"] + 2) * ((y1 - y0) / t["cell_m"] + 2)
+        b.memory(f"{tris:.3g} terrain triangles", tris * BYTES_PER_TRIANGLE, ["terrain.cell_m", "terrain.extent_m"])
 
 
 def _render(b: Budget, what: str, views: float, pixels: float, spp: int, factors: list[str],

@@ -17,6 +17,10 @@ crown LAI of a species
 stand LAI
     all leaf area over the domain's area, and over the union of all crown projections
     (rasterised on a ``UNION_CELL_M`` grid).
+crown base, DBH
+    the lowest leaf vertex above the trunk foot; the diameter of the trunk's (order-1)
+    segment that crosses 1.3 m above the foot (NaN where the trunk is shorter; the random
+    trees' trunks are prisms of one diameter a segment, so this is that segment's).
 """
 from __future__ import annotations
 
@@ -111,3 +115,43 @@ def foliage_summary(forest) -> dict:
                            "needle area = half the total needle area a conifer shoot element "
                            "stands for, leaf area/(4·STAR); crown projection = convex hull of "
                            "a tree's leaf centres and branch ends seen from above"}
+
+
+#: Breast height of DBH above the trunk foot, metres (the forestry convention).
+BREAST_HEIGHT_M = 1.3
+
+
+def crown_base_m(tree: RandomTree) -> float:
+    """Lowest leaf vertex above the trunk foot (the tree's own frame); NaN without leaves."""
+    if not len(tree.leaves):
+        return float("nan")
+    return float(tree.leaves.vertices[..., 2].min())
+
+
+def dbh_m(tree: RandomTree, breast_m: float = BREAST_HEIGHT_M) -> float:
+    """Diameter of the trunk (order-1 segments) where it crosses z = ``breast_m`` in the tree's
+    own frame (the lowest such segment); NaN when the trunk does not reach that height."""
+    b = tree.branches
+    z0, z1 = b.p0[:, 2], b.p1[:, 2]
+    on = (b.order == 1) & (np.minimum(z0, z1) <= breast_m) & (np.maximum(z0, z1) > breast_m)
+    if not on.any():
+        return float("nan")
+    k = np.flatnonzero(on)
+    return float(b.diameter[k[np.argmin(np.minimum(z0, z1)[k])]])
+
+
+def crown_bases_m(forest) -> np.ndarray:
+    """(n,) crown base height of each tree of a :class:`~simlidar_mi.forest.stand.Forest` above its
+    trunk foot (:func:`crown_base_m`, instance scale applied)."""
+    if forest.instancing:  # once a prototype (a 300 m stand: 12 a species, not 30 000 trees)
+        per = np.array([crown_base_m(t) for t in forest.prototypes] or [np.nan])
+        return per[forest.prototype] * forest.instance_scale
+    return np.array([crown_base_m(t) for t in forest.trees]) * forest.instance_scale
+
+
+def dbhs_m(forest) -> np.ndarray:
+    """(n,) DBH of each tree of a forest (:func:`dbh_m` at 1.3 m above the placed trunk's foot)."""
+    s = forest.instance_scale
+    if forest.instancing and (s == 1).all():
+        return np.array([dbh_m(t) for t in forest.prototypes] or [np.nan])[forest.prototype]
+    return np.array([dbh_m(forest.local_tree(i), BREAST_HEIGHT_M / s[i]) * s[i] for i in range(len(forest))])

@@ -127,14 +127,16 @@ def write_leaf_tables(path: Path, tables: Iterable[LeafTable], id_name: str, fmt
 
 def _write_trees_csv(path: Path, forest: Forest) -> None:
     c = forest.trees_columns()
-    fmt = {"x": "{:.6f}", "y": "{:.6f}", "height_m": "{:.6f}", "yaw_deg": "{:.6f}",
+    fmt = {"x": "{:.6f}", "y": "{:.6f}", "z_base_m": "{:.6f}", "height_m": "{:.6f}",
+           "crown_base_m": "{:.6f}", "dbh_m": "{:.6f}", "yaw_deg": "{:.6f}",
            "scale": "{:.8f}", "crown_radius_m": "{:.6f}", "branching": "{:.6g}",
            "leaf_area_m2": "{:.6f}", "crown_projection_m2": "{:.6f}", "needle_area_m2": "{:.6f}"}
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(list(c))
         for i in range(len(forest)):
-            w.writerow([fmt[k].format(v[i]) if k in fmt else v[i] for k, v in c.items()])
+            w.writerow(["" if k in fmt and not np.isfinite(v[i]) else fmt[k].format(v[i]) if k in fmt else v[i]
+                        for k, v in c.items()])
 
 
 @dataclass

@@ -3,13 +3,16 @@
 ``run_forest`` (``simlidar-mi forest SCENE.toml --out DIR``) writes into ``DIR``:
 
 ``trees.csv``
-    ``tree_id, species, x, y, height_m, n_branches, n_leaves, seed, prototype,
-    yaw_deg, scale, crown_radius_m, branching, leaf_area_m2, crown_projection_m2``
+    ``tree_id, species, x, y, z_base_m, height_m, crown_base_m, dbh_m, n_branches, n_leaves,
+    seed, prototype, yaw_deg, scale, crown_radius_m, branching, leaf_area_m2, crown_projection_m2``
     (and ``needle_area_m2`` when a species models conifer shoots: see
     :mod:`simlidar_mi.forest.foliage`) (metres, degrees; ``prototype = -1``
-    without instancing; ``height_m`` is the highest z of the tree's branch end points
-    and leaf vertices, ``crown_radius_m`` their largest horizontal distance from the
-    trunk; ``branching`` the L1 flag, 0 or 1, or with ``lateral_branching_per =
+    without instancing; (x, y, ``z_base_m``) is the trunk foot, ``z_base_m`` the terrain height
+    under it (0 without ``[terrain]``); ``height_m`` (total height) is the highest z of the
+    tree's branch end points and leaf vertices above the foot, ``crown_base_m`` the lowest leaf
+    vertex above it (empty for a leafless tree), ``dbh_m`` the trunk's diameter at 1.3 m
+    above the foot (empty where the trunk is shorter), ``crown_radius_m`` the largest
+    horizontal distance of branch ends and leaves from the trunk; ``branching`` the L1 flag, 0 or 1, or with ``lateral_branching_per =
     "branch"`` the share of branches that drew it true). ``seed`` grows exactly the
     placed tree: ``place_tree(random_tree(P, seed), x, y, yaw_deg, scale)``
     (:func:`simlidar_mi.forest.stand.place_tree`; ``P`` the species' parameters, and

@@ -50,10 +50,11 @@ from .._runtime.progress import bar, make_progress
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
+from ..io.terrain import check_inside, terrain_of
 from ..plants.foliage import needle_area_factor
 from ..plants.random_tree import RandomTree, iter_random_trees, random_tree
 from ..plants.tree_leaves import LeafTable
-from .foliage import crown_hull, foliage_summary, polygon_area_m2
+from .foliage import crown_bases_m, crown_hull, dbhs_m, foliage_summary, polygon_area_m2
 from .params import ForestParams, forest_params_from_scene, prototype_scale, prototype_seed, tree_seed
 from .placement import Placement, crown_overlap_share, place_trees
 from .representation import GROWN_BYTES_PER_TRIANGLE, check_memory, representation
@@ -88,12 +89,13 @@ def _placed(t: RandomTree, tr: np.ndarray, yaw: float, s: float, tid: int) -> tu
 
 
 def place_tree(tree: RandomTree, x_m: float, y_m: float, yaw_deg: float = 0.0, scale: float = 1.0,
-               scale_mode: str = "wood", tree_id: int = 0) -> tuple[Branches, Leaves]:
+               scale_mode: str = "wood", tree_id: int = 0, z_m: float = 0.0) -> tuple[Branches, Leaves]:
     """A tree in its own frame placed in the world as a forest places it: a row of ``trees.csv``.
 
     ``scale_mode = "wood"``: ``tree.wood_scaled(scale)`` (leaves keep their size), then
-    turned by ``yaw_deg`` about z and moved to ``(x_m, y_m, 0)``; ``"whole-tree"``:
-    ``(x, y, 0) + Rz(yaw)·(scale·p)`` for every point, leaves included.
+    turned by ``yaw_deg`` about z and moved to ``(x_m, y_m, z_m)``; ``"whole-tree"``:
+    ``(x, y, z) + Rz(yaw)·(scale·p)`` for every point, leaves included.  ``z_m``: the row's
+    ``z_base_m`` (the terrain height under the trunk; 0 without a terrain).
 
     Examples
     --------
@@ -102,11 +104,11 @@ def place_tree(tree: RandomTree, x_m: float, y_m: float, yaw_deg: float = 0.0, s
     ``forest_params_from_scene(cfg).species[j].tree``)::
 
         branches, leaves = place_tree(random_tree(P, seed=row.seed), row.x, row.y,
-                                      row.yaw_deg, row.scale)
+                                      row.yaw_deg, row.scale, z_m=row.z_base_m)
     """
     if scale_mode not in ("wood", "whole-tree"):
         raise ConfigError("must be 'wood' or 'whole-tree'", key="scale_mode", value=scale_mode)
-    tr = np.array([float(x_m), float(y_m), 0.0])
+    tr = np.array([float(x_m), float(y_m), float(z_m)])
     if scale_mode == "wood":
         return _placed(tree.wood_scaled(scale), tr, float(yaw_deg), 1.0, tree_id)
     return _placed(tree, tr, float(yaw_deg), float(scale), tree_id)
@@ -161,11 +163,13 @@ class Forest:
     needle_area_m2: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
     crown_projection_m2: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
     hulls: list = field(repr=False, default=None)  # type: ignore[assignment]
+    base_z_m: np.ndarray = field(repr=False, default=None)  # type: ignore[assignment]
     seconds: dict[str, float] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n = len(self)
+        self.base_z_m = np.zeros(n) if self.base_z_m is None else np.asarray(self.base_z_m, np.float64)
         loc = [self.local_tree(i) for i in range(n)] if self.trees is not None else None
         if self.instancing:
             ph = np.array([t.height_m for t in self.prototypes])
@@ -253,10 +257,11 @@ class Forest:
         return self.placement.species_names
 
     def translation_m(self, i: int | None = None) -> np.ndarray:
-        """Tree foot(s) ``(x, y, 0)``: (3,) for one tree, (n, 3) for all."""
+        """Tree foot(s) ``(x, y, z_base)``: (3,) for one tree, (n, 3) for all; ``z_base`` is the
+        terrain height under the trunk (``base_z_m``; 0 without a terrain)."""
         if i is None:
-            return np.column_stack([self.x_m, self.y_m, np.zeros(len(self))])
-        return np.array([self.x_m[i], self.y_m[i], 0.0])
+            return np.column_stack([self.x_m, self.y_m, self.base_z_m])
+        return np.array([self.x_m[i], self.y_m[i], self.base_z_m[i]])
 
     def local_tree(self, i: int) -> RandomTree:
         """Tree ``i`` in its own frame (its prototype when instancing)."""
@@ -330,7 +335,8 @@ class Forest:
         """The columns of ``trees.csv``."""
         names = np.array(self.species_names, dtype=object)
         return {"tree_id": np.arange(len(self)), "species": names[self.species] if len(self) else
-                np.zeros(0, object), "x": self.x_m, "y": self.y_m, "height_m": self.height_m,
+                np.zeros(0, object), "x": self.x_m, "y": self.y_m, "z_base_m": self.base_z_m,
+                "height_m": self.height_m, "crown_base_m": crown_bases_m(self), "dbh_m": dbhs_m(self),
                 "n_branches": self.n_branches, "n_leaves": self.n_leaves, "seed": self.geometry_seed,
                 "prototype": self.prototype, "yaw_deg": self.yaw_deg, "scale": self.scale,
                 "crown_radius_m": self.crown_radius_m, "branching": self.branching,
@@ -450,7 +456,7 @@ def _resolve(config_or_params, seed) -> tuple[ForestParams, int]:
 
 
 def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed: int | None = None,
-                *, progress: bool = False) -> Forest:
+                *, progress: bool = False, terrain=None) -> Forest:
     """Place and grow a forest.
 
     Order: the candidates of every species arrive in a random order; each one a kept
@@ -466,6 +472,8 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
         or ForestParams.
     seed : master seed (default: the scene's ``scene.seed``; required with ForestParams).
     progress : see :func:`simlidar_mi._runtime.progress.make_progress` (trees, prototypes).
+    terrain : an :class:`~simlidar_mi.io.terrain.Terrain` the trees stand on (each trunk foot at
+        the terrain height under it); default the scene's ``[terrain]``, if any.
 
     Returns
     -------
@@ -484,6 +492,10 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     """
     src = (config_or_params.source if isinstance(config_or_params, SceneConfig) else
            str(config_or_params) if isinstance(config_or_params, (str, Path)) else None)
+    if isinstance(config_or_params, (str, Path)):
+        config_or_params = load_scene(config_or_params)
+    if terrain is None and isinstance(config_or_params, SceneConfig):
+        terrain = terrain_of(config_or_params)
     params, seed = _resolve(config_or_params, seed)
     seconds: dict[str, float] = {}
     t_grow = 0.0
@@ -565,11 +577,16 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
         raise ConfigError(f"the placement holds {n} trees, more than forest.max_trees",
                           key="forest.max_trees", value=params.max_trees)
     sp, cand = placement.species, placement.candidate
+    base_z = None
+    if terrain is not None:
+        check_inside(terrain, placement.x_m, placement.y_m, "trees", src)
+        base_z = terrain.height_m(placement.x_m, placement.y_m)
     seeds = np.array([tree_seed(seed, int(j), int(c)) for j, c in zip(sp, cand)], np.int64)
     seconds["place"] = time.perf_counter() - t0 - t_grow
 
     t0 = time.perf_counter()
-    info: dict[str, Any] = {"n_candidates": int(placement.count_before.sum())}
+    info: dict[str, Any] = {"n_candidates": int(placement.count_before.sum()),
+                            **({"terrain": terrain.describe()} if terrain is not None else {})}
     if params.instancing:
         keys = [(int(j), int(k)) for j, k in zip(sp, proto_of(cand))]
         used = sorted(set(keys))
@@ -603,7 +620,7 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
     stage.close()
     seconds["grow"] = t_grow + time.perf_counter() - t0
     return Forest(params, seed, placement, seeds, prototype, yaw, scale, protos_used, proto_sp,
-                  proto_seed, placed, seconds=seconds, info=info)
+                  proto_seed, placed, base_z_m=base_z, seconds=seconds, info=info)
 
 
 def _check_grown(n_tri: list, params: ForestParams, what: str, src: str | None) -> None:

@@ -42,7 +42,9 @@ def _patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m) -> list:
                             rotating_patterns, static_pattern)
     from .scan import resolve_settings  # noqa: PLC0415
     pf, sc, gr = cfg["platform"], cfg["scan"], cfg["ground"]
-    common = {"footprint": sc["footprint"], "ground": gr["enabled"], "ground_z_m": gr["z_m"],
+    # a [terrain] is the ground (a mesh in the scene): no analytic plane under it
+    common = {"footprint": sc["footprint"], "ground": gr["enabled"] and not cfg.has("terrain"),
+              "ground_z_m": gr["z_m"],
               "source": cfg.source, "max_beams": sc["max_beams"]}
     kind = pf["kind"]
     sensor_rate = cfg["sensor"]["pulse_rate_hz"]
@@ -60,7 +62,7 @@ def _patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m) -> list:
                               file=cfg.source, key="platform.pulse_rate_hz", value=own)
         return own if own is not None else (sensor_rate if sensor_rate > 0 else default)
     if kind == "tractor":
-        return [resolve_settings(sc, gr, lo_m, hi_m, cfg.source, near_x_m, pulse_rate_hz=sensor_rate,
+        return [resolve_settings(sc, dict(gr, enabled=common["ground"]), lo_m, hi_m, cfg.source, near_x_m, pulse_rate_hz=sensor_rate,
                                  speed_m_s=pf["speed_m_s"], dy_given=cfg.gave("scan.dy_m"))]
     if kind == "static":
         az = pf["azimuth_deg"]

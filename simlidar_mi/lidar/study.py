@@ -199,7 +199,8 @@ def run_one(scene: str, overrides: list[str], rows_dir: str | None, readings: bo
     if readings:
         for name, (change, _) in READINGS.items():
             sc = {**cfg["scan"], **change}
-            s = (resolve_settings(sc, cfg["ground"], lo, hi, cfg.source, geometry.near_x_m)
+            s = (resolve_settings(sc, dict(cfg["ground"], enabled=settings.ground), lo, hi, cfg.source,
+                                  geometry.near_x_m)
                  if "theta_limits_side" in change else settings)
             s = replace(s, hit_rule=sc["hit_rule"], footprint=sc["footprint"])
             row[f"A_IM_{name}_m2"] = scan(built, s, cfg["scene"]["variant"]).impacted_area_m2()

@@ -28,6 +28,7 @@ from ..errors import ConfigError, SimlidarWarning
 from ..geometry import Branches, Leaves, Primitive
 from ..io.mesh_import import mesh_drop, primitive_mesh_data, ship_meshes, unship_meshes
 from ..io.atomic import atomic_file, staged_dir, writes_output
+from ..io.terrain import check_inside, terrain_of
 from .scene_counts import generated_line, leaf_triangle_counts, primitive_surfaces, warn_if_unseen
 from .patterns import AIRBORNE_PULSE_RATE_HZ, AIRBORNE_SPEED_M_S, scan_patterns, scanner_positions_m  # noqa: F401
 
@@ -53,6 +54,7 @@ class SceneGeometry:
     instances: object = None  # mitsuba_scene.Instances for instanced forests
     source: str | None = None  # the scene file, for messages
     trees: dict | None = None  # a forest's trees.csv columns (Forest.trees_columns), when it has one
+    terrain: object = None  # io.terrain.Terrain of [terrain] (the ground mesh), None: the [ground] plane
 
     def boxes_m(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned boxes (lo, hi), each (n, 3), of every branch (with radius), leaf
@@ -167,6 +169,7 @@ def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
     t0 = time.perf_counter()
     parts: list[Branches] = []
     leaves, instances, trees = Leaves.empty(), None, None
+    terrain = terrain_of(cfg)
     if cfg.has("orchard") or cfg.has("orchard.tree") or cfg.has("orchard.leaves"):
         from ..plants.apple import AppleTreeParams, orchard  # noqa: PLC0415
         try:
@@ -176,13 +179,16 @@ def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
         o = cfg["orchard"]
         parts.append(orchard(params, n_trees=o["n_trees"], spacing_m=o["spacing_m"],
                              row_x_m=o["row_x_m"], y_start_m=o["y_start_m"], seed=cfg.seed))
+        if terrain is not None:  # each tree's foot at the terrain height under it (before its leaves)
+            ys = o["y_start_m"] + o["spacing_m"] * np.arange(o["n_trees"])
+            parts[-1] = stand_on(parts[-1], terrain, np.full(len(ys), o["row_x_m"]), ys, cfg.source)
         if cfg["orchard.leaves"]["season"] != "dormant":  # dormant: the wood alone, as before
             from ..plants.apple_leaves import orchard_leaves_from_config  # noqa: PLC0415
             leaves = orchard_leaves_from_config(cfg, parts[-1])
     if cfg.has("forest") or cfg.arrays.get("species"):
         from ..forest.stand import make_forest  # noqa: PLC0415
         from ..forest.representation import scene_parts  # noqa: PLC0415
-        forest = make_forest(cfg)
+        forest = make_forest(cfg, terrain=terrain)
         fb, forest_leaves, instances = scene_parts(forest, cfg.source)
         trees = forest.trees_columns()  # arrays only: the Forest itself is freed as before
         parts.append(fb)
@@ -196,12 +202,25 @@ def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
         prims.append(prim)
     if cfg.has("vineyard") or cfg.has("vineyard.canopy"):  # VSP vineyard (plants/vineyard.py)
         from ..plants.vineyard import vineyard_from_config  # noqa: PLC0415
-        vy = vineyard_from_config(cfg)
+        vy = vineyard_from_config(cfg, terrain)
         parts.append(vy.branches)
         leaves = Leaves.concat([leaves, vy.leaves])
         prims += vy.clusters  # grape clusters: cylinder primitives after the file's own
     return SceneGeometry(Branches.concat(parts), leaves, prims, time.perf_counter() - t0, instances,
-                         cfg.source, trees)
+                         cfg.source, trees, terrain)
+
+
+def stand_on(branches: Branches, terrain, x_m, y_m, source=None) -> Branches:
+    """Plants ``tree_id`` = k (feet at (x_m[k], y_m[k], 0)) raised by the terrain height under
+    their feet, so each stands on it; rows of other ids (trellis) stay."""
+    check_inside(terrain, x_m, y_m, "plants", source)
+    dz = terrain.height_m(x_m, y_m)
+    k = branches.tree_id
+    own = (k >= 0) & (k < len(dz))
+    shift = np.zeros(len(k))
+    shift[own] = dz[k[own]]
+    lift = np.column_stack([np.zeros((len(k), 2)), shift])
+    return Branches(branches.p0 + lift, branches.p1 + lift, branches.diameter, branches.order, k)
 
 
 def build(cfg: SceneConfig, geometry: SceneGeometry, patterns: list | None = None):
@@ -223,7 +242,8 @@ def build(cfg: SceneConfig, geometry: SceneGeometry, patterns: list | None = Non
                        representation=sc["representation"], facets=sc["facets"],
                        origin_m=sc["origin_m"], variant=sc["variant"], source=cfg.source,
                        instances=geometry.instances,
-                       scanner_m=np.concatenate(scanner) if scanner else None)
+                       scanner_m=np.concatenate(scanner) if scanner else None,
+                       terrain=geometry.terrain)
 
 
 def warn_scanner_inside_wood(geometry: SceneGeometry, patterns: list) -> int:

@@ -306,20 +306,28 @@ def _cyl(p0, p1, d, order, tid) -> Branches:
                     np.full(n, order, np.int32), np.broadcast_to(np.asarray(tid, np.int32), (n,)).copy())
 
 
-def trellis(P: VineyardParams, r: int) -> Branches:
-    """Posts and wires of row r (``order`` 0, ``tree_id`` −1)."""
+def trellis(P: VineyardParams, r: int, terrain=None) -> Branches:
+    """Posts and wires of row r (``order`` 0, ``tree_id`` −1).  On a ``terrain``
+    (:class:`~simlidar_mi.io.terrain.Terrain`) each post stands at the terrain height under it
+    and each wire runs post to post, one cylinder a bay, at its height above each post's foot."""
     x, y0, L = P.row_x_m(r), P.y_start_m, P.row_length_m
     yp = y0 + L * np.arange(P.n_posts_per_row) / (P.n_posts_per_row - 1)
-    posts = _cyl(np.column_stack([np.full_like(yp, x), yp, np.zeros_like(yp)]),
-                 np.column_stack([np.full_like(yp, x), yp, np.full_like(yp, P.post_height_m)]),
+    zp = np.zeros_like(yp) if terrain is None else terrain.height_m(np.full_like(yp, x), yp)
+    posts = _cyl(np.column_stack([np.full_like(yp, x), yp, zp]),
+                 np.column_stack([np.full_like(yp, x), yp, zp + P.post_height_m]),
                  P.post_diameter_m, ORDER_TRELLIS, TRELLIS_TREE_ID)
     wires = [(x, P.fruiting_wire_height_m)]
     half = 0.5 * P.catch_wire_spacing_m
     wires += [(x + sx, h) for h in P.catch_wire_heights_m for sx in (-half, half)]
     w = np.array(wires)
-    wire = _cyl(np.column_stack([w[:, 0], np.full(len(w), y0), w[:, 1]]),
-                np.column_stack([w[:, 0], np.full(len(w), y0 + L), w[:, 1]]),
-                P.wire_diameter_m, ORDER_TRELLIS, TRELLIS_TREE_ID)
+    if terrain is None:
+        wire = _cyl(np.column_stack([w[:, 0], np.full(len(w), y0), w[:, 1]]),
+                    np.column_stack([w[:, 0], np.full(len(w), y0 + L), w[:, 1]]),
+                    P.wire_diameter_m, ORDER_TRELLIS, TRELLIS_TREE_ID)
+    else:  # wire by wire, bay by bay
+        wire = _cyl(np.concatenate([np.column_stack([np.full(len(yp) - 1, wx), yp[:-1], zp[:-1] + h]) for wx, h in w]),
+                    np.concatenate([np.column_stack([np.full(len(yp) - 1, wx), yp[1:], zp[1:] + h]) for wx, h in w]),
+                    P.wire_diameter_m, ORDER_TRELLIS, TRELLIS_TREE_ID)
     return Branches.concat([posts, wire])
 
 
@@ -405,23 +413,28 @@ def _clusters(P: VineyardParams, node: np.ndarray, psi: np.ndarray, n_sh: int, n
 
 
 def vineyard(params: VineyardParams, seed: int = 0, ground_z_m: float = 0.0,
-             max_elements: int = MAX_ELEMENTS) -> Vineyard:
+             max_elements: int = MAX_ELEMENTS, terrain=None) -> Vineyard:
     """All rows: trellis of each row, then its vines in order (module docstring), standing
     on the ground plane z = ``ground_z_m`` (built at z = 0 and moved, so heights never
-    depend on it).  More than ``max_elements`` cylinders and triangles is refused first."""
+    depend on it), or on a ``terrain`` (:class:`~simlidar_mi.io.terrain.Terrain`; then
+    ``ground_z_m`` is not used): each vine raised whole by the terrain height under its
+    trunk, posts and wires as :func:`trellis` places them.  More than ``max_elements``
+    cylinders and triangles is refused first."""
     params.check_size(max_elements)
     seed = int(seed)
     wood, leaves, tables, clusters = [], [], [], []
     for r in range(params.n_rows):
-        wood.append(trellis(params, r))
+        wood.append(trellis(params, r, terrain))
         for k in range(params.vines_per_row):
-            b, lv, tb, cl = vine(params, r, k, seed)
-            wood.append(b)
-            leaves.append(lv)
-            tables.append(tb)
-            clusters += cl
+            v = Vineyard(*vine(params, r, k, seed))
+            if terrain is not None:
+                v = _raised(v, float(terrain.height_m(params.row_x_m(r), params.vine_y_m(k))))
+            wood.append(v.branches)
+            leaves.append(v.leaves)
+            tables.append(v.leaf_table)
+            clusters += v.clusters
     out = Vineyard(Branches.concat(wood), Leaves.concat(leaves), LeafTable.concat(tables), clusters)
-    return out if ground_z_m == 0 else _raised(out, float(ground_z_m))
+    return out if ground_z_m == 0 or terrain is not None else _raised(out, float(ground_z_m))
 
 
 def _raised(v: Vineyard, dz: float) -> Vineyard:
@@ -447,10 +460,16 @@ def vineyard_params(cfg) -> tuple[VineyardParams, int]:
     return params, limit
 
 
-def vineyard_from_config(cfg) -> Vineyard:
-    """The vineyard of a scene's [vineyard] and [vineyard.canopy] (a ConfigError names the file)."""
+def vineyard_from_config(cfg, terrain=None) -> Vineyard:
+    """The vineyard of a scene's [vineyard] and [vineyard.canopy] (a ConfigError names the
+    file), on ``terrain`` when given (the scene's ``[terrain]``)."""
     params, limit = vineyard_params(cfg)
-    return vineyard(params, cfg.seed, cfg["ground"]["z_m"], limit)
+    if terrain is not None:  # every post and vine must stand on it
+        from ..io.terrain import check_inside  # noqa: PLC0415
+        xs = [params.row_x_m(r) for r in range(params.n_rows)]
+        ys = [params.y_start_m, params.y_start_m + params.row_length_m]
+        check_inside(terrain, np.repeat(xs, 2), np.tile(ys, len(xs)), "vineyard rows", cfg.source)
+    return vineyard(params, cfg.seed, cfg["ground"]["z_m"], limit, terrain)
 
 
 def trellis_mask(branches: Branches) -> np.ndarray:

@@ -35,7 +35,7 @@ import numpy as np
 
 from .._runtime.mitsuba import mitsuba
 from ..errors import ConfigError, SimlidarWarning
-from ..geometry import CLASS_CODES, Branches, Leaves, Primitive
+from ..geometry import CLASS_CODES, NO_ID, Branches, Leaves, Primitive
 from ..io.mesh_import import primitive_mesh_data
 from .prisms import exposed_ends, prism_arrays, prism_mesh
 
@@ -234,7 +234,7 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
                 primitives: list[Primitive] = (), *, representation: str = "mesh",
                 facets: int = 12, origin_m=None, variant: str | None = None,
                 source: str | None = None, instances: Instances | None = None,
-                scanner_m=None) -> BuiltScene:
+                scanner_m=None, terrain=None) -> BuiltScene:
     """Turn plain geometry into a Mitsuba scene for range/coverage integrators.
 
     Parameters
@@ -249,6 +249,9 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     instances : prototypes placed as Mitsuba instances (mesh representation only).
     scanner_m : (n, 3) scanner positions (real coordinates), counted in the default
         origin and in the float32 precision check.
+    terrain : a :class:`~simlidar_mi.io.terrain.Terrain`: its mesh becomes the ground (class
+        ground, no element id), counted in the default origin; scan it with the analytic
+        ground plane off.
     """
     if representation not in REPRESENTATIONS:
         raise ConfigError(f"unknown branch representation; valid: {', '.join(REPRESENTATIONS)}",
@@ -259,9 +262,16 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
     leaves = leaves if leaves is not None else Leaves.empty()
     kept, n_dropped, kept_index = clean_branches(branches)
     prim_meshes = [primitive_mesh(prim, 64, source, j) for j, prim in enumerate(primitives)]
-    origin = _scene_origin(kept, leaves, primitives, prim_meshes, instances, scanner_m, origin_m, source)
+    extra = scanner_m if terrain is None else (terrain.corners_m() if scanner_m is None else np.concatenate(
+        [np.asarray(scanner_m, np.float64).reshape(-1, 3), terrain.corners_m()]))
+    origin = _scene_origin(kept, leaves, primitives, prim_meshes, instances, extra, origin_m, source)
 
     parts = _Shapes()
+    if terrain is not None:  # the ground: one mesh of the terrain grid, recentred in float64
+        v, f = terrain.mesh(origin)
+        parts.shapes["ground_mesh"] = _mi_mesh(mi, "ground_mesh", v, f)
+        parts.groups.append(("ground_mesh", CLASS_CODES["ground"], np.full(len(f), NO_ID, np.uint32)))
+        parts.n_tri += len(f)
     k = int(facets)
     _add_wood(mi, parts, kept, kept_index, origin, representation, k)
     _add_leaves_and_primitives(mi, parts, leaves, primitives, prim_meshes, origin, len(branches))

@@ -233,7 +233,7 @@ def _instances(tot: Totals, inst, prog) -> None:
 
 
 def compute_truth(geometry, grid: VoxelGrid, progress=True, ground_area_m2: float | None = None, *,
-                  crs: str | None = None, ground_z_m: float = 0.0, leaf_pieces=None):
+                  crs: str | None = None, ground_z_m: float = 0.0, leaf_pieces=None, terrain=None):
     """Exact per-voxel leaf area, wood area, wood volume, plant area, LAD and PAD.
 
     ``geometry`` is a :class:`simlidar_mi.lidar.survey.SceneGeometry`; ``grid`` a
@@ -245,7 +245,8 @@ def compute_truth(geometry, grid: VoxelGrid, progress=True, ground_area_m2: floa
     ``[scene] crs``) and ``ground_z_m`` (its ground plane) describe the frame on file
     (:func:`simlidar_mi.truth.grid.grid_dataset`). ``leaf_pieces``: a
     :class:`~simlidar_mi.truth.leaf_g.LeafPieces` on ``grid`` that collects every leaf piece
-    with its normal (for the truth's G along a scan's beams)."""
+    with its normal (for the truth's G along a scan's beams). ``terrain``: the ground
+    (default ``geometry.terrain``, a scene's ``[terrain]``), written as ``terrain_z_m``."""
     prog = make_progress(progress)
     tot = Totals(grid, leaf_pieces)
     if len(geometry.leaves):
@@ -261,10 +262,12 @@ def compute_truth(geometry, grid: VoxelGrid, progress=True, ground_area_m2: floa
         tot.primitive(prim, geometry.source, j)
     if geometry.instances is not None and len(geometry.instances):
         _instances(tot, geometry.instances, prog)
-    return _dataset(tot, grid, ground_area_m2, crs, ground_z_m)
+    if terrain is None:
+        terrain = getattr(geometry, "terrain", None)
+    return _dataset(tot, grid, ground_area_m2, crs, ground_z_m, terrain)
 
 
-def _dataset(tot: Totals, grid: VoxelGrid, ground_area_m2, crs=None, ground_z_m=0.0):
+def _dataset(tot: Totals, grid: VoxelGrid, ground_area_m2, crs=None, ground_z_m=0.0, terrain=None):
     arr = tot.arrays()
     vol = grid.voxel_volume_m3
     # no full-size temporaries: each derived array is the only allocation of its line
@@ -291,7 +294,7 @@ def _dataset(tot: Totals, grid: VoxelGrid, ground_area_m2, crs=None, ground_z_m=
         "wood_end_discs": "exposed ends only (scene.build.exposed_ends), as the scanned mesh caps them",
         **{f"n_{k}": int(v) for k, v in tot.n.items()},  # no timing: same scene → same bytes
     }
-    ds = grid_dataset(grid, arr, attrs, crs=crs, ground_z_m=ground_z_m)
+    ds = grid_dataset(grid, arr, attrs, crs=crs, ground_z_m=ground_z_m, terrain=terrain)
     dz = grid.voxel_m
     ds["LAD_profile_m2_m3"] = ("z", arr["leaf_area_m2"].sum(axis=(0, 1)) / (ground * dz),
                                {"units": "m2 m-3", "long_name": "leaf area per height bin / (ground area * bin height)"})

@@ -76,12 +76,13 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
                    min_points: int = 1, saturated: str = "cap", min_beams: float = MIN_BEAMS,
                    row_spacing_m: float | None = None, row_axis: str = "y", canopy_base: str = "ground",
                    ground_z_m: float = 0.0, progress=None, title: str = "",
-                   extra: dict | None = None, crs: str | None = None, leaf_pieces=None) -> EvaluateRun:
+                   extra: dict | None = None, crs: str | None = None, leaf_pieces=None,
+                   terrain=None) -> EvaluateRun:
     """Run the built-in estimators on ``first`` (and ``multi``) beams, the plug-ins
     (``plugins``: "module:function" specs or callables; ``commands``: command templates,
     which need ``scan_dir``), score all against ``truth`` (a Dataset on ``grid``) and,
     with ``stage`` (a folder), write the files of the module docstring there (``crs``, the
-    scene's, and ``ground_z_m`` describe their frame: :func:`~simlidar_mi.truth.grid.grid_dataset`).
+    scene's, and ``ground_z_m`` or ``terrain`` describe their frame: :func:`~simlidar_mi.truth.grid.grid_dataset`).
     ``leaf_pieces`` (a :class:`~simlidar_mi.truth.leaf_g.LeafPieces` filled by ``compute_truth``):
     the truth's G along these beams is added to ``truth`` (``G_leaf``) and the oracle runs scored."""
     from .leaf_g import LeafG  # noqa: PLC0415
@@ -100,7 +101,7 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
         truth, g_summary = _add_truth_G(truth, grid, leaf_g, estimates, seconds, G)
     if stage is not None:
         grid_file = write_grid(grid_dataset(grid, {}, attrs={"title": "the evaluation's voxel grid"}, crs=crs,
-                                            ground_z_m=ground_z_m), Path(stage) / "grid.nc")
+                                            ground_z_m=ground_z_m, terrain=terrain), Path(stage) / "grid.nc")
     for j, spec in enumerate(plugins):
         f = spec if callable(spec) else load_plugin(spec)
         label = spec if isinstance(spec, str) else getattr(f, "__name__", f"plugin{j}")
@@ -146,11 +147,12 @@ def evaluate_beams(grid: VoxelGrid, truth, first, multi=None, *, stage: Path | N
                if truth_area.sum() > 0 else float("nan"),
                "n_voxels": int(np.prod(grid.shape)), "estimators": {k: BUILTIN.get(k, "plug-in") for k in estimates},
                "envelope": _envelope(grid, truth, estimates["vcp"]["occupied"], row_spacing_m, row_axis,
-                                     canopy_base, ground_z_m)}
+                                     canopy_base, ground_z_m, terrain)}
     summary.update(extra or {})
     run = EvaluateRun(rows, estimates, summary)
     if stage is not None:
-        _write(run, Path(stage), grid, truth, profiles, title, {"crs": crs, "ground_z_m": ground_z_m})
+        _write(run, Path(stage), grid, truth, profiles, title, {"crs": crs, "ground_z_m": ground_z_m,
+                                                                "terrain": terrain})
     return run
 
 
@@ -209,14 +211,14 @@ def _unique(name: str, taken) -> str:
     return out
 
 
-def _envelope(grid, truth, occupied_points, row_spacing_m, row_axis, base, ground_z_m) -> dict:
+def _envelope(grid, truth, occupied_points, row_spacing_m, row_axis, base, ground_z_m, terrain=None) -> dict:
     """Canopy height/width per slice along the row (and TRV, LWA with a row spacing) of the
     truth (voxels holding plant area) and of the point cloud (occupied voxels)."""
     from .row_metrics import canopy_profiles, lwa_m2_ha, trv_m3_ha  # noqa: PLC0415
     var = "plant_area_m2" if "plant_area_m2" in truth else "PAD_m2_m3"
     out = {}
     for label, occ in (("truth", grid_values(truth, var) > 0), ("points", occupied_points > 0)):
-        p = canopy_profiles(occ, grid, row_axis=row_axis, base=base, ground_z_m=ground_z_m)
+        p = canopy_profiles(occ, grid, row_axis=row_axis, base=base, ground_z_m=ground_z_m, terrain=terrain)
         e = {"mean_height_m": p["mean_height_m"], "mean_width_m": p["mean_width_m"]}
         if row_spacing_m is not None:
             e["TRV_m3_ha"] = float(trv_m3_ha(p["mean_height_m"], p["mean_width_m"], row_spacing_m))
@@ -388,7 +390,7 @@ def evaluate(scene, out_dir, overrides=(), *, estimators=(), commands=(), voxel_
                              saturated=saturated, min_beams=min_beams, row_spacing_m=spacing,
                              row_axis=tc["row_axis"], canopy_base=tc["canopy_base"],
                              ground_z_m=cfg["ground"]["z_m"], progress=shown, title=cfg["scene"]["name"],
-                             extra=extra, crs=cfg["scene"]["crs"], leaf_pieces=pieces)
+                             extra=extra, crs=cfg["scene"]["crs"], leaf_pieces=pieces, terrain=geometry.terrain)
     out.files = {n: Path(out_dir) / n for n in ("scores.csv", "scores.json", "profiles.csv", "profiles.png",
                                                 "scatter.png", "truth.nc", "grid.nc", "estimates", "scan")}
     return out

@@ -142,13 +142,16 @@ _COORDS = {
 }
 
 
-def _coordinates(grid: VoxelGrid, ground_z_m: float) -> dict:
+def _coordinates(grid: VoxelGrid, ground_z_m: float, terrain=None) -> dict:
     """x, y, z voxel centres with their CF attributes. (No CF bounds variables: GDAL lists
     them as rasters of their own, and centres +- voxel_m/2 say the same.)"""
     out = {}
     for i, ax in enumerate("xyz"):
         attrs = dict(_COORDS[ax])
-        if ax == "z" and ground_z_m != 0:  # CF "height" is above the surface: not this z
+        if ax == "z" and terrain is not None:  # the ground is the terrain: z is not a height above it
+            del attrs["standard_name"]
+            attrs["long_name"] = "z of the voxel centre (scene frame; the ground is the terrain, variable terrain_z_m)"
+        elif ax == "z" and ground_z_m != 0:  # CF "height" is above the surface: not this z
             del attrs["standard_name"]
             attrs["long_name"] = f"z of the voxel centre (scene frame; the ground plane is z = {ground_z_m:g} m)"
         out[ax] = (ax, grid.centres(i), attrs)
@@ -165,11 +168,13 @@ def grid_mapping(crs: str) -> dict:
 
 def grid_dataset(grid: VoxelGrid, variables: dict[str, np.ndarray], attrs: dict | None = None,
                  units: dict[str, str] | None = None, long_names: dict[str, str] | None = None, *,
-                 crs: str | None = None, ground_z_m: float = 0.0):
+                 crs: str | None = None, ground_z_m: float = 0.0, terrain=None):
     """An xarray Dataset on ``grid`` (module docstring): each variable an array of
     ``grid.shape`` (indexed [i, j, k]), held on (z, y, x) as a transposed view (no copy).
     ``crs``: the scene's ``[scene] crs``, written as a CF grid mapping; ``ground_z_m``: the
-    scene's ground plane, which decides whether z is CF ``height``."""
+    scene's ground plane, which decides whether z is CF ``height``; ``terrain`` (an
+    :class:`~simlidar_mi.io.terrain.Terrain`): the ground instead, written as ``terrain_z_m``
+    (y, x), its height under each voxel column's centre (NaN off the terrain)."""
     import xarray as xr  # noqa: PLC0415 - only truth/evaluate runs pay for it
 
     data = {}
@@ -184,12 +189,18 @@ def grid_dataset(grid: VoxelGrid, variables: dict[str, np.ndarray], attrs: dict 
         if crs is not None:
             va["grid_mapping"] = "crs"
         data[name] = (DIMS, a.transpose(2, 1, 0), va)
+    if terrain is not None:
+        yc, xc = grid.centres(1), grid.centres(0)
+        tz = terrain.height_m(xc[None, :], yc[:, None])
+        data["terrain_z_m"] = (("y", "x"), tz, {"units": "m", "long_name": "terrain height under the voxel "
+                                                "column's centre (the ground; z of the scene frame)",
+                                                **({"grid_mapping": "crs"} if crs is not None else {})})
     if crs is not None:
         data["crs"] = ((), np.int32(0), grid_mapping(crs))
     ga = {"Conventions": "CF-1.8", "grid_corner_m": list(grid.corner_m), "voxel_m": grid.voxel_m,
           "definitions": "; ".join(f"{k}: {v}" for k, v in DEFINITIONS.items())}
     ga.update(attrs or {})
-    return xr.Dataset(data, coords=_coordinates(grid, float(ground_z_m)), attrs=ga)
+    return xr.Dataset(data, coords=_coordinates(grid, float(ground_z_m), terrain), attrs=ga)
 
 
 def grid_values(ds, name: str) -> np.ndarray:

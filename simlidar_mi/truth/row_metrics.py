@@ -61,13 +61,15 @@ def lwa_m2_ha(height_m, row_spacing_m):
 
 
 def canopy_profiles(occupied, grid, row_axis: str = "y", base: str | float = "ground",
-                    ground_z_m: float = 0.0) -> dict:
+                    ground_z_m: float = 0.0, terrain=None) -> dict:
     """Canopy height and width per slice along the row from a (nx, ny, nz) occupancy grid.
 
     ``grid`` is a :class:`~simlidar_mi.truth.grid.VoxelGrid`; ``row_axis`` is 'x' or 'y'
     (the other horizontal axis is across the row). ``base``: 'ground' (heights from
     ``ground_z_m``), 'canopy' (from each slice's lowest occupied voxel) or a number (a
-    fixed z in metres). Returns arrays over the slices: ``along_m`` (slice centres),
+    fixed z in metres); with a ``terrain`` (:class:`~simlidar_mi.io.terrain.Terrain`), 'ground'
+    measures each voxel column's top above the terrain under its centre and a slice's height
+    is the highest of its columns'. Returns arrays over the slices: ``along_m`` (slice centres),
     ``top_m``, ``bottom_m``, ``height_m``, ``width_m``, ``left_m``/``right_m`` (outer
     faces across the row) and ``occupied`` (bool: slice holds anything), plus the means
     over occupied slices ``mean_height_m`` and ``mean_width_m`` (NaN if none).
@@ -106,6 +108,14 @@ def canopy_profiles(occupied, grid, row_axis: str = "y", base: str | float = "gr
             raise ConfigError("canopy base must be 'ground', 'canopy' or a height in metres",
                               key="base", value=base) from None
     height = np.where(has, np.maximum(top - ref, 0.0), nan)
+    if base == "ground" and terrain is not None:
+        col = occ.any(axis=2)  # (along, across) columns holding anything
+        k_col = nz - 1 - np.argmax(occ[:, :, ::-1], axis=2)
+        along_c, across_c = grid.centres(a), grid.centres(c)
+        xy = (along_c[:, None], across_c[None, :]) if a == 0 else (across_c[None, :], along_c[:, None])
+        above = np.where(col, z_edges[k_col + 1] - terrain.height_m(*xy), -np.inf)
+        best = above.max(axis=1)
+        height = np.where(has & np.isfinite(best), np.maximum(best, 0.0), nan)
     left = np.where(has, across_edges[i_lo], nan)
     right = np.where(has, across_edges[i_hi + 1], nan)
     width = right - left

@@ -189,7 +189,7 @@ def run_truth(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
                        ground_z_m=ground_z)
     key = "leaf_area_m2" if t["occupancy"] == "leaf" else "plant_area_m2"
     prof = canopy_profiles(grid_values(ds, key) > 0, grid, t["row_axis"], base=t["canopy_base"],
-                           ground_z_m=ground_z)
+                           ground_z_m=ground_z, terrain=geometry.terrain)
     dim = f"along_{t['row_axis']}"
     ds = ds.assign_coords({dim: (dim, prof["along_m"], {"units": "m", "long_name": "slice centre along the row"})})
     for name, long in (("height_m", "canopy height per slice"), ("width_m", "canopy width across the row")):

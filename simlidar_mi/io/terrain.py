@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, SimlidarWarning
+from ..geometry import Branches
 
 __all__ = ["Terrain", "terrain_of", "ground_height", "read_dem", "analytic_terrain", "relief_m", "check_inside",
            "DEFAULT_EXTENT_M", "FOREST_MARGIN_M"]
@@ -325,3 +326,16 @@ def check_inside(terrain: Terrain, x_m, y_m, what: str, source=None, key: str = 
         raise ConfigError(f"{int(out.sum())} {what} stand outside the terrain (x {x0:.10g}…{x1:.10g}, "
                           f"y {y0:.10g}…{y1:.10g}), the first at ({float(x.flat[k]):.10g}, {float(y.flat[k]):.10g})",
                           file=source, key=key, value=[x0, x1, y0, y1])
+
+
+def stand_on(branches: Branches, terrain, x_m, y_m, source=None) -> Branches:
+    """Plants ``tree_id`` = k (feet at (x_m[k], y_m[k], 0)) raised by the terrain height under
+    their feet, so each stands on it; rows of other ids (trellis) stay."""
+    check_inside(terrain, x_m, y_m, "plants", source)
+    dz = terrain.height_m(x_m, y_m)
+    k = branches.tree_id
+    own = (k >= 0) & (k < len(dz))
+    shift = np.zeros(len(k))
+    shift[own] = dz[k[own]]
+    lift = np.column_stack([np.zeros((len(k), 2)), shift])
+    return Branches(branches.p0 + lift, branches.p1 + lift, branches.diameter, branches.order, k)

@@ -28,7 +28,7 @@ from ..errors import ConfigError, SimlidarWarning
 from ..geometry import Branches, Leaves, Primitive
 from ..io.mesh_import import mesh_drop, primitive_mesh_data, ship_meshes, unship_meshes
 from ..io.atomic import atomic_file, staged_dir, writes_output
-from ..io.terrain import check_inside, terrain_of
+from ..io.terrain import stand_on, terrain_of
 from .scene_counts import generated_line, leaf_triangle_counts, primitive_surfaces, warn_if_unseen
 from .patterns import AIRBORNE_PULSE_RATE_HZ, AIRBORNE_SPEED_M_S, scan_patterns, scanner_positions_m  # noqa: F401
 
@@ -209,18 +209,6 @@ def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
     return SceneGeometry(Branches.concat(parts), leaves, prims, time.perf_counter() - t0, instances,
                          cfg.source, trees, terrain)
 
-
-def stand_on(branches: Branches, terrain, x_m, y_m, source=None) -> Branches:
-    """Plants ``tree_id`` = k (feet at (x_m[k], y_m[k], 0)) raised by the terrain height under
-    their feet, so each stands on it; rows of other ids (trellis) stay."""
-    check_inside(terrain, x_m, y_m, "plants", source)
-    dz = terrain.height_m(x_m, y_m)
-    k = branches.tree_id
-    own = (k >= 0) & (k < len(dz))
-    shift = np.zeros(len(k))
-    shift[own] = dz[k[own]]
-    lift = np.column_stack([np.zeros((len(k), 2)), shift])
-    return Branches(branches.p0 + lift, branches.p1 + lift, branches.diameter, branches.order, k)
 
 
 def build(cfg: SceneConfig, geometry: SceneGeometry, patterns: list | None = None):

@@ -445,6 +445,38 @@ def test_table4_reading_six_plants_of_44_leaves():
     assert np.all(np.abs(areas.mean(0) - PAPER_TABLE4_REAL_M2) < 0.215)  # paper's SD
 
 
+def test_table4_reading_eight_plants_of_table3_leaves():
+    """The other reconstruction of Table 4's virtual canopy, from Table 3's own values only: 8 plants
+    of 42 leaves at S·(1 + 2·S'/S) = 13.025 × 2.836 = 36.94 cm² hold 1.2412 m², and removing 56, 50,
+    56 of those leaves (the field's 44, 39, 44 × 1.27) gives 1.0343, 0.8496, 0.6428: all four values
+    within 0.0008 m².  Our plots hold that leaf per plant (the default plot's mean per plant × 8 is
+    1.241 within 4 SE), so on Table 3's grid the bed carries the paper's own virtual leaf area."""
+    leaf = StrawberryLeafParams().leaf_area_factor * 13.025e-4
+    assert leaf == pytest.approx(36.94e-4, abs=0.005e-4)
+    removed = np.cumsum([0, 56, 50, 56])
+    err = np.abs(8 * 42 * leaf - removed * leaf - np.array(PAPER_TABLE4_VIRTUAL_M2))
+    assert np.all(err < 0.0008) and err.max() > 0.0005
+    per_plant = np.array([p.leaf_area_m2 / p.params.n_plants
+                          for p in (strawberry_plot(seed=s) for s in range(8))])
+    se = per_plant.std(ddof=1) / math.sqrt(len(per_plant))
+    assert abs(8 * per_plant.mean() - PAPER_TABLE4_VIRTUAL_M2[0]) < 4 * 8 * se + 0.01
+
+
+@pytest.mark.parametrize("reading", ["theta", "phi"])
+def test_nadir_projection_share_is_set_by_lambda_and_folds(reading):
+    """G at nadir (the leaves' horizontal projection over their area) is 0.93 under both petiole
+    readings: λ = 10 ± 12° and the folds α, β, γ set it (E[cos λ] = cos 10°·exp(−σ²/2) = 0.963, the
+    folds take 3 % more); the petiole reading moves leaves, not their tilt, so what separates the
+    readings' gap fractions at nadir is the clumping Ω, not G."""
+    lp = StrawberryLeafParams(petiole_zenith=reading)
+    sig = math.radians(12.0)
+    assert math.cos(math.radians(10.0)) * math.exp(-sig**2 / 2) == pytest.approx(0.963, abs=0.001)
+    tri = strawberry_plot(StrawberryPlotParams(leaf=lp), seed=5).leaves.vertices
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    share = np.abs(cross[:, 2]).sum() / np.linalg.norm(cross, axis=1).sum()
+    assert share == pytest.approx(0.930, abs=0.008)
+
+
 # --------------------------------------------------------------------- validation
 @pytest.mark.parametrize("key,value", [
     ("area_mean_m2", float("nan")), ("area_mean_m2", -1e-4), ("area_mean_m2", 0.0),

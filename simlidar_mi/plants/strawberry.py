@@ -28,7 +28,11 @@ every step ((1.241 − 1.034)/44, (1.034 − 0.849)/39, (0.849 − 0.642)/44), s
 ≈ 264 leaves = 6 plants × 44, and with 47.0 cm² a leaf and the paper's removals
 6 × 44 leaves reproduce all four Table 4 values within 0.002 m²; the field's
 44 + 39 + 44 = half gives ≈ 254 leaves, ≈ 6 plants of 42.  Why a virtual leaf was
-47 cm² when Table 3's S makes it 37 cm² the paper does not say.  The gap fraction
+47 cm² when Table 3's S makes it 37 cm² the paper does not say.  Table 3's own values
+reproduce Table 4 as well: 8 plants × 42 leaves × 36.94 cm² = 1.2412 m², and removing
+56, 50, 56 of them (the field's counts × 1.27) leaves 1.0343, 0.8496, 0.6428 (within
+0.0008 m²): one two-row bed of 4 plants a row per 1 m² sample.  Either way a plant
+on Table 3's grid carries the paper's virtual leaf area, as ours do.  The gap fraction
 was measured in "the central part of the row", i.e. over the planted bed, which is
 what an even plot at Table 3's grid models.
 """

@@ -76,8 +76,12 @@ demo: llvm $(STAMP) bytecode
 	$(VENV)/bin/simlidar-mi compare scenes/strawberry_manifest.csv --out $(OUT)/compare
 	@echo "outputs in $(OUT)/"
 
+# The suite runs on TEST_JOBS worker processes (pytest-xdist; 2 for the 2-core CI machine, 0 for
+# one process); tests sharing a module's scan, docs build or Dask cluster stay on one worker
+# (tests/conftest.py). The 20 slowest are listed at the end (CONTRIBUTING.md says why they cost).
+TEST_JOBS ?= 2
 test: llvm test-tools $(VENV)/.installed-test bytecode
-	$(VPY) -m pytest -q
+	$(VPY) -m pytest -q -n $(TEST_JOBS) --dist loadgroup --durations=20
 
 # The documentation (docs/, Sphinx + MyST) with its references generated from the code; any
 # warning (a broken page, reference or generated table) fails the build; -E reads every page

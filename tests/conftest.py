@@ -33,3 +33,39 @@ def cluster():
                     f"{type(exc).__name__}: {exc}")
     with lc:
         yield lc
+
+
+# --- parallel runs (pytest-xdist; `make test` runs `-n 2 --dist loadgroup`) -------------------
+def _module_scoped_group(item) -> str | None:
+    """The test's module when it uses a module-, package- or session-scoped fixture defined in
+    tests/ (a shared scan, a docs build, a Dask cluster): all its tests then go to one worker, so
+    the fixture is built once, not once per worker. None for a test that shares nothing."""
+    info = getattr(item, "_fixtureinfo", None)
+    if info is None:
+        return None
+    for defs in info.name2fixturedefs.values():
+        for d in defs:
+            if d.scope != "function" and d.baseid.startswith("tests"):
+                return item.nodeid.split("::", 1)[0]
+    return None
+
+
+def _whole_covers_quick(items) -> list:
+    """A docs page with a known-slow line is collected twice: `-quick` (its other blocks) and
+    `-whole` (every block, marked slow). When both are selected the whole run checks everything
+    the quick one does, so the quick one is left out (it runs under -m "not slow")."""
+    ids = {item.nodeid for item in items}
+    return [item for item in items
+            if item.nodeid.endswith("-quick]") and item.nodeid[:-len("-quick]")] + "-whole]" in ids]
+
+
+@pytest.hookimpl(trylast=True)  # after -m/-k have deselected: only a selected `-whole` covers
+def pytest_collection_modifyitems(config, items):
+    covered = _whole_covers_quick(items)
+    if covered:
+        config.hook.pytest_deselected(items=covered)
+        items[:] = [item for item in items if item not in covered]
+    for item in items:
+        group = _module_scoped_group(item)
+        if group and item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(group))

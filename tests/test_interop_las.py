@@ -29,6 +29,9 @@ from tests.las_conformance import check_las, wkt_text
 
 CALIB_STATIC = ['platform.kind="static"', "platform.position_m=[1.0, 0.0, 1.0]",
                 "platform.elevation_deg=[-40.0, 30.0, 1.0]", "platform.azimuth_deg=[-20.0, 20.0, 1.0]"]
+#: 2 prototype trees a species, not the airborne scenes' 12: the LAS does not depend on how
+#: many, and drawing 48 trees is about half of such a run.
+FEW_PROTOTYPES = "forest.prototypes_per_species=2"
 #: scene file → (overrides, platform kind).  Every included scene that writes points.las.
 RUNS = {
     "apple_orchard": ("apple_orchard", ["orchard.n_trees=1", "scan.dtheta_deg=1.0", "scan.dy_m=0.05"], "tractor"),
@@ -45,10 +48,12 @@ RUNS = {
     "forest_road_scan": ("forest_road_scan", ["platform.step_m=0.5", "platform.elevation_deg=[-30.0, 60.0, 2.0]"],
                          "path"),
     "forest_airborne": ("forest_airborne", ["platform.start_xy_m=[150.0, 150.0]", "platform.end_xy_m=[150.0, 156.0]",
-                                            "forest.domain_m=[120.0, 180.0, 120.0, 180.0]"], "airborne"),
+                                            "forest.domain_m=[120.0, 180.0, 120.0, 180.0]",
+                                            FEW_PROTOTYPES], "airborne"),
     "forest_airborne_echoes": ("forest_airborne_echoes", ["platform.start_xy_m=[150.0, 150.0]",
                                                           "platform.end_xy_m=[150.0, 152.0]",
-                                                          "forest.domain_m=[120.0, 180.0, 120.0, 180.0]"], "airborne"),
+                                                          "forest.domain_m=[120.0, 180.0, 120.0, 180.0]",
+                                                          FEW_PROTOTYPES], "airborne"),
     "orchard_vlp16_tractor": ("orchard_vlp16_tractor", ["orchard.n_trees=1",
                                                         "platform.waypoints_m=[[0.5, -0.5, 1.5], [0.5, 1.5, 1.5]]"],
                               "rotating"),

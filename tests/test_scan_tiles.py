@@ -18,9 +18,11 @@ from simlidar_mi.lidar.survey import build, generate, prepare_scan, run_scan, sc
 from tests.conftest import SCENES
 
 # A 40 m airborne pass over a 40 m × 40 m corner of the instanced four-species forest
-# (11 trees with leaves): 134 lines × 200 pulses.
+# (11 trees with leaves): 134 lines × 200 pulses; 2 prototype trees a species, not 12 (tiling
+# does not depend on how many; drawing 48 trees is about half of the run).
 AIRBORNE = (SCENES / "forest_airborne.toml",
-            ["forest.domain_m=[40.0, 80.0, 70.0, 110.0]", "platform.pulses_per_line=200",
+            ["forest.domain_m=[40.0, 80.0, 70.0, 110.0]", "forest.prototypes_per_species=2",
+             "platform.pulses_per_line=200",
              "platform.pulse_rate_hz=20000.0", "platform.speed_m_s=30.0",
              "platform.start_xy_m=[60.0, 70.0]", "platform.end_xy_m=[60.0, 110.0]"])
 # A small tractor orchard scan with a real scanner: divergence, echoes, intensity and range

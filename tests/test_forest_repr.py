@@ -159,3 +159,17 @@ def test_canopy_G_is_exact_and_memory_bounded():
         ref = np.mean([np.abs(va @ np.array([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)])).sum()
                        for p in ph]) / np.linalg.norm(va, axis=1).sum()
         assert got == pytest.approx(ref, rel=1e-12)
+
+
+def test_photo_G_counts_the_instanced_trees_leaves():
+    """evaluate-photo's canopy G(θ) of an instanced forest is the G of the stand expanded tree by
+    tree (each prototype weighted by the leaf area its placements hold; the azimuth mean does not
+    see the yaw), not NaN: the instanced trees' leaves are not in the scene's own leaf table."""
+    from simlidar_mi.truth.photo_scores import canopy_G, scene_canopy_G
+    cfg = load_scene(SCENES / "forest_small.toml", [*SMALL, "forest.domain_m=[0.0, 40.0, 0.0, 20.0]"])
+    geo = generate(cfg)
+    assert len(geo.leaves) == 0 and np.bincount(geo.instances.proto_index).max() >= 2  # one placed twice
+    zen = np.array([7.0, 53.0])
+    assert np.isnan(canopy_G(geo.leaves.vertices, zen)).all()      # the scene's own leaves: none
+    _, lv = make_forest(cfg).geometry()
+    np.testing.assert_allclose(scene_canopy_G(geo, zen), canopy_G(lv.vertices, zen), atol=2e-6)

@@ -47,6 +47,25 @@ def test_a_beech_carries_a_few_hundred_square_metres(trees):
     assert 150 < np.mean([t.leaf_table.area_m2.sum() for t in ts]) < 500
 
 
+def test_wood_keeps_its_share_of_the_plant_area(trees):
+    """With foliage 10–60× richer the wood still holds its share α = W/(W + L) of the plant area
+    (W: half the branches' lateral surface, as the truth's PAI counts it): the cited woody shares
+    (Kuusinen et al. 2021: Norway spruce 0.09–0.10, broadleaf 0.12–0.20) where the preset has
+    one, and 0.05–0.3 for every preset (the old presets' wood was ~70 % of the plant area)."""
+    for name, ts in trees.items():
+        alpha = []
+        for t in ts:
+            b = t.branches
+            w = 0.5 * float(np.sum(np.pi * b.diameter * np.linalg.norm(b.p1 - b.p0, axis=1)))
+            alpha.append(w / (w + float(t.leaf_table.area_m2.sum())))
+        a = float(np.mean(alpha))
+        assert 0.05 < a < 0.3, (name, a)
+        cited = SPECIES_FOLIAGE[name].figures.get("wood_share")
+        if cited is not None:
+            lo, hi = cited.value
+            assert lo <= a <= hi, (name, a, cited.value)
+
+
 def test_spruce_shoots_stand_for_their_needles():
     # a flat element of area A: mean silhouette A/2, total needle area A/(2 STAR), LAI half of it
     assert SPECIES_PRESETS["conifer-whorl"].shoot_star == SPECIES_FOLIAGE["conifer-whorl"].star.value

@@ -121,6 +121,19 @@ def test_trees_csv_leaf_area_is_the_leaf_tables(small_run):
     fo = run.summary["foliage"]
     assert fo["leaf_area_m2"] == pytest.approx(la.sum())
     assert fo["lai"] == pytest.approx(la.sum() / 14.0 ** 2)
+    # per species: leaf area a tree and crown LAI over the trees' own crown projections
+    for sp in fo["species"]:
+        own = [r for r in rows if r["species"] == sp["name"]]
+        la_s = sum(float(r["leaf_area_m2"]) for r in own)
+        cp_s = sum(float(r["crown_projection_m2"]) for r in own)
+        assert sp["n_trees"] == len(own) and sp["leaf_area_m2"] == pytest.approx(la_s, rel=1e-6)
+        if own:
+            assert sp["mean_leaf_area_per_tree_m2"] == pytest.approx(la_s / len(own), rel=1e-6)
+            assert sp["crown_lai"] == pytest.approx(la_s / cp_s, rel=1e-6)
+    # the stand over the union of crowns: no more than their sum, no less than the largest
+    cps = [float(r["crown_projection_m2"]) for r in rows]
+    assert max(cps) - 1.0 < fo["crown_union_m2"] <= sum(cps) + 1.0
+    assert fo["lai_over_crowns"] == pytest.approx(fo["leaf_area_m2"] / fo["crown_union_m2"])
     for r in rows:
         f = needle_area_factor(0.16) if r["species"] == "spruce" else 1.0
         assert float(r["needle_area_m2"]) == pytest.approx(f * float(r["leaf_area_m2"]))

@@ -33,7 +33,7 @@ BENCHES: dict[str, list[str]] = {
     "forest_laws": ["bench_forest_laws.py"],                       # §11, forests page tables
     "forest_repr": ["bench_forest_repr.py"],                       # §16
     "forest_repr_seeds": ["bench_forest_repr.py", "--seeds-only", "--modes", "explicit,k12,k4",
-                          "--seeds", "2021,2022,2023"],             # §16 over seeds
+                          "--seeds", "2021,2022,2023,2024"],        # §16 over seeds
     "sensor": ["bench_sensor.py", "--dy", "0.02", "--repeat", "2"],  # §7
     "sensor_readings": ["bench_sensor.py", "--readings", "--dy", "0.02"],  # §7b
     "echo_rules": ["bench_echo_rules.py"],                         # §7c

@@ -29,8 +29,11 @@ BENCHES: dict[str, list[str]] = {
     "table3_cover": ["bench_scan.py", "--only", "table3-cover"],   # §3
     "table3_counts": ["bench_table3_counts.py", "--seeds", "200"],  # §3
     "forest": ["bench_forest.py", "--only", "instanced"],          # §4
-    "forest_counts": ["bench_forest_counts.py", "--seeds", "20"],  # §4 (11)
+    "forest_counts": ["bench_forest_counts.py", "--seeds", "10", "--seed-modes", "poisson"],  # §11
+    "forest_laws": ["bench_forest_laws.py"],                       # §11, forests page tables
     "forest_repr": ["bench_forest_repr.py"],                       # §16
+    "forest_repr_seeds": ["bench_forest_repr.py", "--seeds-only", "--modes", "explicit,k12,k4",
+                          "--seeds", "2021,2022,2023,2024"],        # §16 over seeds
     "sensor": ["bench_sensor.py", "--dy", "0.02", "--repeat", "2"],  # §7
     "sensor_readings": ["bench_sensor.py", "--readings", "--dy", "0.02"],  # §7b
     "echo_rules": ["bench_echo_rules.py"],                         # §7c

@@ -47,6 +47,25 @@ def test_a_beech_carries_a_few_hundred_square_metres(trees):
     assert 150 < np.mean([t.leaf_table.area_m2.sum() for t in ts]) < 500
 
 
+def test_wood_keeps_its_share_of_the_plant_area(trees):
+    """With foliage 10–60× richer the wood still holds its share α = W/(W + L) of the plant area
+    (W: half the branches' lateral surface, as the truth's PAI counts it): the cited woody shares
+    (Kuusinen et al. 2021: Norway spruce 0.09–0.10, broadleaf 0.12–0.20) where the preset has
+    one, and 0.05–0.3 for every preset (the old presets' wood was ~70 % of the plant area)."""
+    for name, ts in trees.items():
+        alpha = []
+        for t in ts:
+            b = t.branches
+            w = 0.5 * float(np.sum(np.pi * b.diameter * np.linalg.norm(b.p1 - b.p0, axis=1)))
+            alpha.append(w / (w + float(t.leaf_table.area_m2.sum())))
+        a = float(np.mean(alpha))
+        assert 0.05 < a < 0.3, (name, a)
+        cited = SPECIES_FOLIAGE[name].figures.get("wood_share")
+        if cited is not None:
+            lo, hi = cited.value
+            assert lo <= a <= hi, (name, a, cited.value)
+
+
 def test_spruce_shoots_stand_for_their_needles():
     # a flat element of area A: mean silhouette A/2, total needle area A/(2 STAR), LAI half of it
     assert SPECIES_PRESETS["conifer-whorl"].shoot_star == SPECIES_FOLIAGE["conifer-whorl"].star.value
@@ -102,6 +121,19 @@ def test_trees_csv_leaf_area_is_the_leaf_tables(small_run):
     fo = run.summary["foliage"]
     assert fo["leaf_area_m2"] == pytest.approx(la.sum())
     assert fo["lai"] == pytest.approx(la.sum() / 14.0 ** 2)
+    # per species: leaf area a tree and crown LAI over the trees' own crown projections
+    for sp in fo["species"]:
+        own = [r for r in rows if r["species"] == sp["name"]]
+        la_s = sum(float(r["leaf_area_m2"]) for r in own)
+        cp_s = sum(float(r["crown_projection_m2"]) for r in own)
+        assert sp["n_trees"] == len(own) and sp["leaf_area_m2"] == pytest.approx(la_s, rel=1e-6)
+        if own:
+            assert sp["mean_leaf_area_per_tree_m2"] == pytest.approx(la_s / len(own), rel=1e-6)
+            assert sp["crown_lai"] == pytest.approx(la_s / cp_s, rel=1e-6)
+    # the stand over the union of crowns: no more than their sum, no less than the largest
+    cps = [float(r["crown_projection_m2"]) for r in rows]
+    assert max(cps) - 1.0 < fo["crown_union_m2"] <= sum(cps) + 1.0
+    assert fo["lai_over_crowns"] == pytest.approx(fo["leaf_area_m2"] / fo["crown_union_m2"])
     for r in rows:
         f = needle_area_factor(0.16) if r["species"] == "spruce" else 1.0
         assert float(r["needle_area_m2"]) == pytest.approx(f * float(r["leaf_area_m2"]))

@@ -173,3 +173,17 @@ def test_an_instanced_forest_reports_the_leaf_triangles_it_places(small):
     assert m["n_branches_placed"] == int(forest.n_branches.sum())
     assert describe(m) == (f"{m['n_leaf_triangles']:,} leaf triangles ({m['n_leaf_triangles']:,} placed by "
                            f"{len(forest):,} instanced trees from {m['n_leaf_triangles_prototypes']:,} built)")
+
+
+def test_photo_G_counts_the_instanced_trees_leaves():
+    """evaluate-photo's canopy G(θ) of an instanced forest is the G of the stand expanded tree by
+    tree (each prototype weighted by the leaf area its placements hold; the azimuth mean does not
+    see the yaw), not NaN: the instanced trees' leaves are not in the scene's own leaf table."""
+    from simlidar_mi.truth.photo_scores import canopy_G, scene_canopy_G
+    cfg = load_scene(SCENES / "forest_small.toml", [*SMALL, "forest.domain_m=[0.0, 40.0, 0.0, 20.0]"])
+    geo = generate(cfg)
+    assert len(geo.leaves) == 0 and np.bincount(geo.instances.proto_index).max() >= 2  # one placed twice
+    zen = np.array([7.0, 53.0])
+    assert np.isnan(canopy_G(geo.leaves.vertices, zen)).all()      # the scene's own leaves: none
+    _, lv = make_forest(cfg).geometry()
+    np.testing.assert_allclose(scene_canopy_G(geo, zen), canopy_G(lv.vertices, zen), atol=2e-6)

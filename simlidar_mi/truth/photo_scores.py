@@ -37,7 +37,7 @@ score the empty sky beside the canopy.
 
 The JSON adds the truth's woody share of the plant area (``wood_to_total_truth``, the α of
 the true-LAI correction) and, per ring, the canopy's exact G(θ) (azimuth mean of Σ a_i|n_i·Ω|/Σ a_i over
-the scene's leaf triangles; instanced trees' leaves are not included), the measured mean
+the scene's leaf triangles, instanced trees' leaves included: :func:`scene_canopy_G`), the measured mean
 gap fraction, the Poisson gap fraction ``exp(−G(θ)·L/cos θ)`` of the truth's plot LAI and
 Nilson's clumping ``Ω(θ) = −ln P(θ)·cos θ/(G(θ)·L)``: the truth's clumping of the rings. Wood
 blocks the sky too, so in a woody canopy that leaf-only Ω can exceed 1; ``omega_nilson_plant``
@@ -73,7 +73,7 @@ from ..io.atomic import atomic_file, staged_dir, write_csv, writes_output
 from .grid import VoxelGrid, grid_values
 from .leaf_g import projection_G
 
-__all__ = ["PhotoRun", "RadialSums", "footprint_index", "canopy_G", "ray_sampler", "fisheye_sampler", "score_positions",
+__all__ = ["PhotoRun", "RadialSums", "footprint_index", "canopy_G", "scene_canopy_G", "ray_sampler", "fisheye_sampler", "score_positions",
            "evaluate_photo", "PHOTO_OUTPUTS", "METHODS"]
 
 PHOTO_OUTPUTS = (r"photo_scores\.(csv|json|png)", r"photo_positions\.csv")
@@ -200,6 +200,37 @@ def canopy_G(triangles: np.ndarray, zenith_deg, n_azimuth: int = 72) -> np.ndarr
     return g.reshape(len(th), n_azimuth).mean(axis=1).reshape(np.shape(zenith_deg))
 
 
+def scene_canopy_G(geometry, zenith_deg, n_azimuth: int = 72) -> np.ndarray:
+    """G(θ) of all a scene's leaves: its own triangles and its instanced trees'.
+
+    An instance turns its prototype about z (yaw) and scales it: the azimuth mean of
+    ``|n·Ω|`` does not depend on the yaw (to the ``n_azimuth`` quadrature's steps) nor on the
+    scale, so each prototype's :func:`canopy_G` enters weighted by the leaf area its placements
+    hold (its area × Σ scale²). The cost grows with the triangles built, not those placed."""
+    parts = []
+    if len(geometry.leaves):
+        v = geometry.leaves.vertices
+        parts.append((_leaf_area(v), canopy_G(v, zenith_deg, n_azimuth)))
+    inst = geometry.instances
+    if inst is not None and len(inst):
+        w = np.bincount(np.asarray(inst.proto_index, np.int64), weights=np.asarray(inst.scale, float) ** 2,
+                        minlength=len(inst.prototypes))
+        for k, (_, lv) in enumerate(inst.prototypes):
+            if w[k] > 0 and lv is not None and len(lv):
+                parts.append((w[k] * _leaf_area(lv.vertices), canopy_G(lv.vertices, zenith_deg, n_azimuth)))
+    total = sum(a for a, _ in parts)
+    if not parts or total <= 0:
+        return np.full(np.shape(zenith_deg), np.nan)
+    if len(parts) == 1:     # a scene without instances: its canopy_G, bit for bit
+        return parts[0][1]
+    return sum(a * g for a, g in parts) / total
+
+
+def _leaf_area(v) -> float:
+    v = np.asarray(v, float).reshape(-1, 3, 3)
+    return float(0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1).sum())
+
+
 def ray_sampler(built, positions_m, n_sectors: int, rays_per_cell: int, seed: int = 0):
     """``sample(rings) -> (gaps (n, R, S), n_per_cell)`` by ray fans (:func:`ring_sampler.ring_sector_gaps`)."""
     def sample(rings):
@@ -231,7 +262,7 @@ def fisheye_sampler(built, cameras, n_sectors: int, *, spp: int = 4, seed: int =
 
 def score_positions(sample, built, positions_m: np.ndarray, settings: dict, *, truth_lai, truth_pai,
                     plot_lai: float, plot_pai: float | None = None, leaf_triangles=None, leaf_groups=None,
-                    transect_x_m=None) -> PhotoRun:
+                    transect_x_m=None, canopy_g=None) -> PhotoRun:
     """Run every method at ``positions_m`` and score them.
 
     ``sample(rings)`` gives each position's gap fraction per ring and sector and the pixels
@@ -241,7 +272,8 @@ def score_positions(sample, built, positions_m: np.ndarray, settings: dict, *, t
     ``truth_lai(position, theta_min_deg, theta_max_deg)`` and ``truth_pai(...)`` give the
     footprint truth;
     ``plot_lai`` is the truth's plot LAI (for G·L and Nilson's Ω); ``leaf_triangles``
-    (and their leaf ``leaf_groups``) give G(θ) and W_p; ``transect_x_m`` = (x0, x1) of the
+    (and their leaf ``leaf_groups``) give G(θ) and W_p; ``canopy_g(zenith_deg)``, when given,
+    gives G(θ) instead (:func:`scene_canopy_G`: with the instanced trees' leaves); ``transect_x_m`` = (x0, x1) of the
     sunfleck transects (one per distinct position y).
     """
     s = settings
@@ -298,7 +330,10 @@ def score_positions(sample, built, positions_m: np.ndarray, settings: dict, *, t
     centres = np.array([0.5 * (a + b) for a, b in rings])
     with np.errstate(invalid="ignore"):
         p_mean = np.nansum(gaps * npix, axis=(0, 2)) / npix.sum(axis=(0, 2))
-    G = canopy_G(leaf_triangles, centres) if leaf_triangles is not None else np.full(len(rings), np.nan)
+    if canopy_g is not None:
+        G = canopy_g(centres)
+    else:
+        G = canopy_G(leaf_triangles, centres) if leaf_triangles is not None else np.full(len(rings), np.nan)
     cos_c = np.cos(np.radians(centres))
     pai = plot_lai if plot_pai is None else plot_pai
     # Plant G: the wood's half-surface counts with G = 0.5 (random cylinders; truth.leaf_g).
@@ -477,7 +512,8 @@ def evaluate_photo(scene, out_dir, overrides=(), *, progress=False) -> PhotoRun:
         run = score_positions(sample, built, positions, s, truth_lai=truth_lai, truth_pai=truth_pai,
                               plot_lai=plot_lai, plot_pai=plot_pai,
                               leaf_triangles=lv.vertices if len(lv) else None,
-                              leaf_groups=groups, transect_x_m=(bounds[0], bounds[2]))
+                              leaf_groups=groups, transect_x_m=(bounds[0], bounds[2]),
+                              canopy_g=lambda zen: scene_canopy_G(geometry, zen))
         run.summary.update({"scene": cfg.source, "scene_sha256": cfg.sha256, "seed": cfg.seed,
                             "periodic": periodic, "sensor_z_m": z_s,
                             # the α a user would need: the wood's share of the plant area

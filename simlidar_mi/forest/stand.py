@@ -47,6 +47,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from .._runtime.progress import bar, make_progress
+from .._runtime.threads import ordered_map
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
@@ -193,7 +194,7 @@ class Forest:
     def _foliage(self, local, local_species, p) -> None:
         """Per-tree leaf and needle area and crown projection from the ``local`` trees
         (prototypes or trees; tree ``i`` is ``local[p[i]]``, scaled by its instance scale)."""
-        hulls = [crown_hull(t) for t in local]
+        hulls = list(ordered_map(crown_hull, local))  # qhull frees the GIL: two at a time
         la = np.array([float(t.leaf_table.area_m2.sum()) for t in local])
         nf = np.array([needle_area_factor(self.params.species[int(j)].tree.shoot_star)
                        for j in local_species])

@@ -546,6 +546,11 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
             proto_r[(j, k)], n_tri[("p", j, k)] = t.crown_radius_m, len(t.leaves)
             if fixed_k is not None:
                 kept_protos[(j, k)] = t
+        if fixed_k is not None and ks:  # the K × species prototypes the thinning keeps, projected
+            # from those grown so far: refused after the first batch, not after all of them
+            known = [n for (kind, _, _), n in n_tri.items() if kind == "p"]
+            _check_grown(known + [None] * (fixed_k * len(params.species) - len(known)), params,
+                         "its prototypes", src)
         r = np.array([proto_r[(j, int(k))] for k in proto_of(idx)])
         if whole:   # each tree's scale comes from its own seed (after its yaw)
             r = r * np.array([_yaw_scale(tree_seed(seed, j, int(i)), lo, hi)[1] for i in idx])

@@ -163,4 +163,4 @@ def test_a_mesh_error_stops_the_leaf_table_thread_and_is_the_one_raised(tmp_path
     with pytest.raises(RuntimeError, match="disk full"):
         run_forest(SCENE, tmp_path / "out", SMALL + ["forest.instancing=false"], parallel=False)
     assert list(tmp_path.iterdir()) == []
-    assert 1 <= len(seen) <= 2   # stopped at its next table, not after all the stand's trees
+    assert len(seen) <= 2   # stopped at its next table (or before its first), not after all the trees

@@ -128,3 +128,39 @@ def test_prototype_mesh_in_its_own_frame_is_the_bytes_of_the_identity_transform(
     first_leaf = a.index(b"end_header\n") + 11 + 12 * 2 * 6 * len(t.branches)
     v = np.frombuffer(a, "<f4", 3, first_leaf)
     assert v.tolist() == [0.0, 0.5, 0.0] and not np.signbit(v).any()
+
+
+def test_meshes_written_in_small_blocks_are_the_bytes_of_one_block(runs, tmp_path, monkeypatch):
+    """The PLY writer converts and writes vertices and faces in blocks, and a prototype's leaf
+    vertices come in blocks: the file is the bytes of writing each tree whole."""
+    import simlidar_mi.io.mesh_export as mesh_mod  # noqa: PLC0415
+    forest = runs[0].forest
+    p = forest.prototypes[0]
+    for stand_of in (lambda: _Stand(1, lambda i: p, None, lambda i: None), lambda: _Stand.of(forest)):
+        whole = _write_mesh(stand_of(), tmp_path / "whole.ply", "ply", 6, False, ["x"]).read_bytes()
+        with monkeypatch.context() as m:
+            m.setattr(mesh_mod, "_WRITE_BLOCK", 7)
+            m.setattr(outputs_mod, "_MESH_BLOCK", 5)
+            small = _write_mesh(stand_of(), tmp_path / "small.ply", "ply", 6, False, ["x"]).read_bytes()
+        assert small == whole and len(whole) > 100_000
+    assert len(p.leaves) > 3 * 5
+
+
+def test_a_mesh_error_stops_the_leaf_table_thread_and_is_the_one_raised(tmp_path, monkeypatch):
+    seen = []
+
+    def slow_tables(path, tables, id_name, fmt):   # counts the tables the thread took
+        for t in tables:
+            seen.append(len(t))
+            import time  # noqa: PLC0415
+            time.sleep(0.05)
+        raise AssertionError("the tables ran to their end")
+
+    def boom(*a, **k):
+        raise RuntimeError("disk full")
+    monkeypatch.setattr("simlidar_mi.forest.run.write_leaf_tables", slow_tables)
+    monkeypatch.setattr("simlidar_mi.forest.run.write_stand", boom)
+    with pytest.raises(RuntimeError, match="disk full"):
+        run_forest(SCENE, tmp_path / "out", SMALL + ["forest.instancing=false"], parallel=False)
+    assert list(tmp_path.iterdir()) == []
+    assert len(seen) <= 2   # stopped at its next table (or before its first), not after all the trees

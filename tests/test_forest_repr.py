@@ -187,3 +187,22 @@ def test_photo_G_counts_the_instanced_trees_leaves():
     assert np.isnan(canopy_G(geo.leaves.vertices, zen)).all()      # the scene's own leaves: none
     _, lv = make_forest(cfg).geometry()
     np.testing.assert_allclose(scene_canopy_G(geo, zen), canopy_G(lv.vertices, zen), atol=2e-6)
+
+
+def test_prototypes_over_the_limit_are_refused_after_the_first_batch(monkeypatch):
+    """A fixed K keeps every prototype the thinning grows: the K × species it will hold are
+    projected from the first batch and refused then, not after all of them are grown."""
+    import simlidar_mi.forest.stand as stand_mod  # noqa: PLC0415
+    grown = []
+    real = stand_mod.iter_random_trees
+
+    def counted(*a, **k):
+        for t in real(*a, **k):
+            grown.append(len(t.leaves))
+            yield t
+    monkeypatch.setattr(stand_mod, "iter_random_trees", counted)
+    cfg = load_scene(SCENES / "forest_small.toml", SMALL + ["forest.memory_limit_gb=1e-4"])
+    with pytest.raises(ConfigError, match=r"the forest \(8 of its prototypes") as e:
+        make_forest(cfg)
+    assert e.value.key == "forest.memory_limit_gb"
+    assert 1 <= len(grown) <= 2   # one species' batch of K = 2, of the 4 × 2 the forest would keep

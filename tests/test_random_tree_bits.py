@@ -218,3 +218,30 @@ def test_trees_grown_together_name_the_first_tree_that_grows_too_many():
         random_tree(Pc, first, tree_id=first)
     with pytest.raises(ConfigError, match=f"tree {first} grows more than {cap}"):
         list(iter_random_trees(Pc, range(12)))
+
+
+def test_leaves_made_in_blocks_are_the_leaves_made_at_once(monkeypatch):
+    """_make_leaves works _LEAF_BLOCK leaves at a time: blocks of 7 give the bits of one pass."""
+    import simlidar_mi.plants.tree_leaves as tl  # noqa: PLC0415
+    for name, shape in (("deciduous-apex", "rhombus"), ("conifer-whorl", "ellipse")):
+        P = dataclasses.replace(SPECIES_PRESETS[name], leaf_shape=shape)
+        one = random_tree(P, 3)
+        monkeypatch.setattr(tl, "_LEAF_BLOCK", 7)
+        blocks = random_tree(P, 3)
+        monkeypatch.undo()
+        assert len(one.leaf_table) > 7 * 10
+        assert _tree_bytes(one) == _tree_bytes(blocks)
+        assert one.leaf_xy2_max_m2 == blocks.leaf_xy2_max_m2
+
+
+def test_trees_finished_on_two_threads_are_the_trees_finished_in_turn(monkeypatch):
+    from simlidar_mi._runtime import threads  # noqa: PLC0415
+    P = SPECIES_PRESETS["deciduous-apex"]
+    seeds = [4, 40, 400, 4000, 7]
+    monkeypatch.setattr(threads, "usable_cores", lambda: 2)
+    two = [_tree_bytes(t) for t in iter_random_trees(P, seeds)]
+    monkeypatch.setattr(threads, "usable_cores", lambda: 1)
+    assert two == [_tree_bytes(t) for t in iter_random_trees(P, seeds)]
+    assert list(threads.ordered_map(lambda x: x * x, range(9), 2)) == [x * x for x in range(9)]
+    with pytest.raises(ZeroDivisionError):
+        list(threads.ordered_map(lambda x: 1 // (x - 5), range(9), 2))

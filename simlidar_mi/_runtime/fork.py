@@ -27,6 +27,7 @@ from contextlib import nullcontext
 from typing import Any, Callable
 
 from ..errors import SimlidarError
+from .threads import usable_cores
 
 
 def use_fork(parallel: bool | None) -> bool:
@@ -37,8 +38,7 @@ def use_fork(parallel: bool | None) -> bool:
         return False
     if parallel:
         return True
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    return cores >= 2
+    return usable_cores() >= 2
 
 
 #: Test hook: an inherited file descriptor; a forked child writes its pid there, then waits to

@@ -158,6 +158,9 @@ class _Stand:
                    (lambda i: int(forest.prototype[i])) if forest.instancing else (lambda i: None))
 
 
+_MESH_BLOCK = 1 << 16   # leaf triangles a mesh chunk: its temporaries stay small (BENCHMARKS.md §16)
+
+
 def _write_mesh(stand: _Stand, path: Path, fmt: str, facets: int, progress: bool,
                 comments: list[str], atomic: bool = True) -> Path:
     k = int(facets)
@@ -171,30 +174,41 @@ def _write_mesh(stand: _Stand, path: Path, fmt: str, facets: int, progress: bool
             return v + 0.0
         return _place(v, *stand.place(i))
 
-    def mesh(i: int) -> tuple[np.ndarray, np.ndarray]:
-        """World vertices of tree ``i``: wood prisms, leaf triangles (3 per triangle)."""
+    def wood_of(i: int) -> np.ndarray:
+        """Tree ``i``'s wood prisms in its own frame (built once per prototype)."""
         t, key = stand.local(i), stand.key(i)
         wood = cache.get(key) if key is not None else None
         if wood is None:
             wood = prism_tubes(t.branches, k)
             if key is not None:
                 cache[key] = wood
-        return placed(i, wood), placed(i, t.leaves.vertices.reshape(-1, 3))
+        return wood
+
+    def leaf_chunks(i: int) -> Iterator[np.ndarray]:
+        """Tree ``i``'s placed leaf vertices (3 per triangle): in blocks in its own frame (the
+        + 0 is per element), whole when placed (one BLAS product, as the bits were checked)."""
+        v = stand.local(i).leaves.vertices.reshape(-1, 3)
+        step = len(v) if stand.place is not None else 3 * _MESH_BLOCK
+        for a in range(0, len(v), max(step, 1)):
+            yield placed(i, v[a:a + step])
 
     if fmt == "ply":
         def verts() -> Iterator[np.ndarray]:
             for i in _bar(range(n), progress, path.name, total=n):
-                yield from mesh(i)
+                yield placed(i, wood_of(i))
+                yield from leaf_chunks(i)
 
         def faces() -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
             off = 0
             for i in range(n):
                 b, ntri = int(nb[i]), int(nt[i])
-                f = np.concatenate([tube_faces(b, k, off),
-                                    off + 2 * k * b + np.arange(3 * ntri, dtype=np.int64).reshape(-1, 3)])
-                part = np.concatenate([np.full(2 * k * b, PART_WOOD, np.uint8),
-                                       np.full(ntri, PART_LEAVES, np.uint8)])
-                yield f, part, np.full(len(f), i, np.int32)
+                f = tube_faces(b, k, off)
+                yield f, np.full(len(f), PART_WOOD, np.uint8), np.full(len(f), i, np.int32)
+                first = off + 2 * k * b
+                for a in range(0, ntri, _MESH_BLOCK):   # leaf triangles: 3 own vertices each
+                    m = min(_MESH_BLOCK, ntri - a)
+                    f = first + 3 * a + np.arange(3 * m, dtype=np.int64).reshape(-1, 3)
+                    yield f, np.full(m, PART_LEAVES, np.uint8), np.full(m, i, np.int32)
                 off += 2 * k * b + 3 * ntri
 
         return write_ply_stream(path, int((2 * k * nb + 3 * nt).sum()), int((2 * k * nb + nt).sum()),
@@ -202,7 +216,7 @@ def _write_mesh(stand: _Stand, path: Path, fmt: str, facets: int, progress: bool
     if fmt == "obj":
         def wood() -> Iterator[tuple[np.ndarray, np.ndarray]]:
             for i in _bar(range(n), progress, path.name, total=n):
-                yield mesh(i)[0], tube_faces(int(nb[i]), k)
+                yield placed(i, wood_of(i)), tube_faces(int(nb[i]), k)
 
         def leaves() -> Iterator[tuple[np.ndarray, np.ndarray]]:
             for i in range(n):

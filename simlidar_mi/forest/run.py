@@ -57,7 +57,7 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Iterator, Sequence
 
 from .._runtime.fork import Forked, use_fork
 from .._runtime.progress import make_progress
@@ -119,6 +119,46 @@ def _resolve_modes(forest: Forest, f: dict, src: str, where=None) -> tuple[str, 
     return leaf_mode, export
 
 
+class _Beside:
+    """``fn(*args)`` run in a thread while this one does other work; ``wait()`` gives its result
+    and seconds or raises its exception. Its ``tables`` iterable (the third argument) stops at
+    the next table once :meth:`stop` is called (this thread failed or was interrupted)."""
+
+    def __init__(self, fn, path: Path, tables: Iterable, *args) -> None:
+        import threading  # noqa: PLC0415
+        self._stop = threading.Event()
+        self._out: list = []
+
+        def run() -> None:
+            t0 = time.perf_counter()
+            try:
+                self._out.append((fn(path, self._until(tables), *args), time.perf_counter() - t0))
+            except BaseException as e:  # noqa: BLE001  (handed to wait())
+                self._out.append(e)
+
+        self._thread = threading.Thread(target=run, name="simlidar-forest-tables", daemon=True)
+        self._thread.start()
+
+    def _until(self, tables: Iterable) -> Iterator:
+        for t in tables:
+            if self._stop.is_set():
+                raise ConfigError("stopped: the forest run failed beside it", key="forest.leaf_table")
+            yield t
+
+    def wait(self) -> tuple[Any, float]:
+        self._thread.join()
+        out = self._out[0]
+        if isinstance(out, BaseException):
+            raise out
+        return out
+
+    def stop(self) -> None:
+        """This thread failed: the other stops at its next table and is waited for (its own
+        error, if any, is dropped: this thread's is the one to report)."""
+        self._stop.set()
+        self._thread.join()
+
+
 def _draw_pictures(forest: Forest, stage: Path, max_trees: int) -> float:
     t0 = time.perf_counter()
     plot_layout(forest, stage / "layout.png")
@@ -177,10 +217,12 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
         if pictures.child is not None:
             blas.enter_context(_one_blas_thread())
         try:
-            t0 = time.perf_counter()
             _write_trees_csv(stage / "trees.csv", forest)
             files["trees"] = out / "trees.csv"
             rows = 0
+            # the leaf table (zstd in pyarrow) is written in a thread beside the meshes: both
+            # free the GIL for most of their time (BENCHMARKS.md §16)
+            tables_job = None
             if leaf_mode != "none":
                 if leaf_mode == "all":
                     name, id_name = f"leaves.{ext}", "tree_id"
@@ -189,20 +231,26 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
                 else:
                     name, id_name = f"prototype_leaves.{ext}", "prototype"
                     tables = (t.leaf_table for t in forest.prototypes)
-                rows = write_leaf_tables(stage / name, tables, id_name, ext)
+                tables_job = _Beside(write_leaf_tables, stage / name, tables, id_name, ext)
                 files["leaves"] = out / name
-            seconds["tables"] = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            fmt, k = f["export_format"], f["export_facets"]
-            if export == "stand":
-                write_stand(forest, stage / f"stand.{fmt}", fmt, k, progress)
-                files["stand"] = out / f"stand.{fmt}"
-            elif export == "prototypes":
-                with make_progress(progress).stage("prototype meshes", unit="mesh") as st:
-                    _write_prototype_meshes(forest, stage / "prototypes", fmt, k)
-                    st.update(len(forest.prototypes))
-                files["prototypes"] = out / "prototypes"
-            seconds["export"] = time.perf_counter() - t0
+            try:
+                t0 = time.perf_counter()
+                fmt, k = f["export_format"], f["export_facets"]
+                if export == "stand":
+                    write_stand(forest, stage / f"stand.{fmt}", fmt, k, progress)
+                    files["stand"] = out / f"stand.{fmt}"
+                elif export == "prototypes":
+                    with make_progress(progress).stage("prototype meshes", unit="mesh") as st:
+                        _write_prototype_meshes(forest, stage / "prototypes", fmt, k)
+                        st.update(len(forest.prototypes))
+                    files["prototypes"] = out / "prototypes"
+                t_export = time.perf_counter() - t0
+            except BaseException:
+                if tables_job is not None:
+                    tables_job.stop()
+                raise
+            rows, t_tables = tables_job.wait() if tables_job is not None else (0, 0.0)
+            seconds["tables"], seconds["export"] = t_tables, t_export  # each its own time
             t0 = time.perf_counter()
             with make_progress(progress).stage("pictures", 2, "picture") as st:
                 seconds["plots"] = pictures.wait()  # the drawing's own time

@@ -47,6 +47,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from .._runtime.progress import bar, make_progress
+from .._runtime.threads import ordered_map
 from ..config import SceneConfig, load_scene
 from ..errors import ConfigError
 from ..geometry import Branches, Leaves
@@ -197,7 +198,7 @@ class Forest:
     def _foliage(self, local, local_species, p) -> None:
         """Per-tree leaf and needle area and crown projection from the ``local`` trees
         (prototypes or trees; tree ``i`` is ``local[p[i]]``, scaled by its instance scale)."""
-        hulls = [crown_hull(t) for t in local]
+        hulls = list(ordered_map(crown_hull, local))  # qhull frees the GIL: two at a time
         la = np.array([float(t.leaf_table.area_m2.sum()) for t in local])
         nf = np.array([needle_area_factor(self.params.species[int(j)].tree.shoot_star)
                        for j in local_species])
@@ -557,6 +558,11 @@ def make_forest(config_or_params: SceneConfig | ForestParams | str | Path, seed:
             proto_r[(j, k)], n_tri[("p", j, k)] = t.crown_radius_m, len(t.leaves)
             if fixed_k is not None:
                 kept_protos[(j, k)] = t
+        if fixed_k is not None and ks:  # the K × species prototypes the thinning keeps, projected
+            # from those grown so far: refused after the first batch, not after all of them
+            known = [n for (kind, _, _), n in n_tri.items() if kind == "p"]
+            _check_grown(known + [None] * (fixed_k * len(params.species) - len(known)), params,
+                         "its prototypes", src)
         r = np.array([proto_r[(j, int(k))] for k in proto_of(idx)])
         if whole:   # each tree's scale comes from its own seed (after its yaw)
             r = r * np.array([_yaw_scale(tree_seed(seed, j, int(i)), lo, hi)[1] for i in idx])

@@ -38,6 +38,7 @@ __all__ = ["PART_WOOD", "PART_LEAVES", "PlyMesh", "prism_tubes", "tube_faces", "
 
 PART_WOOD = 0
 PART_LEAVES = 1
+_WRITE_BLOCK = 1 << 16   # rows converted and written at a time
 FACE_DTYPE = np.dtype([("n", "u1"), ("v", "<i4", (3,)), ("part", "u1"), ("tree_id", "<i4")])
 
 
@@ -120,18 +121,28 @@ def write_ply_stream(path: str | Path, n_vertices: int, n_faces: int,
     with atomic_file(path) if atomic else contextlib.nullcontext(path) as tmp, open(tmp, "wb") as fh:
         fh.write(_header(n_vertices, n_faces, comments))
         nv = nf = 0
+        # converted and written _WRITE_BLOCK rows at a time into buffers used again: a whole
+        # chunk's float32 copy and face records were fresh pages the kernel zeroed first
+        vbuf, rec = np.empty((_WRITE_BLOCK, 3), "<f4"), np.empty(_WRITE_BLOCK, FACE_DTYPE)
+        rec["n"] = 3
         for v in vertex_chunks:
-            v = np.asarray(v, "<f4").reshape(-1, 3)
-            fh.write(v.tobytes())
+            v = np.asarray(v).reshape(-1, 3)
+            for a in range(0, len(v), _WRITE_BLOCK):
+                m = min(_WRITE_BLOCK, len(v) - a)
+                np.copyto(vbuf[:m], v[a:a + m], casting="unsafe")  # float64 → float32 as astype
+                fh.write(vbuf[:m].data)
             nv += len(v)
         for faces, part, tree_id in face_chunks:
-            rec = np.empty(len(faces), FACE_DTYPE)
-            rec["n"] = 3
-            rec["v"] = faces
-            rec["part"] = part
-            rec["tree_id"] = tree_id
-            fh.write(rec.tobytes())
-            nf += len(rec)
+            faces = np.asarray(faces).reshape(-1, 3)
+            part, tree_id = np.broadcast_to(part, len(faces)), np.broadcast_to(tree_id, len(faces))
+            for a in range(0, len(faces), _WRITE_BLOCK):
+                m = min(_WRITE_BLOCK, len(faces) - a)
+                r = rec[:m]
+                r["v"] = faces[a:a + m]
+                r["part"] = part[a:a + m]
+                r["tree_id"] = tree_id[a:a + m]
+                fh.write(r.tobytes())
+            nf += len(faces)
         if (nv, nf) != (n_vertices, n_faces):
             raise ConfigError(f"wrote {nv} vertices and {nf} faces, header says {n_vertices} "
                               f"and {n_faces}", key="ply counts", value=(nv, nf))

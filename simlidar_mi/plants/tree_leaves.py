@@ -105,17 +105,18 @@ def ellipse_fan(centre: np.ndarray, head: np.ndarray, side: np.ndarray, half_l: 
 
 
 def _ellipse_fan_t(centre: np.ndarray, head: np.ndarray, side: np.ndarray, half_l: np.ndarray,
-                   half_w: np.ndarray, k: int) -> np.ndarray:
+                   half_w: np.ndarray, k: int, out: np.ndarray | None = None) -> np.ndarray:
     """:func:`ellipse_fan` from (3, n) columns and (n,) half axes (same vertex arithmetic).
 
-    Returns the triangles and the (3, k+1, n) polygon vertices.
+    Returns the triangles (written into ``out``, (n, k, 3, 3), when given) and the
+    (3, k+1, n) polygon vertices.
     """
     n = centre.shape[1]
     a = 2 * np.pi * np.arange(k + 1) / k
     ca, sa = np.cos(a)[:, None], np.sin(a)[:, None]
     ring = (centre[:, None, :] + (ca * half_l)[None] * head[:, None, :]
             + (sa * half_w)[None] * side[:, None, :])   # (3, k+1, n)
-    out = np.empty((n, k, 3, 3))
+    out = np.empty((n, k, 3, 3)) if out is None else out
     o = out.transpose(3, 1, 2, 0)        # (3, k, 3, n) view: coordinate, triangle, vertex, leaf
     for i in range(0, n, _BLOCK):        # blocks of leaves: the scattered writes stay in cache
         j = i + _BLOCK
@@ -188,6 +189,9 @@ class LeafTable:
                 "hx": h[:, 0], "hy": h[:, 1], "hz": h[:, 2]}
 
 
+_LEAF_BLOCK = 8192   # leaves made at a time: their (3, n) temporaries stay in cache (BENCHMARKS.md §16)
+
+
 def _make_leaves(P: RandomTreeParams, p0, p1, r, H, U, owner, tpos, phi, lang, ll, lw, roll,
                  tid: int) -> tuple[Leaves, LeafTable, float | None]:
     """Leaves on branches ``owner`` (rows of the (nb, 3) ``p0``, ``p1``, ``H``, ``U`` and (nb,) ``r``).
@@ -197,13 +201,39 @@ def _make_leaves(P: RandomTreeParams, p0, p1, r, H, U, owner, tpos, phi, lang, l
 
     The vectors are handled as (3, n) columns: every operation then runs over contiguous
     (n,) rows instead of n rows of 3, with the per-element arithmetic of the row form.
+    They are made ``_LEAF_BLOCK`` leaves at a time into the output arrays: every operation
+    is per leaf, so the bits are those of one pass, while the temporaries stay small (one
+    pass over a 140 k-leaf tree allocated and zeroed fresh pages for each of ~60 (3, n)
+    temporaries).
     """
     n = len(ll)
     if n == 0:
         return Leaves.empty(), LeafTable.empty(), None
+    ntri = 2 if P.leaf_shape == "rhombus" else P.leaf_sides
+    tri = np.empty((n, ntri, 3, 3))
+    centre_m, normal_m, head_m = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    # the bearing branches' ends, heading and reference as (12, nb) columns, gathered per block
+    g_all = np.ascontiguousarray(np.concatenate([p0, p1, H, U], 1).T)
+    xy2 = -np.inf
+    for i in range(0, n, _LEAF_BLOCK):
+        j = min(i + _LEAF_BLOCK, n)
+        xy2 = max(xy2, _leaf_block(P, g_all, r, owner[i:j], tpos[i:j], phi[i:j], lang[i:j],
+                                   ll[i:j], lw[i:j], roll[i:j], tri[i:j], centre_m[i:j],
+                                   normal_m[i:j], head_m[i:j]))
+    area = leaf_polygon_area_factor(P.leaf_shape, P.leaf_sides) * ll * lw
+    leaf_id = np.arange(n, dtype=np.int32)
+    leaves = Leaves(tri.reshape(-1, 3, 3), np.repeat(leaf_id, ntri),
+                    np.full(n * ntri, tid, np.int32))
+    table = LeafTable(np.full(n, tid, np.int32), leaf_id, centre_m, ll, lw, area, normal_m, head_m)
+    return leaves, table, xy2
 
-    # the bearing branches' ends, heading and reference as (12, n) columns, gathered at once
-    g = np.ascontiguousarray(np.concatenate([p0, p1, H, U], 1).T)[:, owner]
+
+def _leaf_block(P: RandomTreeParams, g_all, r, owner, tpos, phi, lang, ll, lw, roll,
+                tri, centre_m, normal_m, head_m) -> float:
+    """One block of :func:`_make_leaves`: writes its rows of ``tri`` (n, k, 3, 3) and of the
+    (n, 3) ``centre_m``, ``normal_m``, ``head_m``; returns the block's largest ``x² + y²``."""
+    n = len(ll)
+    g = g_all[:, owner]
     b0, b1, H, U, br = g[0:3], g[3:6], g[6:9], g[9:12], r[owner]
     u = _rotate_t(U, H, phi)                         # outward direction at the insertion
     head = np.cos(lang) * H + np.sin(lang) * u
@@ -226,7 +256,6 @@ def _make_leaves(P: RandomTreeParams, p0, p1, r, H, U, owner, tpos, phi, lang, l
         right = centre + 0.5 * lw * side_r
         left = centre - 0.5 * lw * side_r
         # (base, right, tip), (base, tip, left): both wound so the normal is side × head
-        tri = np.empty((n, 2, 3, 3))
         o = tri.transpose(3, 1, 2, 0)                # (3, 2, 3, n) view
         for i in range(0, n, 2 * _BLOCK):            # blocks: the scattered writes stay in cache
             j = i + 2 * _BLOCK
@@ -236,14 +265,9 @@ def _make_leaves(P: RandomTreeParams, p0, p1, r, H, U, owner, tpos, phi, lang, l
             o[:, 1, 2, i:j] = left[:, i:j]
         corners = (base, right, tip, left)
     else:
-        tri, ring = _ellipse_fan_t(centre, head, side_r, 0.5 * ll, 0.5 * lw, P.leaf_sides)
+        _, ring = _ellipse_fan_t(centre, head, side_r, 0.5 * ll, 0.5 * lw, P.leaf_sides, tri)
         corners = (centre, ring.reshape(3, -1))
-    ntri = tri.shape[1]
-    area = leaf_polygon_area_factor(P.leaf_shape, P.leaf_sides) * ll * lw
-    leaf_id = np.arange(n, dtype=np.int32)
-    leaves = Leaves(tri.reshape(-1, 3, 3), np.repeat(leaf_id, ntri),
-                    np.full(n * ntri, tid, np.int32))
-    table = LeafTable(np.full(n, tid, np.int32), leaf_id, np.ascontiguousarray(centre.T), ll, lw,
-                      area, np.ascontiguousarray(normal.T), np.ascontiguousarray(head.T))
-    xy2 = max(float((c[0] * c[0] + c[1] * c[1]).max()) for c in corners)
-    return leaves, table, xy2
+    centre_m[...] = centre.T
+    normal_m[...] = normal.T
+    head_m[...] = head.T
+    return max(float((c[0] * c[0] + c[1] * c[1]).max()) for c in corners)

@@ -35,7 +35,7 @@ from ..geometry import Branches, Leaves
 from .grid import VoxelGrid, grid_dataset
 from .voxelize import Accumulator, box_volume, clip_triangles, voxelize_cylinders, voxelize_discs
 
-__all__ = ["compute_truth", "default_grid", "Totals"]
+__all__ = ["compute_truth", "default_grid", "leaf_and_plant_area", "Totals"]
 
 BATCH_ELEMENTS = 500_000  # triangles + cylinders expanded per batch of instanced trees
 
@@ -166,20 +166,24 @@ class Totals:
             self.volume.add(ijk, w)
             self.volume_exact_m3 += float(np.prod(hi - lo))
 
-    def arrays(self) -> dict:
-        """The three dense arrays in m² / m³, each allocated once and scaled in place
-        (``x *= h; x *= h`` rounds as ``x * h * h`` does). The closed-form volume and disc
-        areas are differences of face integrals, so a voxel that holds (almost) nothing can
-        come out at −1e-17 by rounding: such values are set to 0 (no negative densities)."""
+    def arrays(self, names=("leaf_area_m2", "wood_area_m2", "wood_volume_m3")) -> dict:
+        """The dense arrays ``names`` (of the three) in m² / m³, each allocated once and scaled
+        in place (``x *= h; x *= h`` rounds as ``x * h * h`` does). The closed-form volume and
+        disc areas are differences of face integrals, so a voxel that holds (almost) nothing
+        can come out at −1e-17 by rounding: such values are set to 0 (no negative densities)."""
         h = self.grid.voxel_m
-        leaf, wood, vol = self.leaf.dense(), self.wood.dense(), self.volume.dense()
-        for a in (leaf, wood):
-            a *= h
-            a *= h
-        vol *= h ** 3
-        for a in (leaf, wood, vol):  # a voxel the surface barely touches can round to −1e-17
-            np.maximum(a, 0.0, out=a)
-        return {"leaf_area_m2": leaf, "wood_area_m2": wood, "wood_volume_m3": vol}
+        acc = {"leaf_area_m2": self.leaf, "wood_area_m2": self.wood, "wood_volume_m3": self.volume}
+        out = {}
+        for name in names:
+            a = acc[name].dense()
+            if name == "wood_volume_m3":
+                a *= h ** 3
+            else:
+                a *= h
+                a *= h
+            np.maximum(a, 0.0, out=a)  # a voxel the surface barely touches can round to −1e-17
+            out[name] = a
+        return out
 
     def outside(self) -> dict:
         h = self.grid.voxel_m
@@ -247,7 +251,37 @@ def compute_truth(geometry, grid: VoxelGrid, progress=True, ground_area_m2: floa
     :class:`~simlidar_mi.truth.leaf_g.LeafPieces` on ``grid`` that collects every leaf piece
     with its normal (for the truth's G along a scan's beams). ``terrain``: the ground
     (default ``geometry.terrain``, a scene's ``[terrain]``), written as ``terrain_z_m``."""
-    prog = make_progress(progress)
+    tot = _accumulate(geometry, grid, make_progress(progress), leaf_pieces)
+    if terrain is None:
+        terrain = getattr(geometry, "terrain", None)
+    return _dataset(tot, grid, ground_area_m2, crs, ground_z_m, terrain)
+
+
+def leaf_and_plant_area(geometry, grid: VoxelGrid, progress=True,
+                        ground_area_m2: float | None = None) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """``(leaf_area_m2, plant_area_m2, LAI, PAI)``: the two per-voxel arrays of
+    :func:`compute_truth` and its two attributes, bit for bit, without its other four
+    arrays (wood area, volume, LAD, PAD: 32 bytes a voxel that ``evaluate-photo`` never reads;
+    the plant area is made in the wood area's array)."""
+    tot = _accumulate(geometry, grid, make_progress(progress), None)
+    arr = tot.arrays(("leaf_area_m2", "wood_area_m2"))
+    leaf, plant = arr["leaf_area_m2"], arr.pop("wood_area_m2")
+    np.multiply(plant, 0.5, out=plant)
+    np.add(leaf, plant, out=plant)      # leaf + wood/2, as _dataset adds them
+    ground = _ground_area(grid, ground_area_m2)
+    return leaf, plant, float(leaf.sum()) / ground, float(plant.sum()) / ground
+
+
+def _ground_area(grid: VoxelGrid, ground_area_m2) -> float:
+    foot = grid.voxel_m ** 2 * grid.shape[0] * grid.shape[1]
+    ground = float(ground_area_m2) if ground_area_m2 is not None else foot
+    if not (np.isfinite(ground) and ground > 0):
+        raise ConfigError("ground area must be > 0 m²", key="ground_area_m2", value=ground_area_m2)
+    return ground
+
+
+def _accumulate(geometry, grid: VoxelGrid, prog, leaf_pieces) -> Totals:
+    """Every leaf triangle, branch, primitive and instance of ``geometry`` clipped into sparse sums."""
     tot = Totals(grid, leaf_pieces)
     if len(geometry.leaves):
         with prog.stage("truth: leaf triangles", total=1, unit="step") as st:
@@ -262,9 +296,7 @@ def compute_truth(geometry, grid: VoxelGrid, progress=True, ground_area_m2: floa
         tot.primitive(prim, geometry.source, j)
     if geometry.instances is not None and len(geometry.instances):
         _instances(tot, geometry.instances, prog)
-    if terrain is None:
-        terrain = getattr(geometry, "terrain", None)
-    return _dataset(tot, grid, ground_area_m2, crs, ground_z_m, terrain)
+    return tot
 
 
 def _dataset(tot: Totals, grid: VoxelGrid, ground_area_m2, crs=None, ground_z_m=0.0, terrain=None):
@@ -276,9 +308,7 @@ def _dataset(tot: Totals, grid: VoxelGrid, ground_area_m2, crs=None, ground_z_m=
     arr["LAD_m2_m3"] = np.divide(arr["leaf_area_m2"], vol)
     arr["PAD_m2_m3"] = np.divide(arr["plant_area_m2"], vol)
     foot = grid.voxel_m ** 2 * grid.shape[0] * grid.shape[1]
-    ground = float(ground_area_m2) if ground_area_m2 is not None else foot
-    if not (np.isfinite(ground) and ground > 0):
-        raise ConfigError("ground area must be > 0 m²", key="ground_area_m2", value=ground_area_m2)
+    ground = _ground_area(grid, ground_area_m2)
     out = tot.outside()
     leaf_t = float(arr["leaf_area_m2"].sum())
     wood_t = float(arr["wood_area_m2"].sum())

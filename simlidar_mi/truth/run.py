@@ -61,14 +61,32 @@ def truth_geometry(cfg: SceneConfig):
     return generate(cfg), None
 
 
-def truth_grid(cfg: SceneConfig, geometry, voxel_m: float | None = None):
+#: Bytes a voxel of the truth holds at once: its six float64 arrays (``truth``, ``evaluate``).
+TRUTH_BYTES_PER_VOXEL = 48
+#: ``evaluate-photo`` keeps two float64 arrays (leaf and plant area) and builds them one at a time.
+PHOTO_BYTES_PER_VOXEL = 16
+
+
+def truth_grid(cfg: SceneConfig, geometry, voxel_m: float | None = None, *,
+               bytes_per_voxel: int = TRUTH_BYTES_PER_VOXEL, memory: int | None = None):
     """The ``[truth]`` grid over ``geometry`` (:func:`~simlidar_mi.truth.compute.default_grid`),
     ``voxel_m`` (evaluate's ``--voxel``) instead of ``[truth] voxel_m`` when given; an error
     names what the user gave: ``--voxel``, the ``--set`` argument or the scene's key, and the
-    margin when the margin made the grid too large."""
+    margin when the margin made the grid too large. A grid whose arrays (``bytes_per_voxel``)
+    would hold more than half the memory available (:func:`simlidar_mi.config.work.memory_budget`,
+    or ``memory`` bytes) is refused here, before anything is allocated, naming the same key."""
+    from ..config.work import memory_budget  # noqa: PLC0415
     t = cfg["truth"]
     try:
-        return default_grid(geometry, t["voxel_m"] if voxel_m is None else voxel_m, t["margin_m"])
+        grid = default_grid(geometry, t["voxel_m"] if voxel_m is None else voxel_m, t["margin_m"])
+        need = bytes_per_voxel * float(np.prod(grid.shape))
+        budget = memory_budget() if memory is None else memory
+        if need > budget:
+            nx, ny, nz = grid.shape
+            raise ConfigError(f"a {grid.voxel_m:g} m grid over this scene ({nx} × {ny} × {nz} voxels) "
+                              f"would hold ~{need / 1e9:.3g} GB, more than half the memory available "
+                              f"({budget / 1e9:.3g} GB); use larger voxels", key="voxel_m", value=grid.voxel_m)
+        return grid
     except ConfigError as exc:
         if exc.key != "margin_m" and voxel_m is not None:
             raise ConfigError(exc.reason, key="--voxel", value=voxel_m) from None

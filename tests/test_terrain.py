@@ -358,3 +358,19 @@ def test_ground_height_of_a_scene_with_and_without_terrain():
     h = ground_height(cfg)
     np.testing.assert_allclose(h(np.array([-10.0, 0.0, 10.0]), 0.0), [-7.5, 2.5, 12.5], atol=1e-12)
     assert terrain_of(cfg).extent_m == (-50.0, 50.0, -50.0, 50.0)
+
+
+# --- the work estimate ----------------------------------------------------------------------------
+
+def test_a_terrain_too_fine_for_memory_says_to_raise_its_cell():
+    """A finer terrain cell costs more triangles: the refusal says *raise* terrain.cell_m (it said
+    "lower" before, the wrong way) and still *lower* terrain.extent_m."""
+    from simlidar_mi.config.work import check_work
+    cfg = load_scene(text="[scene]\nseed = 1\n[terrain]\nslope_deg = 10\nextent_m = [0, 1000, 0, 1000]\n"
+                          "cell_m = 0.05\n")
+    with pytest.raises(ConfigError) as e:
+        check_work(cfg, "scan", memory=1 << 30)
+    msg = str(e.value)
+    assert "raise terrain.cell_m" in msg and "lower terrain.extent_m" in msg, msg
+    assert "lower terrain.cell_m" not in msg
+    check_work(cfg, "scan", memory=1 << 40)  # the same scene within a budget that holds it

@@ -133,8 +133,8 @@ def check_clearance(cfg: SceneConfig, patterns: list, terrain) -> None:
         what = (f"the airborne platform flies level at ground.z_m + altitude_m = {flight_z:.6g} m; the terrain "
                 f"under its swath rises to {top:.6g} m ({clearance:.3g} m clearance")
         if clearance < MIN_CLEARANCE * alt:
-            raise ConfigError(f"{what}, under {MIN_CLEARANCE:g} × altitude_m): fly higher or set ground.z_m "
-                              f"to the terrain's height", file=cfg.source, key="platform.altitude_m", value=alt)
+            raise ConfigError(f"{what}, under {MIN_CLEARANCE:g} × altitude_m): "
+                              "raise altitude_m", file=cfg.source, key="platform.altitude_m", value=alt)
         if clearance < WARN_CLEARANCE * alt:
             warnings.warn(f"{cfg.source}: {what}, under {WARN_CLEARANCE:g} × altitude_m): footprints and point "
                           f"density there differ from those altitude_m implies", SimlidarWarning, stacklevel=3)

@@ -300,7 +300,8 @@ def test_evaluate_als_scores_and_files_on_a_small_forest_on_hills(small_forest_r
     summary = json.loads((tmp_path / "als" / "als_scores.json").read_text())
     assert summary["n_trees"] >= 3 and (summary["grid"]["nx"], summary["grid"]["ny"]) == (80, 40)
     tr = {(r["method"], r["group"]): r for r in run.trees}
-    assert tr[("lmf on truth CHM", "all")]["detection_rate"] >= tr[("lmf", "all")]["detection_rate"] - 0.2
+    n = summary["n_trees"]  # the oracle on the truth CHM misses at most one tree more
+    assert tr[("lmf on truth CHM", "all")]["detection_rate"] >= tr[("lmf", "all")]["detection_rate"] - 1.0 / n - 1e-9
     assert ("tallest_cell", "all") in tr and tr[("tallest_cell", "all")]["n_detected"] == 1
 
 

@@ -106,3 +106,51 @@ def test_fisheye_exr_reads_in_openimageio(tmp_path):
     pixels = buf.get_pixels(oiio.FLOAT)  # (H, W, C)
     np.testing.assert_array_equal(pixels[..., names.index("coverage")], run.images[0].coverage)
     assert "FC-E8" in " ".join(str(a.value) for a in spec.extra_attribs)
+
+
+def test_a_hillside_above_the_horizon_is_not_sky():
+    """On a 30° slope rising towards +x, a looking-up lens 1 m above it sees the hillside where a
+    view's elevation is below atan(tan 30° · cos φ): those pixels are covered (terrain hits are
+    opaque, as a real photo shows a hill), every other pixel is sky.  Checked pixel by pixel
+    against that float64 answer (away from the edge curve by 0.5° and from views that leave the
+    ±600 m terrain); the flat ground, below the horizon of an up-looking lens, is never seen."""
+    from simlidar_mi.canopy.fisheye_run import fisheye_scene
+    from simlidar_mi.lidar.survey import generate
+    text = """
+[scene]
+seed = 1
+{terrain}
+[[primitive]]
+type = "box"
+min_m = [500.0, 500.0, 500.0]
+max_m = [501.0, 501.0, 501.0]
+[fisheye]
+layout = "points"
+points_m = [[0.0, 0.0]]
+height_m = 1.0
+resolution = 160
+spp = 1
+n_sectors = 4
+"""
+    hill = "[terrain]\nslope_deg = 30\naspect_deg = 270\nextent_m = [-600, 600, -600, 600]\ncell_m = 100.0"
+    runs = []
+    for terrain in (hill, ""):
+        cfg = load_scene(text=text.format(terrain=terrain))
+        g = generate(cfg)
+        runs.append(run_fisheye(cfg, fisheye_scene(cfg, g), g.bounds_m(), None))
+    img = runs[0].images[0]
+    a = img.angles
+    th, ph = np.radians(a.theta_deg), np.radians(a.azimuth_deg)
+    edge = np.degrees(np.arctan(np.tan(np.radians(30.0)) * np.cos(ph)))   # the hillside's elevation
+    elev = 90.0 - a.theta_deg
+    rise = np.tan(np.radians(30.0)) * np.sin(th) * np.cos(ph) - np.cos(th)  # t = 1 m / rise
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reach = np.where(rise > 0, np.sin(th) / rise, np.inf)              # horizontal distance to the hit
+    clear = a.inside & (np.abs(elev - edge) > 0.5) & (reach < 500.0) | a.inside & (elev > edge + 0.5)
+    expect = (elev < edge).astype(np.float32)
+    assert clear.sum() > 0.9 * a.inside.sum()
+    np.testing.assert_array_equal(img.coverage[clear], expect[clear])
+    assert expect[clear].sum() > 0.1 * clear.sum()                      # the hill fills a real share
+    tab = runs[0].tables[0]
+    assert tab.ring_gap[-1] < 0.7                                       # the 75–90° ring: the hill is not sky
+    assert np.all(runs[1].images[0].coverage[a.inside] == 0.0)          # no terrain: all sky

@@ -358,3 +358,56 @@ def test_ground_height_of_a_scene_with_and_without_terrain():
     h = ground_height(cfg)
     np.testing.assert_allclose(h(np.array([-10.0, 0.0, 10.0]), 0.0), [-7.5, 2.5, 12.5], atol=1e-12)
     assert terrain_of(cfg).extent_m == (-50.0, 50.0, -50.0, 50.0)
+
+
+# --- the work estimate ----------------------------------------------------------------------------
+
+def test_a_terrain_too_fine_for_memory_says_to_raise_its_cell():
+    """A finer terrain cell costs more triangles: the refusal says *raise* terrain.cell_m (it said
+    "lower" before, the wrong way) and still *lower* terrain.extent_m."""
+    from simlidar_mi.config.work import check_work
+    cfg = load_scene(text="[scene]\nseed = 1\n[terrain]\nslope_deg = 10\nextent_m = [0, 1000, 0, 1000]\n"
+                          "cell_m = 0.05\n")
+    with pytest.raises(ConfigError) as e:
+        check_work(cfg, "scan", memory=1 << 30)
+    msg = str(e.value)
+    assert "raise terrain.cell_m" in msg and "lower terrain.extent_m" in msg, msg
+    assert "lower terrain.cell_m" not in msg
+    check_work(cfg, "scan", memory=1 << 40)  # the same scene within a budget that holds it
+
+
+# --- an airborne platform over rising terrain -------------------------------------------------------
+
+def _hill_flight(hill_m: float, hill_x_m: float = 0.0):
+    return load_scene(text=f"""
+[scene]
+seed = 1
+[terrain]
+extent_m = [-60, 60, -60, 60]
+cell_m = 1.0
+hills_m = [[{hill_x_m}, 0.0, {hill_m}, 6.0]]
+[platform]
+kind = "airborne"
+start_xy_m = [0.0, -40.0]
+end_xy_m = [0.0, 40.0]
+altitude_m = 50.0
+swath_deg = 40.0
+pulses_per_line = 20
+""")
+
+
+def test_an_airborne_flight_into_a_hill_is_refused_and_a_near_one_warned():
+    """The platform flies level at ground.z_m + altitude_m (not terrain following): a hill under
+    the swath to 46 m (4 m clearance < 0.1 × 50 m) is refused on platform.altitude_m; one to 30 m
+    (20 m < 0.5 × 50 m) is warned of; one to 10 m, or a 46 m hill outside the swath
+    (50 · tan 20° = 18 m either side), passes quietly."""
+    from simlidar_mi.lidar.survey import _plan
+    with pytest.raises(ConfigError) as e:
+        _plan(_hill_flight(46.0))
+    assert e.value.key == "platform.altitude_m" and "rises to 46 m" in str(e.value), str(e.value)
+    with pytest.warns(SimlidarWarning, match="30 m"):
+        _plan(_hill_flight(30.0))
+    for hill, x in ((10.0, 0.0), (46.0, 45.0)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", SimlidarWarning)
+            _plan(_hill_flight(hill, x))

@@ -77,6 +77,10 @@ def memory_budget() -> int:
     return int(budget)
 
 
+#: Keys whose larger values make less work (a cell size): the message says to raise them.
+RAISE_TO_SHRINK = frozenset({"terrain.cell_m"})
+
+
 def _blame(cfg, factors: list[str]) -> str:
     """The first of ``factors`` (dotted keys) a --set gave, else the first the scene file gave,
     else the first."""
@@ -91,8 +95,9 @@ def _value(cfg, dotted: str):
 
 def _refuse(cfg, factors: list[str], what: str, amount: float, limit: float, unit: str, fix: str):
     key = _blame(cfg, factors)
-    raise ConfigError(f"{what} ≈ {amount:.3g} {unit} exceed {limit:.3g} {unit} ({fix}); lower "
-                      f"{key}" + (f" or {', '.join(k for k in factors if k != key)}" if len(factors) > 1 else ""),
+    todo = " or ".join(f"{'raise' if k in RAISE_TO_SHRINK else 'lower'} {k}" for k in [key] + [k for k in factors
+                                                                                           if k != key])
+    raise ConfigError(f"{what} ≈ {amount:.3g} {unit} exceed {limit:.3g} {unit} ({fix}); {todo}",
                       file=cfg.source_of(key), key=key, value=_value(cfg, key))
 
 

@@ -5,12 +5,14 @@ Plain data from keys and the geometry's bounds (no Mitsuba): the first step of a
 """
 from __future__ import annotations
 
+import math
+import warnings
 from dataclasses import replace
 
 import numpy as np
 
 from ..config import SceneConfig
-from ..errors import ConfigError
+from ..errors import ConfigError, SimlidarWarning
 from .platforms import AIRBORNE_PULSE_RATE_HZ, AIRBORNE_SPEED_M_S  # noqa: F401  (survey imports them here)
 
 
@@ -89,3 +91,50 @@ def _patterns(cfg: SceneConfig, lo_m, hi_m, near_x_m) -> list:
                              speed, pulse_rate(AIRBORNE_PULSE_RATE_HZ), pf["pulses_per_line"],
                              escape_m=escape, **common)]
 
+
+
+#: An airborne flight's least clearance over the terrain under its swath, as a share of
+#: ``altitude_m``: below it the scan is refused (a plane flying into a hill); below
+#: :data:`WARN_CLEARANCE` it is warned of (the footprint and the point density under the hill
+#: are then far from those ``altitude_m`` implies).
+MIN_CLEARANCE = 0.1
+WARN_CLEARANCE = 0.5
+
+
+def check_clearance(cfg: SceneConfig, patterns: list, terrain) -> None:
+    """An airborne platform flies level at ``[ground] z_m + altitude_m`` (a constant barometric
+    altitude, not terrain following).  Over a ``[terrain]`` that rises under the swath (the
+    ground strip ±``altitude_m``·tan(swath/2) either side of the flight line) the clearance
+    shrinks: refuse it below :data:`MIN_CLEARANCE` · ``altitude_m``, warn below
+    :data:`WARN_CLEARANCE` · ``altitude_m``.  The terrain's highest node in that strip is its
+    exact maximum there (the surface is linear between nodes)."""
+    if terrain is None:
+        return
+    for p in patterns:
+        if getattr(p, "kind", None) != "airborne":
+            continue
+        alt, swath = float(p.meta["altitude_m"]), float(cfg["platform"]["swath_deg"])
+        o = np.asarray(p.row_origin_m, np.float64)
+        a, b = o[0, :2], o[-1, :2]
+        flight_z = float(o[0, 2])
+        half = alt * math.tan(math.radians(0.5 * swath)) + max(terrain.dx_m, terrain.dy_m)
+        xs, ys = terrain.nodes_m()
+        x, y = np.meshgrid(xs, ys)
+        u = b - a
+        length = float(np.hypot(*u))
+        u = u / length if length > 0 else np.array([1.0, 0.0])
+        along = (x - a[0]) * u[0] + (y - a[1]) * u[1]
+        across = np.abs((x - a[0]) * u[1] - (y - a[1]) * u[0])
+        strip = (along >= -half) & (along <= length + half) & (across <= half)
+        if not strip.any():
+            continue
+        top = float(terrain.z_m[strip].max())
+        clearance = flight_z - top
+        what = (f"the airborne platform flies level at ground.z_m + altitude_m = {flight_z:.6g} m; the terrain "
+                f"under its swath rises to {top:.6g} m ({clearance:.3g} m clearance")
+        if clearance < MIN_CLEARANCE * alt:
+            raise ConfigError(f"{what}, under {MIN_CLEARANCE:g} × altitude_m): "
+                              "raise altitude_m", file=cfg.source, key="platform.altitude_m", value=alt)
+        if clearance < WARN_CLEARANCE * alt:
+            warnings.warn(f"{cfg.source}: {what}, under {WARN_CLEARANCE:g} × altitude_m): footprints and point "
+                          f"density there differ from those altitude_m implies", SimlidarWarning, stacklevel=3)

@@ -30,7 +30,7 @@ from ..io.mesh_import import mesh_drop, primitive_mesh_data, ship_meshes, unship
 from ..io.atomic import atomic_file, staged_dir, writes_output
 from ..io.terrain import stand_on, terrain_of
 from .scene_counts import generated_line, leaf_triangle_counts, primitive_surfaces, warn_if_unseen
-from .patterns import AIRBORNE_PULSE_RATE_HZ, AIRBORNE_SPEED_M_S, scan_patterns, scanner_positions_m  # noqa: F401
+from .patterns import AIRBORNE_PULSE_RATE_HZ, AIRBORNE_SPEED_M_S, check_clearance, scan_patterns, scanner_positions_m  # noqa: F401
 
 log = logging.getLogger(__name__)
 
@@ -534,6 +534,7 @@ def _plan(cfg: SceneConfig, early: list | None = None, drop: str | None = None) 
     else:
         lo, hi = geometry.bounds_m()
         patterns = scan_patterns(cfg, lo, hi, geometry.near_x_m)
+    check_clearance(cfg, patterns, geometry.terrain)
     if cfg.has("sensor"):
         check_rays(cfg, patterns, scene_sensor(cfg, geometry, patterns))
     if drop is not None:

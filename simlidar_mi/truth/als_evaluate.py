@@ -55,7 +55,8 @@ from ..errors import ConfigError
 from ..io.atomic import staged_dir, writes_output
 from . import als_ground as G
 from . import als_trees as T
-from .als_truth import HeightFn, RasterGrid, flat_ground, surface_rasters, write_geotiff, write_truth_rasters
+from ..io.terrain import ground_height, terrain_of
+from .als_truth import HeightFn, RasterGrid, surface_rasters, write_geotiff, write_truth_rasters
 from .scoring import load_plugin
 
 ALS_OUTPUTS = (r"als_scores\.json", r"ground_scores\.csv", r"dtm_scores\.csv", r"chm_scores\.csv",
@@ -194,7 +195,8 @@ def evaluate_als(scene, points: str | Path, out_dir: str | Path, overrides: Sequ
     detectors = [("lmf", T.local_maxima_trees), ("watershed", T.watershed_trees)] + \
         [_plugin(s, "--tree-method") for s in tree_plugins]
     pts = read_points(points)
-    height_m = height_m or flat_ground(cfg["ground"]["z_m"])
+    terrain = terrain_of(cfg)
+    height_m = height_m or (terrain.height_m if terrain is not None else ground_height(cfg))
     seconds: dict[str, float] = {}
 
     t0 = time.perf_counter()
@@ -289,7 +291,8 @@ def evaluate_als(scene, points: str | Path, out_dir: str | Path, overrides: Sequ
     else:
         true_xyh, tree_table = np.zeros((0, 3)), []
 
-    crs = cfg["scene"]["crs"]
+    # the scene's CRS, else its DEM's (read_dem refuses the two when they differ)
+    crs = cfg["scene"]["crs"] or (terrain.crs if terrain is not None else None)
     run.summary = {"scene": str(cfg.source), "points": str(points), "n_points": int(len(xyz)),
                    "n_true_ground": int(true_ground.sum()), "grid": grid.to_dict(), "subsamples": k,
                    "crs": crs or "none (the scene's local frame, metres)",

@@ -37,9 +37,9 @@ __all__ = ["SceneGeometry", "ScanRun", "load_scene", "generate", "build", "run_s
            "measure", "SCAN_OUTPUTS"]  # preview: simlidar_mi.lidar.preview
 
 # The files a scan owns in its folder (regular expressions of whole names): a re-run
-# removes those it does not write again (points.las after --no-las, a leg's EXR when
+# removes those it does not write again (points.las after --no-las or with points.laz, a leg's EXR when
 # the path has fewer legs), so no file of an earlier scan sits beside the new ones.
-SCAN_OUTPUTS = (r"scan\.(exr|png)", r"scan_leg\d+\.(exr|png)", r"points\.las", r"measures\.json")
+SCAN_OUTPUTS = (r"scan\.(exr|png)", r"scan_leg\d+\.(exr|png)", r"points\.la[sz]", r"measures\.json")
 
 
 @dataclass
@@ -335,6 +335,7 @@ class _ScanStages:
         self.seconds: dict[str, float] = {}
         self.geo_job = None
         self.streamed = False  # a scan to files traced and written chunk by chunk
+        self.points_name = f"points.{cfg['scan']['points_format']}"  # points.las or points.laz
 
     def generate(self, scheduler: str | None) -> None:
         """Geometry and beam patterns; too large a scan is refused before anything is traced.
@@ -423,8 +424,9 @@ class _ScanStages:
                 if write_las:  # the longest file: on the second core (simlidar_mi._runtime.fork)
                     from ..io.las import write_scan_las  # noqa: PLC0415
                     results = self.results
-                    las_job = Forked("writing points.las", functools.partial(write_scan_las, crs=cfg["scene"]["crs"]),
-                                     results if len(results) > 1 else results[0], stage / "points.las")
+                    las_job = Forked(f"writing {self.points_name}",
+                                     functools.partial(write_scan_las, crs=cfg["scene"]["crs"]),
+                                     results if len(results) > 1 else results[0], stage / self.points_name)
                     jobs.callback(las_job.close)
                 measures = self.measures()
                 # two EXR threads even beside the LAS child: a core is never idle when one writer
@@ -432,7 +434,7 @@ class _ScanStages:
                 self._write_images(stage, files, write_png=write_png, threads=2)
             if las_job is not None:
                 las_job.wait()
-                files["las"] = out_dir / "points.las"
+                files["las"] = out_dir / self.points_name
             self.seconds["write"] = (time.perf_counter() - t - (self.seconds["scan"] if self.streamed else 0.0)
                                      - self.seconds.get("measures", 0.0))
             measures["seconds"] = {k: round(v, 4) for k, v in self.seconds.items()}
@@ -460,10 +462,10 @@ class _ScanStages:
             exr_kwargs={"seed": cfg.seed, "scene_sha256": cfg.sha256, "extra": self._exr_extra()},
             png_titles=[f"{cfg['scene']['name']}: range image{f', leg {j}' if many else ''}"
                         for j in range(len(patterns))] if write_png else None,
-            las=write_las, crs=cfg["scene"]["crs"], progress=self.shown, files=names)
+            las=write_las and self.points_name, crs=cfg["scene"]["crs"], progress=self.shown, files=names)
         files.update({k: Path(self.out_dir) / v for k, v in names.items()})
         if write_las:
-            files["las"] = Path(self.out_dir) / "points.las"
+            files["las"] = Path(self.out_dir) / self.points_name
         self.bar(f"scanned and wrote {self.n_beams} beams in chunks of {chunk}")
         return self.measures()
 

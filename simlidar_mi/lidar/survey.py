@@ -30,6 +30,7 @@ from ..io.mesh_import import mesh_drop, primitive_mesh_data, ship_meshes, unship
 from ..io.atomic import atomic_file, staged_dir, writes_output
 from .scene_counts import generated_line, leaf_triangle_counts, primitive_surfaces, warn_if_unseen
 from .patterns import AIRBORNE_PULSE_RATE_HZ, AIRBORNE_SPEED_M_S, scan_patterns, scanner_positions_m  # noqa: F401
+from .trajectory import TRAJECTORY_FILE, has_trajectory, write_trajectory
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +40,8 @@ __all__ = ["SceneGeometry", "ScanRun", "load_scene", "generate", "build", "run_s
 # The files a scan owns in its folder (regular expressions of whole names): a re-run
 # removes those it does not write again (points.las after --no-las or with points.laz, a leg's EXR when
 # the path has fewer legs), so no file of an earlier scan sits beside the new ones.
-SCAN_OUTPUTS = (r"scan\.(exr|png)", r"scan_leg\d+\.(exr|png)", r"points\.la[sz]", r"measures\.json")
+SCAN_OUTPUTS = (r"scan\.(exr|png)", r"scan_leg\d+\.(exr|png)", r"points\.la[sz]", r"trajectory\.txt",
+                r"measures\.json")
 
 
 @dataclass
@@ -432,6 +434,9 @@ class _ScanStages:
                 # two EXR threads even beside the LAS child: a core is never idle when one writer
                 # ends first (fwf, 76 channels: 3.97 -> 2.44 s; single ray 0.41 -> 0.35 s, §8f)
                 self._write_images(stage, files, write_png=write_png, threads=2)
+            if cfg["scan"]["trajectory"] and has_trajectory(self.patterns):
+                write_trajectory(stage / TRAJECTORY_FILE, self.patterns)
+                files["trajectory"] = out_dir / TRAJECTORY_FILE
             if las_job is not None:
                 las_job.wait()
                 files["las"] = out_dir / self.points_name

@@ -46,8 +46,9 @@ def _overrides(args: argparse.Namespace) -> list[str]:
 def _scan_args(p: argparse.ArgumentParser) -> None:
     _scene_args(p)
     p.add_argument("--out", required=True, metavar="DIR",
-                   help="output folder: scan.exr, scan.png, points.las, measures.json")
-    p.add_argument("--no-las", action="store_true", help="skip points.las")
+                   help="output folder: scan.exr, scan.png, points.las (points.laz with "
+                        "--set scan.points_format=laz), measures.json")
+    p.add_argument("--no-las", action="store_true", help="skip points.las / points.laz")
     p.add_argument("--no-png", action="store_true", help="skip scan.png")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="scan in row tiles on the Dask cluster whose scheduler is ADDRESS (e.g. "

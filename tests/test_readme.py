@@ -29,7 +29,7 @@ def _commands(text: str) -> list[str]:
     ``.venv/bin/simlidar-mi``), comment removed, as ``simlidar-mi ...``."""
     seen: list[str] = []
     for block in re.findall(r"```sh\n(.*?)```", text, re.S):
-        for line in block.splitlines():
+        for line in re.sub(r"\\\n\s*", " ", block).splitlines():  # a continued line is one command
             cmd = re.sub(r"\s+#.*$", "", line).strip()
             cmd = re.sub(r"^(\./)?\.venv/bin/simlidar-mi ", "simlidar-mi ", cmd)
             if cmd.startswith("simlidar-mi ") and cmd not in seen:

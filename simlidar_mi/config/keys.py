@@ -127,6 +127,12 @@ SECTIONS: dict[str, dict[str, Key]] = {
                         "× dot-matrix sub-beams × [sensor] sub-rays per beam; and renders of more "
                         "(images × pixels × samples; BENCHMARKS §15: about 20 min of tracing on 2 cores)",
                         knob=True),
+        "points_format": Key(STR, "las", one_of("las", "laz"),
+                             "the points file: 'las' = points.las (LAS 1.4), 'laz' = points.laz, the "
+                             "same header and points LAZ-compressed (laspy's lazrs backend)"),
+        "trajectory": Key(BOOL, False, None,
+                          "write trajectory.txt: the platform's position and attitude per scan row "
+                          "(x y z gps_time roll pitch yaw, HELIOS++'s columns; not for a static tripod)"),
         "chunk_beams": Key(INT, 1 << 22, at_least(1),
                            "beams traced and written per chunk (memory stays flat as scans grow; "
                            "results do not depend on it)", knob=True),

@@ -73,6 +73,11 @@ echo's range along the beam centre, with the beam's ``gps_time``; ``range_m`` is
 echo's range.  VLR record 2 states the intensity scale, record 3 holds the resolved sensor as
 JSON.
 
+``[scan] points_format = "laz"`` writes ``points.laz`` instead: the same header, VLRs and
+point records, compressed by laspy's LAZ writer with the lazrs backend (LAZ 1.4 point format
+6 layered chunks of 50 000 points); any LAZ reader (laspy, PDAL, LAStools) reads back the LAS
+file's points exactly (tests/test_laz_output.py).
+
 laspy is imported on first use, not with this module: with pyproj, which laspy imports, it takes
 0.1 s, and ``run_scan`` writes the LAS in a forked child (simlidar_mi._runtime.fork), so the child pays
 it, not the process that writes the EXR and the PNG meanwhile (issue #8, BENCHMARKS.md §8f).
@@ -200,10 +205,16 @@ def crs_wkt(crs: str) -> str:
     return pyproj.CRS.from_user_input(crs).to_wkt("WKT1_GDAL")
 
 
+def is_laz(path: str | Path) -> bool:
+    """Whether the points file ``path`` is a LAZ one (its name ends in ``.laz``)."""
+    return Path(path).suffix.lower() == ".laz"
+
+
 def write_scan_las(result: ScanRecord | list[ScanRecord], path: str | Path,
                    crs: str | None = None) -> Path:
     """Write every non-escape first return of ``result`` (or of several legs) to ``path``;
-    with echoes (a ``[sensor]`` scan), every echo.
+    with echoes (a ``[sensor]`` scan), every echo.  A ``path`` ending in ``.laz`` gets the same
+    points LAZ-compressed (:func:`is_laz`).
 
     With several results, ``point_source_id`` is the leg index and ``scan_position``
     counts rows within each leg.  ``crs`` (``"EPSG:<code>"``, the scene's
@@ -235,7 +246,8 @@ def write_scan_las(result: ScanRecord | list[ScanRecord], path: str | Path,
     e_max = set_echo_intensities([lp.echo_cols for lp in legs if lp.echo_cols is not None], sensor)
     header = las_header(offsets, time_kind, with_tree=with_tree, with_echoes=with_echoes, crs=crs,
                         sensor=sensor, scales=chooser.scales(), energy_max=e_max)
-    with atomic_file(path) as tmp, RecordWriter(tmp, header, *((lo, hi) if at else (None, None))) as w:
+    with atomic_file(path) as tmp, RecordWriter(tmp, header, *((lo, hi) if at else (None, None)),
+                                                compress=is_laz(path)) as w:
         at = 0
         for lp in legs:
             for cols in lp.columns():
@@ -339,7 +351,7 @@ class RecordWriter:
     ``write_points(las_record(…))`` (tests/test_las_fast.py).
     """
 
-    def __init__(self, path: str | Path, header: laspy.LasHeader, lo_m, hi_m):
+    def __init__(self, path: str | Path, header: laspy.LasHeader, lo_m, hi_m, *, compress: bool = False):
         self.ext = None
         if lo_m is not None:
             if not np.all(np.isfinite(np.concatenate([lo_m, hi_m]))):
@@ -352,7 +364,10 @@ class RecordWriter:
         # of a file truncated to zero when it is closed (auto_da_alloc), 2-30 ms here
         empty = Path(path).is_file() and Path(path).stat().st_size == 0
         import laspy  # noqa: PLC0415 - on first use (module docstring)
-        self.writer = laspy.open(open(path, "r+b" if empty else "wb"), mode="w", header=header)
+        # LAZ: laspy's LAZ writer over lazrs, fed the same packed records (chunks of 50 000
+        # points compressed as they fill, so the write stays streamed; module docstring)
+        laz = {"do_compress": True, "laz_backend": laspy.LazBackend.LazrsParallel} if compress else {}
+        self.writer = laspy.open(open(path, "r+b" if empty else "wb"), mode="w", header=header, **laz)
         zero_extra_bytes_stats(self.writer.header)
         self.packed = laspy.PackedPointRecord
         self.record = np.zeros(0, header.point_format.dtype())

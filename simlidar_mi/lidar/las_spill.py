@@ -90,9 +90,9 @@ class PointSpill:
 
     def write(self, path: Path, patterns: list, *, crs: str | None, sensor: dict | None = None,
               with_tree: bool, with_echoes: bool = False) -> None:
-        """``points.las`` of every point added, with the held scan's header and bytes
+        """``path`` (points.las, or points.laz compressed) of every point added, with the held scan's header and bytes
         (:class:`~simlidar_mi.io.las.RecordWriter`, as ``write_scan_las`` writes them)."""
-        from ..io.las import CHUNK_POINTS, RecordWriter, las_header, row_times_s  # noqa: PLC0415
+        from ..io.las import CHUNK_POINTS, RecordWriter, is_laz, las_header, row_times_s  # noqa: PLC0415
         from ..io.las_fields import BeamAngles, echo_intensity, scan_intensity_scale  # noqa: PLC0415
         any_point = any(entry[-1] for entry in self.index)
         offsets = self.scales.offsets(self.lo) if any_point else np.zeros(3)
@@ -102,7 +102,8 @@ class PointSpill:
         iscale = scan_intensity_scale(self.energy_max) if self.intensity else None
         self.f.seek(0)
         angles = [BeamAngles(p) for p in patterns]
-        with RecordWriter(path, header, *((self.lo, self.hi) if any_point else (None, None))) as writer:
+        with RecordWriter(path, header, *((self.lo, self.hi) if any_point else (None, None)),
+                          compress=is_laz(path)) as writer:
             for leg, first_row, a, b, dtypes, count in self.index:
                 cols = {k: np.frombuffer(self.f.read(count * dt.itemsize), dt) for k, dt in dtypes.items()}
                 if not count:

@@ -12,7 +12,8 @@ both its ends (a leaf-labelled cylinder's surface is leaf area).
 
 A scan whose beams hit nothing (a static scanner's default profile looks along +x, wherever
 the scene lies) or only the ground is warned about (:func:`warn_if_unseen`), with the scene's
-bounds and the keys that aim the sensor.
+bounds and the keys that aim the sensor; so is a scanner placed inside wood
+(:func:`warn_scanner_inside_wood`).
 """
 from __future__ import annotations
 
@@ -132,3 +133,25 @@ def warn_if_unseen(cfg, hits: dict, geometry) -> None:
     warnings.warn(SimlidarWarning(
         f"{cfg.source or 'scene'}: {what}{where}; aim the sensor ({kind}: "
         f"{AIM_KEYS.get(kind, 'the [platform] keys')})"))
+
+
+def warn_scanner_inside_wood(geometry, patterns: list) -> int:
+    """Warn (SimlidarWarning) when scanner positions lie inside wood: their beams start
+    inside a branch and report its inner wall.  Returns the number of such positions."""
+    rows = [getattr(p, "row_origin_m", None) for p in patterns]
+    rows = [r if r is not None else p.pattern().row_origin_m for r, p in zip(rows, patterns)]
+    pts = np.concatenate(rows) if rows else np.zeros((0, 3))
+    if not len(pts):
+        return 0
+    inside, element = geometry.inside_wood(pts)
+    n = int(inside.sum())
+    if n:
+        i = int(np.argmax(inside))
+        e = int(element[i])
+        what = (f"branch {e} (diameter {geometry.branches.diameter[e]:.4g} m)"
+                if e < len(geometry.branches) else f"primitive {e - len(geometry.branches)}")
+        warnings.warn(f"{n} of {len(pts)} scanner positions lie inside wood, the first at "
+                      f"{np.round(pts[i], 4).tolist()} m in {what}: their beams start inside it and "
+                      "report its inner wall; move the scanner (scan.x0_m/z0_m or the platform)",
+                      SimlidarWarning, stacklevel=3)
+    return n

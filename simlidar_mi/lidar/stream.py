@@ -266,10 +266,11 @@ def finish_leg(exr, reducer, summary: StreamedScan, stage: Path, stem: str, titl
 
 
 def stream_scan(built, patterns: list, stage: Path, *, variant: str | None, chunk_beams: int,
-                exr_kwargs: dict, png_titles: list[str] | None, las: bool, crs: str | None,
+                exr_kwargs: dict, png_titles: list[str] | None, las: bool | str, crs: str | None,
                 progress=None, files: dict | None = None) -> tuple[list[StreamedScan], float]:
     """Trace every pattern in chunks and write scan.exr / scan_legJ.exr, their PNGs
-    (``png_titles``) and one points.las (``las``) into ``stage`` (module docstring).
+    (``png_titles``) and one points file (``las``: True for
+    points.las, or the file's name, points.laz compressed) into ``stage`` (module docstring).
     Returns the scans' summaries and the seconds spent tracing."""
     from ..io.exr import ScanlineExrWriter, scan_exr_layout  # noqa: PLC0415
     from ..io.plots import RangeImageReducer  # noqa: PLC0415
@@ -317,6 +318,7 @@ def stream_scan(built, patterns: list, stage: Path, *, variant: str | None, chun
             first_row += n
             out.append(summary)
         if spill is not None:
-            spill.write(stage / "points.las", [t.pattern for t in tracers], crs=crs,
+            name = las if isinstance(las, str) else "points.las"
+            spill.write(stage / name, [t.pattern for t in tracers], crs=crs,
                         with_tree=any(s.tree_id is not None for s in out))
     return out, trace_s

@@ -132,10 +132,11 @@ def scan_echo_statistics(results) -> dict | None:
 
 
 def stream_physical_scan(built, patterns: list, stage: Path, *, model, variant: str | None, seed: int,
-                         chunk_beams: int, exr_kwargs: dict, png_titles: list[str] | None, las: bool,
+                         chunk_beams: int, exr_kwargs: dict, png_titles: list[str] | None, las: bool | str,
                          crs: str | None, progress=None, files: dict | None = None) -> tuple[list[StreamedScan], float]:
     """Trace every pattern with ``model`` in chunks and write scan.exr / scan_legJ.exr, their
-    PNGs (``png_titles``) and one points.las (``las``) into ``stage`` (module docstring), as
+    PNGs (``png_titles``) and one points file (``las``: True for
+    points.las, or the file's name, points.laz compressed) into ``stage`` (module docstring), as
     :func:`~simlidar_mi.lidar.stream.stream_scan` does for first-return scans.  Returns the
     scans' summaries and the seconds spent tracing and detecting echoes."""
     from ..io.exr import ScanlineExrWriter, scan_exr_layout, sensor_header, with_half_copies  # noqa: PLC0415
@@ -185,7 +186,8 @@ def stream_physical_scan(built, patterns: list, stage: Path, *, model, variant: 
             first_row += n
             out.append(summary)
         if spill is not None:
-            spill.write(stage / "points.las", [t.pattern for t in tracers], crs=crs, sensor=sensor,
+            name = las if isinstance(las, str) else "points.las"
+            spill.write(stage / name, [t.pattern for t in tracers], crs=crs, sensor=sensor,
                         with_tree=any(s.tree_id is not None for s in out), with_echoes=tracers[0].energy)
     return out, trace_s
 

@@ -29,8 +29,10 @@ from ..geometry import Branches, Leaves, Primitive
 from ..io.mesh_import import mesh_drop, primitive_mesh_data, ship_meshes, unship_meshes
 from ..io.atomic import atomic_file, staged_dir, writes_output
 from ..io.terrain import stand_on, terrain_of
-from .scene_counts import generated_line, leaf_triangle_counts, primitive_surfaces, warn_if_unseen
+from .scene_counts import (generated_line, leaf_triangle_counts, primitive_surfaces, warn_if_unseen,  # noqa: F401
+                           warn_scanner_inside_wood)
 from .patterns import AIRBORNE_PULSE_RATE_HZ, AIRBORNE_SPEED_M_S, check_clearance, scan_patterns, scanner_positions_m  # noqa: F401
+from .trajectory import TRAJECTORY_FILE, has_trajectory, write_trajectory
 
 log = logging.getLogger(__name__)
 
@@ -38,9 +40,10 @@ __all__ = ["SceneGeometry", "ScanRun", "load_scene", "generate", "build", "run_s
            "measure", "SCAN_OUTPUTS"]  # preview: simlidar_mi.lidar.preview
 
 # The files a scan owns in its folder (regular expressions of whole names): a re-run
-# removes those it does not write again (points.las after --no-las, a leg's EXR when
+# removes those it does not write again (points.las after --no-las or with points.laz, a leg's EXR when
 # the path has fewer legs), so no file of an earlier scan sits beside the new ones.
-SCAN_OUTPUTS = (r"scan\.(exr|png)", r"scan_leg\d+\.(exr|png)", r"points\.las", r"measures\.json")
+SCAN_OUTPUTS = (r"scan\.(exr|png)", r"scan_leg\d+\.(exr|png)", r"points\.la[sz]", r"trajectory\.txt",
+                r"measures\.json")
 
 
 @dataclass
@@ -234,28 +237,6 @@ def build(cfg: SceneConfig, geometry: SceneGeometry, patterns: list | None = Non
                        terrain=geometry.terrain)
 
 
-def warn_scanner_inside_wood(geometry: SceneGeometry, patterns: list) -> int:
-    """Warn (SimlidarWarning) when scanner positions lie inside wood: their beams start
-    inside a branch and report its inner wall.  Returns the number of such positions."""
-    rows = [getattr(p, "row_origin_m", None) for p in patterns]
-    rows = [r if r is not None else p.pattern().row_origin_m for r, p in zip(rows, patterns)]
-    pts = np.concatenate(rows) if rows else np.zeros((0, 3))
-    if not len(pts):
-        return 0
-    inside, element = geometry.inside_wood(pts)
-    n = int(inside.sum())
-    if n:
-        i = int(np.argmax(inside))
-        e = int(element[i])
-        what = (f"branch {e} (diameter {geometry.branches.diameter[e]:.4g} m)"
-                if e < len(geometry.branches) else f"primitive {e - len(geometry.branches)}")
-        warnings.warn(f"{n} of {len(pts)} scanner positions lie inside wood, the first at "
-                      f"{np.round(pts[i], 4).tolist()} m in {what}: their beams start inside it and "
-                      "report its inner wall; move the scanner (scan.x0_m/z0_m or the platform)",
-                      SimlidarWarning, stacklevel=3)
-    return n
-
-
 def measure(cfg: SceneConfig, geometry: SceneGeometry | None = None) -> dict:
     """Geometry measures (V_L, A_L, A_PR, A_PR_exact) in total and per tree, from geometry alone;
     a leaf-on orchard adds its leaf area per tree and the row's LAI (plants/apple_leaves.py).
@@ -352,6 +333,7 @@ class _ScanStages:
         self.seconds: dict[str, float] = {}
         self.geo_job = None
         self.streamed = False  # a scan to files traced and written chunk by chunk
+        self.points_name = f"points.{cfg['scan']['points_format']}"  # points.las or points.laz
 
     def generate(self, scheduler: str | None) -> None:
         """Geometry and beam patterns; too large a scan is refused before anything is traced.
@@ -440,16 +422,20 @@ class _ScanStages:
                 if write_las:  # the longest file: on the second core (simlidar_mi._runtime.fork)
                     from ..io.las import write_scan_las  # noqa: PLC0415
                     results = self.results
-                    las_job = Forked("writing points.las", functools.partial(write_scan_las, crs=cfg["scene"]["crs"]),
-                                     results if len(results) > 1 else results[0], stage / "points.las")
+                    las_job = Forked(f"writing {self.points_name}",
+                                     functools.partial(write_scan_las, crs=cfg["scene"]["crs"]),
+                                     results if len(results) > 1 else results[0], stage / self.points_name)
                     jobs.callback(las_job.close)
                 measures = self.measures()
                 # two EXR threads even beside the LAS child: a core is never idle when one writer
                 # ends first (fwf, 76 channels: 3.97 -> 2.44 s; single ray 0.41 -> 0.35 s, §8f)
                 self._write_images(stage, files, write_png=write_png, threads=2)
+            if cfg["scan"]["trajectory"] and has_trajectory(self.patterns):
+                write_trajectory(stage / TRAJECTORY_FILE, self.patterns)
+                files["trajectory"] = out_dir / TRAJECTORY_FILE
             if las_job is not None:
                 las_job.wait()
-                files["las"] = out_dir / "points.las"
+                files["las"] = out_dir / self.points_name
             self.seconds["write"] = (time.perf_counter() - t - (self.seconds["scan"] if self.streamed else 0.0)
                                      - self.seconds.get("measures", 0.0))
             measures["seconds"] = {k: round(v, 4) for k, v in self.seconds.items()}
@@ -477,10 +463,10 @@ class _ScanStages:
             exr_kwargs={"seed": cfg.seed, "scene_sha256": cfg.sha256, "extra": self._exr_extra()},
             png_titles=[f"{cfg['scene']['name']}: range image{f', leg {j}' if many else ''}"
                         for j in range(len(patterns))] if write_png else None,
-            las=write_las, crs=cfg["scene"]["crs"], progress=self.shown, files=names)
+            las=write_las and self.points_name, crs=cfg["scene"]["crs"], progress=self.shown, files=names)
         files.update({k: Path(self.out_dir) / v for k, v in names.items()})
         if write_las:
-            files["las"] = Path(self.out_dir) / "points.las"
+            files["las"] = Path(self.out_dir) / self.points_name
         self.bar(f"scanned and wrote {self.n_beams} beams in chunks of {chunk}")
         return self.measures()
 

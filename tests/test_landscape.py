@@ -1,7 +1,8 @@
 """The landscape stand (bench/scenes/forest_landscape_1km2.toml, issue 31 §4) in tiles on a Dask
 cluster: a corner of it flown in one process (streamed: traced and written chunk by chunk) and
 as row tiles on a 2-worker LocalCluster gives the same points.laz, trajectory.txt and scan.exr,
-byte for byte, and each tile's points are the one-process run's points of those rows."""
+byte for byte, and each tile's points are the one-process run's points of those rows.  The stand
+is on the scene's terrain (Gaussian hills on a slope): the ground returns lie on it, not on z = 0."""
 from __future__ import annotations
 
 import json
@@ -13,6 +14,7 @@ import pytest
 
 from simlidar_mi._runtime import cluster as _dask
 from simlidar_mi.config import load_scene
+from simlidar_mi.io.terrain import terrain_of
 from simlidar_mi.lidar import tiles
 from simlidar_mi.lidar.survey import run_scan
 
@@ -47,6 +49,8 @@ def test_landscape_scene_is_twenty_pulses_per_m2_over_1km2():
     assert {s["preset"] for s in cfg.arrays["species"]} == {"deciduous-apex", "conifer-whorl", "broadleaf-monopodial",
                                                      "small-tree"}
     assert cfg["scan"]["points_format"] == "laz" and cfg["scan"]["trajectory"]
+    lo, hi = terrain_of(cfg).z_range_m  # on terrain: tens of metres of relief under the stand
+    assert lo < -20.0 and 40.0 < hi < 0.1 * p["altitude_m"]
 
 
 def test_landscape_tiles_on_a_cluster_are_the_one_machine_points(tmp_path, cluster):
@@ -70,6 +74,11 @@ def test_landscape_tiles_on_a_cluster_are_the_one_machine_points(tmp_path, clust
     assert _measures(tmp_path / "cluster") == _measures(tmp_path / "local")
     one, tiled = laspy.read(tmp_path / "local" / "points.laz"), laspy.read(tmp_path / "cluster" / "points.laz")
     assert one.header.point_count > 15_000 and (np.asarray(one.classification) == 5).any()  # leaves hit
+    ground = np.asarray(one.classification) == 2  # on the terrain, its height under each point
+    terrain = terrain_of(load_scene(SCENE, SMALL))
+    z_ground = terrain.height_m(np.asarray(one.x)[ground], np.asarray(one.y)[ground])
+    assert ground.sum() > 1000 and np.ptp(z_ground) > 1.0
+    assert np.abs(np.asarray(one.z)[ground] - z_ground).max() < 0.005
     for tile in got:  # each tile's points: the one-process run's points of its rows
         rows = (tile["r0"], tile["r1"])
         pick = [(np.asarray(c["scan_position"]) >= rows[0]) & (np.asarray(c["scan_position"]) < rows[1])

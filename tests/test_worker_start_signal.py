@@ -9,15 +9,13 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from tests.conftest import REPO, SCENES
-from tests.test_process_faults import _group, _until
-from tests.test_signal_fuzz import CLI, COMMANDS, WAIT_S, _status
+from simlidar_mi.io.atomic import LOCK_NAME
+from tests.test_signal_fuzz import CLI, COMMANDS, _status, signal_run
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")]
@@ -45,23 +43,13 @@ def _starting_worker(parent: int) -> int | None:
 
 def test_ctrl_c_while_workers_start_is_one_line(tmp_path):
     err_path = tmp_path / "stderr.txt"
-    with open(err_path, "w") as err, open(os.devnull, "w") as devnull:
-        proc = subprocess.Popen([str(CLI), "study", *COMMANDS["study"], "--out", str(tmp_path / "out")],
-                                cwd=REPO, stdout=devnull, stderr=err, start_new_session=True)
-    try:
-        assert _until(lambda: _starting_worker(proc.pid) or proc.poll() is not None, WAIT_S)
-        assert proc.poll() is None, err_path.read_text()
-        os.killpg(proc.pid, signal.SIGINT)  # the whole group, as a terminal does
-        rc = proc.wait(WAIT_S)
-        assert _until(lambda: not _group(proc.pid), 30), f"left running: {_group(proc.pid)}"
-    finally:
-        for pid in _group(proc.pid):
-            os.kill(pid, signal.SIGKILL)
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    rc = signal_run([str(CLI), "study", *COMMANDS["study"], "--out", str(tmp_path / "out")], err_path,
+                    lambda proc: _starting_worker(proc.pid) is not None,
+                    lambda proc: os.killpg(proc.pid, signal.SIGINT))  # the group, as a terminal does
     stderr = err_path.read_text()
     assert rc == 130, stderr
     for bad in ("Traceback", "KeyboardInterrupt", "leaked", "Exception"):
         assert bad not in stderr, stderr
     assert stderr.splitlines()[-1] == "simlidar-mi study: interrupted", stderr
+    out = tmp_path / "out"
+    assert not [p for p in out.rglob("*") if p.name == LOCK_NAME or ".partial" in p.name] if out.exists() else True

@@ -62,24 +62,16 @@ def _plan() -> list[tuple[str, int, float]]:
             for name in COMMANDS for sig in [signal.SIGINT, signal.SIGTERM] * (RUNS_PER_COMMAND // 2)]
 
 
-@pytest.mark.parametrize("name, sig, delay_s", _plan())
-def test_an_interrupt_anywhere_ends_cleanly(tmp_path, name, sig, delay_s):
-    command = name.split("-")[0]
-    out = tmp_path / "out"
-    err_path = tmp_path / "stderr.txt"
+def signal_run(argv: list[str], err_path: Path, ready, send) -> int:
+    """Exit status of ``argv`` run in its own process group (stderr to ``err_path``), after
+    ``send(proc)`` once ``ready(proc)`` holds; asserts that it gets there and that nothing of
+    its group is left running."""
     with open(err_path, "w") as err, open(os.devnull, "w") as devnull:
-        proc = subprocess.Popen([str(CLI), command, *COMMANDS[name], "--out", str(out)], cwd=REPO,
-                                stdout=devnull, stderr=err, start_new_session=True)
+        proc = subprocess.Popen(argv, cwd=REPO, stdout=devnull, stderr=err, start_new_session=True)
     try:
-        # from its first moments on (before any work) the program handles both signals
-        assert _until(lambda: _handles_both(proc.pid) or proc.poll() is not None, WAIT_S)
-        assert proc.poll() is None, "the run ended without ever handling SIGINT and SIGTERM"
-        time.sleep(delay_s)  # where the signal lands: any point must end cleanly
-        if proc.poll() is None:
-            if sig == signal.SIGINT:
-                os.killpg(proc.pid, signal.SIGINT)  # the whole group, as a terminal does
-            else:
-                proc.send_signal(signal.SIGTERM)
+        assert _until(lambda: ready(proc) or proc.poll() is not None, WAIT_S)
+        assert proc.poll() is None, "the run ended before the moment to signal it"
+        send(proc)
         rc = proc.wait(WAIT_S)
         assert _until(lambda: not _group(proc.pid), 30), f"left running: {_group(proc.pid)}"
     finally:
@@ -88,6 +80,25 @@ def test_an_interrupt_anywhere_ends_cleanly(tmp_path, name, sig, delay_s):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+    return rc
+
+
+@pytest.mark.parametrize("name, sig, delay_s", _plan())
+def test_an_interrupt_anywhere_ends_cleanly(tmp_path, name, sig, delay_s):
+    command = name.split("-")[0]
+    out = tmp_path / "out"
+    err_path = tmp_path / "stderr.txt"
+
+    def send(proc: subprocess.Popen) -> None:
+        time.sleep(delay_s)  # where the signal lands: any point must end cleanly
+        if proc.poll() is None:
+            if sig == signal.SIGINT:
+                os.killpg(proc.pid, signal.SIGINT)  # the whole group, as a terminal does
+            else:
+                proc.send_signal(signal.SIGTERM)
+    # from its first moments on (before any work) the program handles both signals
+    rc = signal_run([str(CLI), command, *COMMANDS[name], "--out", str(out)], err_path,
+                    lambda proc: _handles_both(proc.pid), send)
     stderr = err_path.read_text()
     word = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}[sig]
     assert rc in (0, 130 if sig == signal.SIGINT else 143), stderr

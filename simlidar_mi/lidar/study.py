@@ -17,7 +17,7 @@ when all of these match; rows of this grid scanned from another scene or by othe
 are recomputed (``on_mismatch="recompute"``, the default) or refused
 (``on_mismatch="refuse"``), and either way the message names the orchards and what
 differs.  Worker processes end when the study process dies, even by SIGKILL
-(:func:`_die_with_parent`).
+(:mod:`simlidar_mi._runtime.pool`; a Dask worker: :func:`_die_with_parent`).
 
 Each orchard is also scanned under the other readings of the paper that move the result
 (:data:`READINGS`: the fraction rule, eq. 8's far-side limits, and the study as it was
@@ -40,7 +40,6 @@ the scene's own footprint and weights each beam by its share of sub-beams that h
 """
 from __future__ import annotations
 
-import functools
 import hashlib
 import itertools
 import json
@@ -233,8 +232,9 @@ def _read_row(path: Path, quiet: bool = False) -> dict | None:
 def _save_row(rows_dir: Path, row: dict) -> None:
     """``rows/<key>.json``: the same bytes whoever writes it (a local worker or the study
     process for a cluster's worker)."""
-    with atomic_file(rows_dir / f"{row['key']}.json") as tmp:
-        tmp.write_text(json.dumps(row, sort_keys=True, default=str))
+    from .._runtime.signals import interrupts_deferred  # noqa: PLC0415
+    with interrupts_deferred(), atomic_file(rows_dir / f"{row['key']}.json") as tmp:
+        tmp.write_text(json.dumps(row, sort_keys=True, default=str))  # whole, or not at all
 
 
 def _scene_bundle(scene: str, cfgs: list[SceneConfig]) -> dict[str, Any]:
@@ -595,15 +595,19 @@ def _run_local(scene: str, todo: list[tuple[list[str], str]], rows_dir: Path, re
     import dask  # noqa: PLC0415
     from dask.callbacks import Callback  # noqa: PLC0415
     tasks = [dask.delayed(run_one)(scene, o, str(rows_dir), readings, version) for o, _ in todo]
-    opts: dict[str, Any] = {"scheduler": "synchronous"}
-    if workers > 1:
-        # Workers die with this process (SIGKILL included) instead of scanning on as orphans.
-        opts = {"scheduler": "processes", "num_workers": workers,
-                "initializer": functools.partial(_die_with_parent, os.getpid())}
     # one tick per finished orchard, through the package's progress (never on stdout)
     with make_progress(progress).stage("study: scanning", len(todo), "orchard", ticks=True) as st, \
             Callback(posttask=lambda *_: st.update()):
-        dask.compute(*tasks, **opts)
+        if workers <= 1:
+            dask.compute(*tasks, scheduler="synchronous")
+            return
+        from dask.multiprocessing import initialize_worker_process  # noqa: PLC0415
+
+        from .._runtime.pool import worker_pool  # noqa: PLC0415
+        # Workers start deaf to Ctrl-C, die with this process (SIGKILL included) and are
+        # ended by it when it is interrupted (simlidar_mi._runtime.pool).
+        with worker_pool(workers, initialize_worker_process) as pool:
+            dask.compute(*tasks, scheduler="processes", pool=pool)
 
 
 def _plot(rows: list[dict], regression: dict, path: Path) -> None:

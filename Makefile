@@ -56,7 +56,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 	@echo "installed: $$($(VPY) -c 'import simlidar_mi; print(simlidar_mi.__version__)' 2>/dev/null) in $(VENV)"
 
-EXTRAS_test := pytest, hypothesis, sybil, Sphinx, GDAL (rasterio), the CF checkers, OpenImageIO, lazrs, build
+EXTRAS_test := pytest, pytest-xdist, hypothesis, sybil, Sphinx, the CF checkers, OpenImageIO, build
 EXTRAS_docs := Sphinx, MyST, furo
 $(VENV)/.installed-%: $(STAMP) pyproject.toml
 	@echo "installing the $* extras ($(EXTRAS_$*); first time: a few minutes)"; \

@@ -63,10 +63,15 @@ RUNS = {
                                           "platform.azimuth_deg=[-60.0, 60.0, 2.0]"], "static"),
     "forest_hills": ("forest_hills", ["platform.start_xy_m=[20.0, 18.0]", "platform.end_xy_m=[20.0, 22.0]"],
                      "airborne"),
+    # issue 31: the small airborne stand evaluate-als scores (multi-echo RIEGL preset), a corner of it
+    "forest_als_small": ("forest_als_small", ["forest.domain_m=[0.0, 40.0, 0.0, 20.0]",
+                                              "platform.end_xy_m=[20.0, 22.0]", "platform.pulses_per_line=50",
+                                              "platform.pulse_rate_hz=10000.0", "sensor.beam_samples=4"],
+                         "airborne"),
     "rosette_mid70": ("calibration_cylinder", ['platform.kind="rosette"', "platform.position_m=[1.0, 0.0, 1.0]"],
                       "rosette"),
 }
-WITH_ECHOES = {"orchard_lms511", "forest_airborne_echoes", "orchard_vlp16_tractor"}
+WITH_ECHOES = {"orchard_lms511", "forest_airborne_echoes", "orchard_vlp16_tractor", "forest_als_small"}
 
 
 @pytest.fixture(scope="module")

@@ -156,5 +156,11 @@ def test_make_install_prints_one_line_per_stage_when_piped(tmp_path):
     assert [x.split(" ", 1)[0] for x in lines] == ["[1/3]", "[2/3]", "[3/3]", "installed:"]
     assert lines[-1] == "installed: 9.9.9 in .venv"
     calls = (tmp_path / ".venv" / "calls.log").read_text().splitlines()
-    assert "-m pip install -q -e .[test]" in calls            # quiet when piped
+    assert "-m pip install -q -e ." in calls                  # quiet when piped; no test extras
+    assert not any("[test]" in c for c in calls)               # `make demo` does not wait for them
     assert (tmp_path / ".venv" / ".installed").exists()
+    proc = subprocess.run([MAKE, "-s", ".venv/.installed-test", f"PY={fake}"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert proc.stdout.splitlines()[0].startswith("installing the test extras (pytest")
+    assert (tmp_path / ".venv" / "calls.log").read_text().splitlines()[-1] == "-m pip install -q -e .[test]"

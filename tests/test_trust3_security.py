@@ -225,6 +225,7 @@ def test_no_las_leaves_a_points_las_this_program_never_wrote(tmp_path, caplog):
     ["compare", str(SCENES / "strawberry_manifest.csv")], ["truth", CYLINDER], ["preview", CYLINDER],
     ["evaluate", CYLINDER], ["evaluate-photo", str(SCENES / "strawberry_plot.toml")],
     ["fisheye-photo", "missing.jpg"], ["photo-gap", "missing.jpg", "--method", "canopeo"],
+    ["evaluate-als", str(SCENES / "forest_als_small.toml"), "--points", "missing.las"],
 ])
 @pytest.mark.parametrize("empty", ["", "  "])
 def test_an_empty_out_is_refused_in_one_line(tmp_path, monkeypatch, capsys, argv, empty):
@@ -239,7 +240,7 @@ def test_every_command_with_out_is_covered():
     sub = next(a for a in build_parser()._actions if a.dest == "command").choices
     with_out = {name for name, p in sub.items() if any("--out" in a.option_strings for a in p._actions)}
     covered = {"scan", "study", "gapfraction", "fisheye", "synthetic-photo", "forest", "compare",
-               "truth", "preview", "evaluate", "evaluate-photo", "fisheye-photo", "photo-gap"}
+               "truth", "preview", "evaluate", "evaluate-photo", "fisheye-photo", "photo-gap", "evaluate-als"}
     assert with_out <= covered, with_out - covered
 
 

@@ -158,6 +158,31 @@ def test_airborne_ranges_on_hills_at_cells_finer_and_coarser_than_the_points(cel
     np.testing.assert_allclose(r.range_m.ravel(), ref, atol=1e-3)
 
 
+@pytest.mark.parametrize("sensor", [False, True], ids=["first-return", "sensor"])
+def test_beams_on_the_terrain_grid_lines_all_return_at_the_exact_range(sensor):
+    """Scan rows that lie exactly on the terrain grid's lines (rows 0.2 m apart over 1 m cells,
+    every fifth row on a line) meet the edges two triangles share; Embree's test is not
+    watertight, and before the escaped-ray recast 347 of these 40 100 pulses (0.9 %) met nothing.
+    Every pulse now returns from the ground, at the float64 ray–surface distance, on the
+    first-return path and through a physical sensor (intensity from the hit triangle)."""
+    from simlidar_mi.lidar.sensor import SensorModel
+    ox, oy = UTM
+    t = analytic_terrain((ox - 60, ox + 60, oy - 60, oy + 60), 1.0, z_m=300.0, slope_deg=10.0,
+                         aspect_deg=30.0, hills=[(ox + 5, oy + 5, 8.0, 15.0)])
+    built = build_scene(Branches.empty(), terrain=t)
+    pat = airborne_pattern((ox, oy - 40), (ox, oy + 40), 100.0, 40.0, 50.0, 25000.0, 100,
+                           ground=False, ground_z_m=300.0)
+    o = np.broadcast_to(pat.beam_origins_m(), (pat.n_rows, pat.n_cols, 3)).reshape(-1, 3)
+    assert np.any(np.isin(np.round(o[:, 1] - oy, 6), np.arange(-40.0, 41.0)))  # rows on grid lines
+    model = SensorModel(divergence_mrad=0.0, beam_samples=1, intensity=True, range_at_10pct_m=2000.0)
+    r = scan(built, pat, sensor=model if sensor else None)
+    assert r.class_counts()["escape"] == 0 and (r.cls == GROUND).all()
+    ref = _ray_hit_t(t, o, pat.world_dirs().reshape(-1, 3), 150.0)
+    np.testing.assert_allclose(r.range_m.ravel(), ref, atol=1e-4)
+    if sensor:
+        assert (r.n_returns == 1).all() and (r.intensity > 0).all()
+
+
 # --- DEMs ---------------------------------------------------------------------------------------
 
 def _write_dem(path, z, x0=UTM[0], y_top=UTM[1], cell=2.0, crs="EPSG:32633", nodata=None, cell_y=None):

@@ -508,6 +508,8 @@ def _range_integrator(mi, built: BuiltScene, pattern: BeamPattern):
                                "ground": pattern.ground, "ground_z": pattern.ground_z_m - built.origin_m[2],
                                "hit_rule": pattern.hit_rule})
     integrator.set_tables(**built.integrator_tables())
+    if built.terrain_mesh is not None:
+        integrator.set_terrain(built.terrain_mesh, built.terrain_shape_id, built.terrain_cell_m)
     return integrator
 
 

@@ -110,6 +110,10 @@ class BuiltScene:
     # The shape holding each part of prim_element, in its order (meshes, or None for analytic
     # shapes): the source of prim_normals(), computed only when a sensor needs incidence.
     prim_shapes: list = field(default_factory=list, repr=False)
+    # The terrain's top-level mesh, its registry id and cell (the range integrator's set_terrain).
+    terrain_mesh: object = field(default=None, repr=False)
+    terrain_shape_id: int | None = None
+    terrain_cell_m: float | None = None
 
     def prim_normals(self) -> np.ndarray | None:
         """Unit geometric normal of every primitive, laid out like ``prim_element`` (float32
@@ -296,6 +300,8 @@ def build_scene(branches: Branches, leaves: Leaves | None = None,
         lo, hi = np.array(bb.min, float) + origin, np.array(bb.max, float) + origin
     else:
         lo = hi = origin.copy()
+    if terrain is not None:
+        tables["terrain_cell_m"] = float(min(terrain.dx_m, terrain.dy_m))
     return BuiltScene(scene, origin, n_branches=len(kept), n_dropped=n_dropped, n_triangles=parts.n_tri,
                       representation=representation, facets=k, bbox_min_m=lo, bbox_max_m=hi, **tables)
 
@@ -481,6 +487,8 @@ def _lookup_tables(mi, scene, parts: _Shapes, primitives, instances) -> dict:
         grouped = any(key == "flat_instance" for key, _, _ in parts.instance_keys)
         inst["n_instances"] = len(parts.instance_keys) - grouped  # placed trees only
     prim_element = _joined(prim_parts) if prim_parts else np.zeros(1, np.uint32)
+    if "ground_mesh" in shapes:
+        inst.update(terrain_mesh=shapes["ground_mesh"], terrain_shape_id=by_key["ground_mesh"])
     return {"shape_class": shape_class, "shape_base": shape_base,
             "prim_element": prim_element.astype(np.uint32, copy=False), "shape_reflectance": shape_rho,
             "prim_shapes": prim_shapes, **inst}

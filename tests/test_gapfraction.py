@@ -243,6 +243,33 @@ def test_inset_window_orthographic():
         assert np.all(p[:, :2] >= 0.1 - 1e-9) and np.all(p[:, :2] <= 0.9 + 1e-9)
 
 
+@pytest.mark.parametrize("zenith", [15.0, 30.0])
+def test_inset_window_on_a_long_narrow_plot_is_the_largest_box(zenith):
+    """A tilted perspective image maps a box to a trapezoid widening away from the camera, so
+    on a 1.8 m × 0.54 m bed (two rows, tilted along them) the window as wide as the strip allows
+    cannot grow along it.  The window is the largest box whose rays stay in the safe region:
+    checked against a brute-force search over (width, height) pairs in pixels.  (Widening one
+    axis after the other kept a 98-pixel square at 15°, a tenth of this window's area.)"""
+    leaves = _rl(300, "horizontal", 5, height=(0.0, 0.25), size=(1.816, 0.536)).leaves
+    canopy = Canopy(leaves, (0.0, 0.0, 1.816, 0.536), periodic=False)
+    cam = make_camera("perspective", canopy, zenith, resolution=256, fov_deg=60.0, camera_height_m=1.0)
+    win = analysis_window(cam, canopy, "inset", margin_m=0.19)
+    x0, y0, x1, y1 = win.box_px
+    zs = canopy.z_range_m()
+    rx0, ry0, rx1, ry1 = win.safe_region_m
+
+    def inside(w, h):  # the centred pixel box of w × h pixels
+        u = (cam.width / 2 + np.array([-w, w, -w, w]) / 2) / cam.width
+        v = (cam.height / 2 + np.array([-h, -h, h, h]) / 2) / cam.height
+        return all(np.all((p[:, 0] >= rx0 - 1e-9) & (p[:, 0] <= rx1 + 1e-9) & (p[:, 1] >= ry0 - 1e-9)
+                          & (p[:, 1] <= ry1 + 1e-9)) for p in (cam.points_at_z(u, v, z) for z in zs))
+    assert inside(x1 - x0, y1 - y0)
+    best = max(w * max((h for h in range(2, cam.height + 1, 2) if inside(w, h)), default=0)
+               for w in range(2, cam.width + 1, 2))
+    assert (x1 - x0) * (y1 - y0) >= 0.95 * best
+    assert (y1 - y0) > 4 * (x1 - x0)  # a strip along the bed, not a square
+
+
 def test_empty_canopy_and_tiling_limit():
     canopy = canopy_from_random_leaves(random_leaves(0, 0.001, seed=1))
     assert [im.p0 for im in gap_images(canopy, resolution=16, spp=1)] == [1.0] * 6

@@ -46,6 +46,11 @@ THETA = ['strawberry.leaf.petiole_zenith="theta"']
 FIELD_AREA_SCALE = PAPER_TABLE4_REAL_M2[0] / PAPER_TABLE4_VIRTUAL_M2[0]
 FIELD_AREA = [f"strawberry.leaf.area_mean_m2={13.025e-4 * FIELD_AREA_SCALE!r}",
               f"strawberry.leaf.area_sd_m2={5.031e-4 * FIELD_AREA_SCALE!r}"]
+#: The field's leaves: 254 a sample area of 8 plants (the text's 44, 39, 44 are its sixths), of the
+#: mean area that gives Table 4's real 1.116 m² (S the leaf over 2.836, its SD scaled alike).
+FIELD_LEAVES = ["strawberry.leaves_per_plant_mean=31.75",
+                f"strawberry.leaf.area_mean_m2={PAPER_TABLE4_REAL_M2[0] / 254 / 2.836!r}",
+                f"strawberry.leaf.area_sd_m2={5.031e-4 * PAPER_TABLE4_REAL_M2[0] / 254 / 2.836 / 13.025e-4!r}"]
 #: One two-row bed (rows 0.268 m apart), 8 plants a row; the inset window is its central strip.
 BED = ["strawberry.rows=2", "strawberry.plants_per_row=8"]
 
@@ -60,16 +65,14 @@ CANDIDATES = [
      THETA + ["strawberry.leaf.phi_sd_deg=360.0"]),
     # Leaf per metre of bed and the image (issue 33 follow-up), all θ zenith, Table 4 shares:
     ("θ, leaf area of Table 4's real canopy (S × 1.116/1.241)", THETA + FIELD_AREA),
-    ("θ, field's leaves: 31.75 a plant of 43.9 cm² (254 a sample area of 8 plants)",
-     THETA + ["strawberry.leaves_per_plant_mean=31.75",
-              f"strawberry.leaf.area_mean_m2={PAPER_TABLE4_REAL_M2[0] / 254 / 2.836!r}",
-              f"strawberry.leaf.area_sd_m2={5.031e-4 * PAPER_TABLE4_REAL_M2[0] / 254 / 2.836 / 13.025e-4!r}"]),
+    ("θ, field's leaves: 31.75 a plant of 43.9 cm² (254 a sample area of 8 plants)", THETA + FIELD_LEAVES),
     ("θ, S as printed in metres (0.001 ± 0.001 m²)",
      THETA + ["strawberry.leaf.area_mean_m2=0.001", "strawberry.leaf.area_sd_m2=0.001"]),
     ("θ, S' the two laterals together (leaf = 1.918 S)", THETA + ["strawberry.leaf.lateral_area_ratio=0.459"]),
     ("θ, one two-row bed (8 plants a row), window its central strip", THETA + BED),
     ("θ, two-row bed and Table 4's real leaf area", THETA + BED + FIELD_AREA),
     ("φ zenith (cone), two-row bed", PHI + BED),
+    ("θ, two-row bed and the field's leaves (31.75 a plant of 43.9 cm²)", THETA + BED + FIELD_LEAVES),
     ("θ as the petiole's elevation from the horizontal (zenith 90° − θ)",
      THETA + ["strawberry.leaf.theta_mean_deg=25.0"]),
 ]

@@ -296,24 +296,26 @@ def test_shipped_strawberry_manifest(tmp_path: Path) -> None:
         assert s["paper_scatter"] == pytest.approx(paper_scatter, abs=1e-4)
         assert math.isnan(s["scatter"])  # one (mean) pair per zenith: no scatter to measure
     assert (tmp_path / "out" / "comparison.png").is_file()
+    # The manifest's scene is the sample area as photographed (scenes/strawberry_bed.toml, issue
+    # 33: one two-row bed, the neighbouring rows absent, its central strip, the field's leaf area).
     # Both petiole readings in full, as docs/guide/gap-fraction.md prints them (same seeds, same
-    # values).  Since issue 33 the default is θ the zenith (the paper's hemisphere, chosen from its
-    # text), extraction by Table 4's real leaf-area shares; φ the zenith (chosen earlier because it
-    # fits these values) is the other reading.
-    assert res.own_reading == "theta"
-    for name, want in (("theta", (-0.0904, -0.0863, -0.0946)), ("phi", (-0.0390, -0.0246, -0.0357))):
+    # values): θ the zenith (the paper's hemisphere, chosen from its text) is the default; φ the
+    # zenith (chosen earlier because it fitted the 4-row plot) is the other reading.
+    assert res.own_reading == "theta" and {p.row.scene.name for p in res.pairs} == {"strawberry_bed.toml"}
+    for name, want in (("theta", (-0.0363, -0.0276, -0.0366)), ("phi", (-0.0238, -0.0095, -0.0149))):
         got = [st["bias"] for st in res.readings[name][:3]]
         assert got == pytest.approx(want, abs=6e-4), name
-        assert all(0.005 < st["bias_se"] < 0.011 for st in res.readings[name][:3])
+        assert all(0.005 < st["bias_se"] < 0.02 for st in res.readings[name][:3])
     assert [(st["bias"], st["bias_se"]) for st in res.readings["theta"]] == \
         [(st["bias"], st["bias_se"]) for st in res.stats]
     # Uncertainty: 3 sample areas a measured value (n_measured), their SD not printed, so the
-    # virtual plots' SD stands in; under the default reading 0 lies outside every zenith's
-    # interval (the gap is more than the noise), under φ inside.
+    # virtual plots' SD stands in.  Under the default reading every zenith's interval holds 0 and
+    # both ends of ±0.03: whether the bias is within 0.03 cannot be decided from what the paper prints.
     for st in res.stats[:3]:
         assert "stand-in" in st["ci_basis"] and 2 < st["ci_df"] < 4
-        assert st["bias_ci_low"] < st["bias"] < st["bias_ci_high"] < 0
-        assert st["bias_inside_ci"] == "no"
+        assert st["bias_ci_low"] < -0.03 < st["bias"] < 0 < 0.03 < st["bias_ci_high"] or \
+            st["bias_ci_low"] < st["bias"] < -0.03 < 0 < 0.03 < st["bias_ci_high"]
+        assert st["bias_inside_ci"] == "yes"
         assert st["rmse_ci_low"] < st["rmse"] < st["rmse_ci_high"]
         assert math.isnan(st["r"])  # one (mean) row per zenith: r cannot be computed
     assert [st["bias_inside_ci"] for st in res.readings["phi"][:3]] == ["yes"] * 3

@@ -93,7 +93,7 @@ def outputs(tmp_path_factory):
 def test_every_included_scan_scene_is_covered():
     """A new scene that writes points.las joins RUNS; these write none (forests for the
     `forest` command, gap-fraction canopies)."""
-    no_las = {"forest_4species", "forest_small", "random_leaves_spherical", "strawberry_plot"}
+    no_las = {"forest_4species", "forest_small", "random_leaves_spherical", "strawberry_plot", "strawberry_bed"}
     assert {p.stem for p in SCENES.glob("*.toml")} - no_las == {scene for scene, _, _ in RUNS.values()}
     assert {kind for _, _, kind in RUNS.values()} == {"tractor", "static", "path", "airborne", "rotating", "rosette"}
 

@@ -166,3 +166,12 @@ def test_cli_refuses_rasters_past_the_ray_budget(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "truth.raster_cell_m" in err[0] and "rays" in err[0], err
     assert not (tmp_path / "o").exists()
+
+
+def test_the_argument_overrides_the_scene_key(tmp_path):
+    """``truth_rasters=False`` turns off a scene's ``truth_rasters = true``, a SceneConfig's too."""
+    corner = ["forest.domain_m=[0.0, 15.0, 0.0, 15.0]", 'forest.leaf_table="none"', 'forest.export="none"',
+              "forest.truth_rasters=true"]
+    run = sm.run_forest(load_scene(SCENE, corner), tmp_path / "o", truth_rasters=False, parallel=False)
+    assert not {p.name for p in (tmp_path / "o").iterdir()} & set(RASTERS) and "truth_rasters" not in run.summary
+    assert "top_cells" not in _trees(tmp_path / "o" / "trees.csv")[0]

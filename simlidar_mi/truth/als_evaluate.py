@@ -24,8 +24,8 @@ truth (:mod:`simlidar_mi.truth.als_truth`) and writes into ``out_dir``:
     tree with the true tree it matched (−1: none).
 ``truth_trees.csv``
     the scene's trees (``tree_id, species, x_m, y_m, height_m, crown_radius_m``) with
-    ``top_cells`` (cells of ``truth_tree_id.tif`` the tree owns) and ``overtopped`` (owns none):
-    the one table of tree truth that knows which trees are overtopped.
+    ``top_cells`` (cells of ``truth_tree_id.tif`` the tree owns) and ``overtopped`` (owns none;
+    ``forest --truth-rasters`` adds the same two columns to ``trees.csv``).
 ``truth_dtm.tif``, ``truth_dsm.tif``, ``truth_chm.tif``, ``truth_tree_id.tif``
     the raster truth; ``dtm_<filter>.tif``, ``chm_plain.tif``, ``chm_pitfree.tif`` the estimates.
 ``dtm_error.png``, ``chm_trees.png``, ``detection_by_height.png``

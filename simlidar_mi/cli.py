@@ -40,6 +40,9 @@ def _scene_args(p: argparse.ArgumentParser) -> None:
 
 def _overrides(args: argparse.Namespace) -> list[str]:
     extra = [f'scene.variant="{args.variant}"'] if getattr(args, "variant", None) else []
+    if getattr(args, "truth_rasters", False):  # forest: its errors name the option
+        from .config import Override  # noqa: PLC0415  (not while the parser is built: no numpy yet)
+        extra.append(Override("forest.truth_rasters=true", "--truth-rasters"))
     return list(args.overrides) + extra
 
 
@@ -357,15 +360,13 @@ def _derive_run(args: argparse.Namespace) -> int:
 
 
 def _forest_args(p: argparse.ArgumentParser) -> None:
-    from .config import Override
     p.add_argument("scene", metavar="SCENE.toml", help="scene with [forest] and [[species]] (see scenes/)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene key, e.g. --set forest.instancing=false (repeatable)")
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output folder: trees.csv, leaves.parquet, layout.png, preview.png, stand.ply, "
                         "forest.json")
-    p.add_argument("--truth-rasters", dest="overrides", action="append_const",
-                   const=Override("forest.truth_rasters=true", "--truth-rasters"),
+    p.add_argument("--truth-rasters", action="store_true",
                    help="also cast the truth DTM, DSM, CHM and top tree id (truth_*.tif at [truth] "
                         "raster_cell_m) and add top_cells and overtopped to trees.csv (same as --set "
                         "forest.truth_rasters=true)")
@@ -376,7 +377,7 @@ def _forest_args(p: argparse.ArgumentParser) -> None:
 def _forest_run(args: argparse.Namespace) -> int:
     from .truth.forest_truth import run_forest
 
-    run = run_forest(args.scene, args.out, args.overrides, progress=True)
+    run = run_forest(args.scene, args.out, _overrides(args), progress=True)
     s = run.summary
     print(f"{s['n_trees']} trees ({s['removed_by_thinning']} candidates removed by the "
           f"{s['min_distance_m']:g} m distance and crown_factor {s['crown_factor']:g} rules; "

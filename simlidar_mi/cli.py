@@ -365,7 +365,7 @@ def _forest_args(p: argparse.ArgumentParser) -> None:
                    help="override a scene key, e.g. --set forest.instancing=false (repeatable)")
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output folder: trees.csv, leaves.parquet, layout.png, preview.png, stand.ply, "
-                        "forest.json")
+                        "forest.json (and truth_*.tif with --truth-rasters)")
     p.add_argument("--truth-rasters", action="store_true",
                    help="also cast the truth DTM, DSM, CHM and top tree id (truth_*.tif at [truth] "
                         "raster_cell_m) and add top_cells and overtopped to trees.csv (same as --set "

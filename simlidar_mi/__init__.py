@@ -67,7 +67,7 @@ _API = {
     "VineyardParams": "plants.vineyard", "vineyard": "plants.vineyard",
     "gap_images": "canopy.gapfraction", "run_gapfraction": "canopy.gapfraction",
     "photo_gap": "canopy.photo", "compare": "canopy.compare",
-    "make_forest": "forest.stand", "run_forest": "forest.run",
+    "make_forest": "forest.stand", "run_forest": "truth.forest_truth",
     "write_scan_exr": "io.exr", "write_scan_las": "io.las",
 }
 

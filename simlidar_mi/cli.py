@@ -40,6 +40,9 @@ def _scene_args(p: argparse.ArgumentParser) -> None:
 
 def _overrides(args: argparse.Namespace) -> list[str]:
     extra = [f'scene.variant="{args.variant}"'] if getattr(args, "variant", None) else []
+    if getattr(args, "truth_rasters", False):  # forest: its errors name the option
+        from .config import Override  # noqa: PLC0415  (not while the parser is built: no numpy yet)
+        extra.append(Override("forest.truth_rasters=true", "--truth-rasters"))
     return list(args.overrides) + extra
 
 
@@ -362,15 +365,19 @@ def _forest_args(p: argparse.ArgumentParser) -> None:
                    help="override a scene key, e.g. --set forest.instancing=false (repeatable)")
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output folder: trees.csv, leaves.parquet, layout.png, preview.png, stand.ply, "
-                        "forest.json")
+                        "forest.json (and truth_*.tif with --truth-rasters)")
+    p.add_argument("--truth-rasters", action="store_true",
+                   help="also cast the truth DTM, DSM, CHM and top tree id (truth_*.tif at [truth] "
+                        "raster_cell_m) and add top_cells and overtopped to trees.csv (same as --set "
+                        "forest.truth_rasters=true)")
 
 
 @command("forest", "Random forest (seed 004): Poisson-placed random trees; tree and leaf tables, "
          "layout and preview pictures, PLY/OBJ export", _forest_args)
 def _forest_run(args: argparse.Namespace) -> int:
-    from .forest.run import run_forest
+    from .truth.forest_truth import run_forest
 
-    run = run_forest(args.scene, args.out, args.overrides, progress=True)
+    run = run_forest(args.scene, args.out, _overrides(args), progress=True)
     s = run.summary
     print(f"{s['n_trees']} trees ({s['removed_by_thinning']} candidates removed by the "
           f"{s['min_distance_m']:g} m distance and crown_factor {s['crown_factor']:g} rules; "
@@ -395,6 +402,10 @@ def _forest_run(args: argparse.Namespace) -> int:
                   f"LAI {sp['crown_lai']:.2f}, domain LAI {sp['domain_lai']:.3f}{needle}")
     print(f"stand LAI {fo['lai']:.3f} over the domain, {fo['lai_over_crowns'] or 0:.2f} over the "
           f"{fo['crown_union_m2']:.0f} m² of crowns (needle-area LAI {fo['needle_lai']:.3f})")
+    if "truth_rasters" in s:
+        t, g = s["truth_rasters"], s["truth_rasters"]["grid"]
+        print(f"truth rasters: {g['nx']} × {g['ny']} cells of {g['cell_m']:g} m, {t['subsamples']}² rays a "
+              f"cell; {t['n_overtopped']} of {t['n_trees']} trees overtopped; CRS {t['crs']}")
     print(f"leaf table: {s['leaf_table']}, export: {s['export']}; seconds: "
           + ", ".join(f"{k} {v:.2f}" for k, v in s["seconds"].items()))
     for path in run.files.values():

@@ -80,6 +80,8 @@ RUNS = [
      {"fisheye_photo_lai.csv"}),  # only with --lai
     ("evaluate", lambda o: ["evaluate", "scenes/calibration_cylinder.toml", "--out", o, "--voxel", "0.25"],
      set()),
+    ("forest", lambda o: ["forest", "scenes/forest_small.toml", "--out", o, "--truth-rasters", "--set",
+                          "forest.domain_m=[0.0, 15.0, 0.0, 15.0]"], set()),
 ]
 
 

@@ -96,6 +96,10 @@ SECTIONS: dict[str, dict[str, Key]] = {
         "export_facets": Key(INT, 6, at_least(3), "prism facets of exported branches"),
         "export_max_triangles": Key(INT, 20_000_000, at_least(0), "limit of export = 'auto'"),
         "preview_max_trees": Key(INT, 300, at_least(1), "trees drawn in preview.png (a central strip)"),
+        "truth_rasters": Key(BOOL, False, None, "also cast the truth rasters over the domain (truth_dtm, "
+                             "truth_dsm, truth_chm, truth_tree_id .tif at [truth] raster_cell_m and "
+                             "raster_subsamples) and add top_cells and overtopped to trees.csv: a Mitsuba "
+                             "scene and k² vertical rays a cell (the forest command's --truth-rasters)"),
     },
     "ground": {
         "enabled": Key(BOOL, True, None, "a ground plane under the scene"),

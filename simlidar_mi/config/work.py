@@ -225,11 +225,32 @@ def scan_subrays(cfg, b: Budget) -> None:
              ["sensor.beam_samples", "scan.footprint", "scan.chunk_beams"])
 
 
+#: Bytes a truth-raster cell holds: its centre (x, y), DTM, DSM and CHM (float64), tree id (int32)
+#: and the float32 copies written; and a ray of one band of vertical rays (truth.als_truth: the
+#: sub-sample positions, terrain, hit heights and ids, and the tracer's tables).
+BYTES_PER_RASTER_CELL, BYTES_PER_RASTER_RAY = 64, 120
+#: Vertical rays traced at once (truth.als_truth.CHUNK_RAYS).
+RASTER_CHUNK_RAYS = 1 << 21
+
+
+def forest_truth(cfg, b: Budget) -> None:
+    """``forest --truth-rasters``: k × k vertical rays a cell of ``[truth] raster_cell_m`` over the domain."""
+    if not cfg["forest"]["truth_rasters"]:
+        return
+    x0, x1, y0, y1 = cfg["forest"]["domain_m"]
+    cell, k = cfg["truth"]["raster_cell_m"], cfg["truth"]["raster_subsamples"]
+    cells = max(1.0, -(-(x1 - x0) // cell)) * max(1.0, -(-(y1 - y0) // cell))
+    factors = ["truth.raster_cell_m", "truth.raster_subsamples", "forest.domain_m"]
+    b.memory(f"truth rasters of {cells:.3g} cells", cells * BYTES_PER_RASTER_CELL
+             + min(cells * k * k, RASTER_CHUNK_RAYS) * BYTES_PER_RASTER_RAY, factors)
+    b.trace(f"truth rasters: {cells:.3g} cells × {k}² vertical rays", cells * k * k, factors)
+
+
 #: What each command's run builds: a list of estimates.
 COMMAND_WORK = {
     "scan": (geometry, scan_subrays), "evaluate": (geometry, scan_subrays), "measure": (geometry,),
     "study": (geometry, scan_subrays),  # its base scene, with the --set every orchard gets
-    "preview": (geometry,), "truth": (geometry,), "forest": (geometry,),
+    "preview": (geometry,), "truth": (geometry,), "forest": (geometry, forest_truth),
     "gapfraction": (geometry, gapfraction), "synthetic-photo": (geometry, synthetic_photo),
     "fisheye": (geometry, fisheye),
     "evaluate-photo": (geometry, lambda c, b: fisheye(c, b, c["lai_methods"]["sampler"])),

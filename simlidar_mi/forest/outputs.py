@@ -125,8 +125,9 @@ def write_leaf_tables(path: Path, tables: Iterable[LeafTable], id_name: str, fmt
     return (_leaf_tables_parquet if fmt == "parquet" else _leaf_tables_csv)(path, tables, id_name)
 
 
-def _write_trees_csv(path: Path, forest: Forest) -> None:
-    c = forest.trees_columns()
+def _write_trees_csv(path: Path, forest: Forest, extra: dict[str, np.ndarray] | None = None) -> None:
+    """``trees.csv``: :meth:`Forest.trees_columns`, then the ``extra`` columns (whole numbers)."""
+    c = {**forest.trees_columns(), **(extra or {})}
     fmt = {"x": "{:.6f}", "y": "{:.6f}", "z_base_m": "{:.6f}", "height_m": "{:.6f}",
            "crown_base_m": "{:.6f}", "dbh_m": "{:.6f}", "yaw_deg": "{:.6f}",
            "scale": "{:.8f}", "crown_radius_m": "{:.6f}", "branching": "{:.6g}",

@@ -6,7 +6,8 @@
     ``tree_id, species, x, y, z_base_m, height_m, crown_base_m, dbh_m, n_branches, n_leaves,
     seed, prototype, yaw_deg, scale, crown_radius_m, branching, leaf_area_m2, crown_projection_m2``
     (and ``needle_area_m2`` when a species models conifer shoots: see
-    :mod:`simlidar_mi.forest.foliage`) (metres, degrees; ``prototype = -1``
+    :mod:`simlidar_mi.forest.foliage`; and ``top_cells, overtopped`` with the truth rasters,
+    below) (metres, degrees; ``prototype = -1``
     without instancing; (x, y, ``z_base_m``) is the trunk foot, ``z_base_m`` the terrain height
     under it (0 without ``[terrain]``); ``height_m`` (total height) is the highest z of the
     tree's branch end points and leaf vertices above the foot, ``crown_base_m`` the lowest leaf
@@ -38,6 +39,11 @@
     ``o leaves``) — see :mod:`simlidar_mi.io.mesh_export`. ``export = "auto"``
     writes the stand up to ``export_max_triangles``, else (instancing only) one
     ``prototypes/<species>_<k>.ply`` per prototype in its own frame.
+``truth_dtm.tif``, ``truth_dsm.tif``, ``truth_chm.tif``, ``truth_tree_id.tif``
+    with ``[forest] truth_rasters = true`` (``--truth-rasters``) only: the raster truth over the
+    domain, as ``evaluate-als`` writes it, and ``trees.csv`` gains ``top_cells`` (cells of
+    ``truth_tree_id.tif`` the tree owns) and ``overtopped`` (1: it owns none).  The ray casting
+    lives above this room (:mod:`simlidar_mi.truth.forest_truth`): it comes in as ``truth``.
 ``forest.json``
     counts per species (expected, before and removed by the thinning, placed, mean
     height and crown radius, share of trees with the L1 flag), totals,
@@ -57,7 +63,9 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Sequence
+from typing import Any, Callable, Iterable, Iterator, Sequence
+
+import numpy as np
 
 from .._runtime.fork import Forked, use_fork
 from .._runtime.progress import make_progress
@@ -69,13 +77,14 @@ from .outputs import (_write_prototype_meshes, _write_trees_csv, leaf_table_form
                       plot_preview, write_leaf_tables, write_stand)
 from .stand import Forest, _bar, make_forest
 
-__all__ = ["ForestRun", "run_forest", "FOREST_OUTPUTS"]
+__all__ = ["ForestRun", "ForestExtras", "run_forest", "FOREST_OUTPUTS"]
 
 # The files a forest run owns in its folder (whole-name regular expressions): a re-run
 # removes those it does not write again (the stand mesh after switching to prototypes,
 # the leaf table after leaf_table = "none", the other format's files).
 FOREST_OUTPUTS = (r"trees\.csv", r"(prototype_)?leaves\.(csv|parquet)", r"layout\.png",
-                  r"preview\.png", r"stand\.(ply|obj)", r"prototypes", r"forest\.json")
+                  r"preview\.png", r"stand\.(ply|obj)", r"prototypes", r"forest\.json",
+                  r"truth_(dtm|dsm|chm|tree_id)\.tif")
 
 
 # --- the command -----------------------------------------------------------------------
@@ -88,6 +97,21 @@ class ForestRun:
     forest: Forest
     files: dict[str, Path]
     summary: dict[str, Any]
+
+
+@dataclass
+class ForestExtras:
+    """What a layer above this one adds to a forest run (the truth rasters:
+    :func:`simlidar_mi.truth.forest_truth.forest_truth`), given by its ``truth`` hook."""
+
+    columns: dict[str, np.ndarray]  # per tree, appended to trees.csv in this order
+    files: dict[str, str]           # kind -> name of a file it wrote in the staging folder
+    summary: dict[str, Any]         # forest.json's "truth_rasters"
+    seconds: dict[str, float]
+
+
+#: ``truth(forest, cfg, stage, progress)``: writes its files into the staging folder ``stage``.
+TruthHook = Callable[[Forest, SceneConfig, Path, Any], ForestExtras]
 
 
 def _resolve_modes(forest: Forest, f: dict, src: str, where=None) -> tuple[str, str]:
@@ -191,13 +215,15 @@ def _pictures(forest: Forest, stage: Path, max_trees: int, parallel: bool | None
 
 @writes_output("out_dir")
 def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Sequence[str] = (),
-               *, progress=False, parallel: bool | None = None) -> ForestRun:
+               *, progress=False, parallel: bool | None = None, truth: TruthHook | None = None) -> ForestRun:
     """Make the forest of a scene file and write its files (see the module docstring).
 
     All files appear together when complete (staged); a failure leaves ``out_dir``
     as it was.  ``progress``: see :func:`simlidar_mi._runtime.progress.make_progress`.
     ``parallel``: draw the pictures in a forked process (None: when fork is available
     and the process may use two or more cores; False: in turn, in this process).
+    ``truth``: what casts the truth rasters when ``[forest] truth_rasters`` is true
+    (:func:`simlidar_mi.run_forest` passes it; the ray casting is above this room).
     """
     if not isinstance(cfg, SceneConfig):
         cfg = load_scene(cfg, list(overrides))
@@ -205,19 +231,28 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
         raise ConfigError("the scene has no [forest] section or [[species]] tables", file=cfg.source,
                           key="forest")
     f = cfg["forest"]
+    if f["truth_rasters"] and truth is None:
+        raise ConfigError("the truth rasters are cast by simlidar_mi.run_forest (the forest command), not by "
+                          "simlidar_mi.forest.run.run_forest", file=cfg.source_of("forest.truth_rasters"),
+                          key="forest.truth_rasters", value=True)
     ext = leaf_table_format(f["leaf_table_format"], cfg.source)
     forest = make_forest(cfg, progress=progress)
     leaf_mode, export = _resolve_modes(forest, f, cfg.source, cfg.source_of)
     seconds = dict(forest.seconds)
     files: dict[str, Path] = {}
     out = Path(out_dir)
+    extras: ForestExtras | None = None
     with staged_dir(out, FOREST_OUTPUTS) as stage:
         pictures = _pictures(forest, stage, f["preview_max_trees"], parallel)
         blas = contextlib.ExitStack()
         if pictures.child is not None:
             blas.enter_context(_one_blas_thread())
         try:
-            _write_trees_csv(stage / "trees.csv", forest)
+            extras = truth(forest, cfg, stage, progress) if f["truth_rasters"] and truth is not None else None
+            if extras is not None:
+                seconds.update(extras.seconds)
+                files.update({kind: out / name for kind, name in extras.files.items()})
+            _write_trees_csv(stage / "trees.csv", forest, extras.columns if extras is not None else None)
             files["trees"] = out / "trees.csv"
             rows = 0
             # the leaf table (zstd in pyarrow) is written in a thread beside the meshes: both
@@ -272,6 +307,8 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
                                                           for t in forest.prototypes))
                         if export == "prototypes" else 0,
                         "transform": "p_world = (x, y, 0) + Rz(yaw_deg) · (scale · p_local)"})
+        if extras is not None:
+            summary["truth_rasters"] = extras.summary
         with open(stage / "forest.json", "w") as fh:
             json.dump(summary, fh, indent=2)
         files["summary"] = out / "forest.json"

@@ -166,9 +166,10 @@ class SceneGeometry:
         return float(lo[sel, 0].min()) if sel.any() else None
 
 
-def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
+def generate(cfg: SceneConfig, read_meshes: bool = True, forest=None) -> SceneGeometry:
     """Build the plants and primitives a scene file asks for (no Mitsuba).  Mesh primitives
-    are read here, once (``read_meshes=False``: when first needed, for callers that may not)."""
+    are read here, once (``read_meshes=False``: when first needed, for callers that may not).
+    ``forest``: the scene's :class:`~simlidar_mi.forest.stand.Forest` already made, used as is."""
     t0 = time.perf_counter()
     parts: list[Branches] = []
     leaves, instances, trees = Leaves.empty(), None, None
@@ -191,7 +192,7 @@ def generate(cfg: SceneConfig, read_meshes: bool = True) -> SceneGeometry:
     if cfg.has("forest") or cfg.arrays.get("species"):
         from ..forest.stand import make_forest  # noqa: PLC0415
         from ..forest.representation import scene_parts  # noqa: PLC0415
-        forest = make_forest(cfg, terrain=terrain)
+        forest = forest if forest is not None else make_forest(cfg, terrain=terrain)
         fb, forest_leaves, instances = scene_parts(forest, cfg.source)
         trees = forest.trees_columns()  # arrays only: the Forest itself is freed as before
         parts.append(fb)

@@ -24,8 +24,8 @@ truth (:mod:`simlidar_mi.truth.als_truth`) and writes into ``out_dir``:
     tree with the true tree it matched (−1: none).
 ``truth_trees.csv``
     the scene's trees (``tree_id, species, x_m, y_m, height_m, crown_radius_m``) with
-    ``top_cells`` (cells of ``truth_tree_id.tif`` the tree owns) and ``overtopped`` (owns none):
-    the one table of tree truth that knows which trees are overtopped.
+    ``top_cells`` (cells of ``truth_tree_id.tif`` the tree owns) and ``overtopped`` (owns none;
+    ``forest --truth-rasters`` adds the same two columns to ``trees.csv``).
 ``truth_dtm.tif``, ``truth_dsm.tif``, ``truth_chm.tif``, ``truth_tree_id.tif``
     the raster truth; ``dtm_<filter>.tif``, ``chm_plain.tif``, ``chm_pitfree.tif`` the estimates.
 ``dtm_error.png``, ``chm_trees.png``, ``detection_by_height.png``
@@ -56,7 +56,8 @@ from ..io.atomic import staged_dir, writes_output
 from . import als_ground as G
 from . import als_trees as T
 from ..io.terrain import ground_height, terrain_of
-from .als_truth import HeightFn, RasterGrid, surface_rasters, write_geotiff, write_truth_rasters
+from .als_truth import HeightFn, RasterGrid, top_cells, write_geotiff, write_truth_rasters
+from .forest_truth import cast_truth, raster_crs
 from .scoring import load_plugin
 
 ALS_OUTPUTS = (r"als_scores\.json", r"ground_scores\.csv", r"dtm_scores\.csv", r"chm_scores\.csv",
@@ -181,7 +182,6 @@ def evaluate_als(scene, points: str | Path, out_dir: str | Path, overrides: Sequ
     and write the files of the module docstring into ``out_dir``.  ``height_m``: the terrain
     (default: the flat plane ``[ground] z_m``); ``cell_m``/``subsamples`` override
     ``[truth] raster_cell_m``/``raster_subsamples``."""
-    from ..lidar.survey import build, generate  # noqa: PLC0415
     cfg = scene if isinstance(scene, SceneConfig) else load_scene(scene, list(overrides))
     shown = make_progress(progress)
     cell_m = float(cell_m if cell_m is not None else cfg["truth"]["raster_cell_m"])
@@ -199,19 +199,9 @@ def evaluate_als(scene, points: str | Path, out_dir: str | Path, overrides: Sequ
     height_m = height_m or (terrain.height_m if terrain is not None else ground_height(cfg))
     seconds: dict[str, float] = {}
 
-    t0 = time.perf_counter()
-    with shown.stage("evaluate-als: scene", None, "step"):
-        geometry = generate(cfg)
-        built = build(cfg, geometry, patterns=[])
-    seconds["scene"] = time.perf_counter() - t0
     grid = _grid(cfg, pts, cell_m)
-    t0 = time.perf_counter()
-    with shown.stage("evaluate-als: truth rasters", grid.ny, "row") as bar:
-        one = geometry.trees is not None and len(geometry.trees["tree_id"]) == 1
-        truth = surface_rasters(built, grid, height_m, k, variant=cfg["scene"]["variant"], progress=bar.update,
-                                lone_tree=0 if one else None)
-    del built
-    seconds["truth_rasters"] = time.perf_counter() - t0
+    truth, trees, s = cast_truth(cfg, grid, height_m, k, shown, "evaluate-als")
+    seconds.update(s)
 
     xyz = np.column_stack([pts["x"], pts["y"], pts["z"]])
     true_ground = pts["classification"] == LAS_GROUND
@@ -257,12 +247,10 @@ def evaluate_als(scene, points: str | Path, out_dir: str | Path, overrides: Sequ
     chm_diff = {"mean_m": float(np.nanmean(diff)), "rmse_m": float(np.sqrt(np.nanmean(diff ** 2))),
                 "share_cells_over_0.5m": float(np.nanmean(diff > 0.5))}
 
-    trees = geometry.trees
     detected, det_rows = {}, []
     if trees is not None and len(trees["tree_id"]):
         n = len(trees["tree_id"])
-        over = truth.overtopped(n)
-        owned = np.bincount(truth.tree_id[truth.tree_id >= 0].ravel(), minlength=n)[:n]
+        owned, over = top_cells(truth.tree_id, n)
         true_xyh = np.column_stack([trees["x"], trees["y"], trees["height_m"]]).astype(np.float64)
         bar = shown.stage("evaluate-als: tree detection", 2 * len(detectors), "run")
         for chm_name, chm in (("pitfree", chm_pf), ("truth", truth.chm)):
@@ -291,8 +279,7 @@ def evaluate_als(scene, points: str | Path, out_dir: str | Path, overrides: Sequ
     else:
         true_xyh, tree_table = np.zeros((0, 3)), []
 
-    # the scene's CRS, else its DEM's (read_dem refuses the two when they differ)
-    crs = cfg["scene"]["crs"] or (terrain.crs if terrain is not None else None)
+    crs = raster_crs(cfg, terrain)
     run.summary = {"scene": str(cfg.source), "points": str(points), "n_points": int(len(xyz)),
                    "n_true_ground": int(true_ground.sum()), "grid": grid.to_dict(), "subsamples": k,
                    "crs": crs or "none (the scene's local frame, metres)",

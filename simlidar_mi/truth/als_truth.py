@@ -116,11 +116,19 @@ class SurfaceTruth:
         return overtopped(self.tree_id, n_trees)
 
 
-def overtopped(tree_id_raster: np.ndarray, n_trees: int) -> np.ndarray:
-    """True for each tree id 0 … ``n_trees`` − 1 that owns no cell of a top tree-id raster."""
+def top_cells(tree_id_raster: np.ndarray, n_trees: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per tree id 0 … ``n_trees`` − 1: the cells of a top tree-id raster it owns (int64) and
+    whether it is overtopped (owns none; bool): ``trees.csv``'s and ``truth_trees.csv``'s
+    ``top_cells`` and ``overtopped``."""
     ids = np.asarray(tree_id_raster).ravel()
     ids = ids[(ids >= 0) & (ids < n_trees)].astype(np.int64)
-    return np.bincount(ids, minlength=n_trees)[:n_trees] == 0
+    owned = np.bincount(ids, minlength=n_trees)[:n_trees]
+    return owned, owned == 0
+
+
+def overtopped(tree_id_raster: np.ndarray, n_trees: int) -> np.ndarray:
+    """True for each tree id 0 … ``n_trees`` − 1 that owns no cell of a top tree-id raster."""
+    return top_cells(tree_id_raster, n_trees)[1]
 
 
 def _vertical_pattern(origins_m: np.ndarray, escape_m: float):

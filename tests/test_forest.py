@@ -28,7 +28,9 @@ from simlidar_mi.plants.tree_params import species_preset
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 TREES_COLUMNS = ["tree_id", "species", "x", "y", "z_base_m", "height_m", "crown_base_m", "dbh_m",
-                 "n_branches", "n_leaves", "seed", "prototype", "yaw_deg", "scale", "crown_radius_m", "branching",
+                 "n_branches", "n_leaves", "seed", "prototype", "yaw_deg", "scale", "crown_radius_m",
+                 # issue 31: crown radii by compass sector, from the crown projection
+                 *(f"crown_radius_{s}_m" for s in ("n", "ne", "e", "se", "s", "sw", "w", "nw")), "branching",
                  # issue 30: foliage per tree (needle area: the scene has a shoot species)
                  "leaf_area_m2", "crown_projection_m2", "needle_area_m2"]
 LEAF_COLUMNS = ["tree_id", "leaf_id", "x", "y", "z", "length_m", "width_m", "area_m2",

@@ -9,7 +9,7 @@ import pytest
 
 from simlidar_mi.config import load_scene
 from simlidar_mi.config.keys import ARRAY_SECTIONS
-from simlidar_mi.forest.foliage import crown_hull, polygon_area_m2, union_area_m2
+from simlidar_mi.forest.foliage import SECTORS, crown_hull, hull_radii_m, polygon_area_m2, union_area_m2
 from simlidar_mi.forest.params import ForestSpecies
 from simlidar_mi.forest.placement import Bump, SpeciesIntensity
 from simlidar_mi.forest.run import run_forest
@@ -79,6 +79,41 @@ def test_union_and_hull_areas_are_exact_on_squares():
     assert polygon_area_m2(sq) == 16.0
     assert union_area_m2([sq, sq + [2.0, 0.0]]) == pytest.approx(24.0)
     assert union_area_m2([sq, sq[::-1] + [10.0, 10.0]]) == pytest.approx(32.0)
+
+
+def test_hull_radii_are_exact_on_a_square():
+    """Radii from the origin to the edge of a 2 m × 4 m rectangle around it: 1 m east, 2 m
+    north, √2·min(1, 2)… along the diagonals (the corner lines), 0 for a degenerate hull."""
+    rect = np.array([[-1.0, -2.0], [1.0, -2.0], [1.0, 2.0], [-1.0, 2.0]])
+    u = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [np.sqrt(0.5), np.sqrt(0.5)]])
+    np.testing.assert_allclose(hull_radii_m(rect, u), [1.0, 2.0, 1.0, 2.0, np.sqrt(2.0)], rtol=1e-12)
+    np.testing.assert_allclose(hull_radii_m(rect[::-1], u), [1.0, 2.0, 1.0, 2.0, np.sqrt(2.0)], rtol=1e-12)
+    assert (hull_radii_m(rect[:2], u) == 0).all()
+
+
+@pytest.mark.parametrize("instancing", [True, False])
+def test_trees_csv_crown_radii_by_sector_reach_the_placed_crown_edge(tmp_path, instancing):
+    """Each tree's eight compass radii (N = +y, clockwise) end on the edge of its crown projection
+    as placed in the world (turned by its yaw): just inside at 0.999 r, outside at 1.001 r."""
+    over = ["forest.domain_m=[0.0, 40.0, 0.0, 40.0]", 'forest.export="none"', 'forest.leaf_table="none"',
+            f"forest.instancing={str(instancing).lower()}"]
+    run = run_forest(load_scene("scenes/forest_small.toml", over), tmp_path)
+    with open(tmp_path / "trees.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    hulls = list(run.forest.crown_hulls_world())
+    assert len(hulls) == len(rows) > 3
+    assert len({r["yaw_deg"] for r in rows}) > 3 if instancing else {r["yaw_deg"] for r in rows} == {"0.000000"}
+    for r, h in zip(rows, hulls):
+        foot = np.array([float(r["x"]), float(r["y"])])
+        e = np.roll(h, -1, axis=0) - h
+        for k, name in enumerate(SECTORS):
+            rad = float(r[f"crown_radius_{name}_m"])
+            b = np.deg2rad(45.0 * k)
+            u = np.array([np.sin(b), np.cos(b)])
+            assert rad > 0
+            for f, inside in ((0.999, True), (1.001, False)):
+                q = foot + f * rad * u - h
+                assert bool(np.all(e[:, 0] * q[:, 1] - e[:, 1] * q[:, 0] >= 0)) == inside, (r["tree_id"], name)
 
 
 def test_poisson_is_the_default_count():

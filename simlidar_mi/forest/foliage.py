@@ -17,6 +17,10 @@ crown LAI of a species
 stand LAI
     all leaf area over the domain's area, and over the union of all crown projections
     (rasterised on a ``UNION_CELL_M`` grid).
+crown radii by sector
+    the distance from the trunk foot to the crown projection's edge along the eight compass
+    bearings N, NE, … NW (clockwise from north, +y), as foresters measure crown radii in
+    the field (``trees.csv`` ``crown_radius_n_m`` …).
 crown base, DBH
     the lowest leaf vertex above the trunk foot; the diameter of the trunk's (order-1)
     segment that crosses 1.3 m above the foot (NaN where the trunk is shorter; the random
@@ -29,7 +33,8 @@ import numpy as np
 from ..plants.foliage import needle_area_factor
 from ..plants.random_tree import RandomTree
 
-__all__ = ["UNION_CELL_M", "crown_hull", "foliage_summary", "polygon_area_m2", "union_area_m2"]
+__all__ = ["SECTORS", "UNION_CELL_M", "crown_hull", "foliage_summary", "hull_radii_m", "polygon_area_m2",
+           "sector_radius_columns", "union_area_m2"]
 
 #: Grid step of the union of crown projections (m): cells whose centre lies in a hull count.
 UNION_CELL_M = 0.25
@@ -47,6 +52,42 @@ def crown_hull(tree: RandomTree) -> np.ndarray:
     except QhullError:      # fewer than 3 points off a line: no area
         return np.zeros((0, 2))
     return pts[h.vertices]
+
+
+#: The compass sectors of the crown radii, clockwise from north (+y).
+SECTORS = ("n", "ne", "e", "se", "s", "sw", "w", "nw")
+
+
+def hull_radii_m(hull: np.ndarray, direction_xy: np.ndarray) -> np.ndarray:
+    """Distance from the origin to the edge of a convex polygon holding it ((k, 2) vertices)
+    along each unit direction of ``direction_xy`` (m, 2); 0 for a polygon of fewer than 3 points.
+
+    The ray r·u meets edge p → q where r = (p × e) / (u × e) and s = (p × u) / (u × e) lies in
+    [0, 1] (e = q − p, × the 2-D cross product); the largest such r ≥ 0 is the edge's."""
+    u = np.asarray(direction_xy, np.float64).reshape(-1, 2)
+    if len(hull) < 3:
+        return np.zeros(len(u))
+    p = np.asarray(hull, np.float64)
+    e = np.roll(p, -1, axis=0) - p
+    cross = lambda a, b: a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]  # noqa: E731
+    den = cross(u[:, None, :], e[None, :, :])                           # (m, k)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = cross(p, e)[None, :] / den
+        s = cross(p[None, :, :], u[:, None, :]) / den
+    ok = (den != 0) & (s >= -1e-12) & (s <= 1 + 1e-12) & (r >= 0)
+    return np.where(ok, r, 0.0).max(axis=1)
+
+
+def sector_radius_columns(hulls, prototype, yaw_deg, scale) -> dict[str, np.ndarray]:
+    """``trees.csv``'s crown radii by compass sector: tree i's hull is ``hulls[prototype[i]]`` in
+    its own frame, turned by ``yaw_deg[i]`` (counter-clockwise) and scaled by ``scale[i]``."""
+    bearing = np.deg2rad(45.0 * np.arange(len(SECTORS)))
+    out = np.zeros((len(prototype), len(SECTORS)))
+    for i, (j, yaw, sc) in enumerate(zip(prototype, yaw_deg, scale)):
+        a = np.pi / 2 - bearing - np.deg2rad(float(yaw))  # compass → own frame (ccw from +x, less the yaw)
+        own = np.column_stack([np.cos(a), np.sin(a)])
+        out[i] = float(sc) * hull_radii_m(hulls[int(j)], own)
+    return {f"crown_radius_{name}_m": out[:, k] for k, name in enumerate(SECTORS)}
 
 
 def polygon_area_m2(v: np.ndarray) -> float:

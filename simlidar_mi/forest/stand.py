@@ -55,7 +55,7 @@ from ..io.terrain import check_inside, terrain_of
 from ..plants.foliage import needle_area_factor
 from ..plants.random_tree import RandomTree, iter_random_trees, random_tree
 from ..plants.tree_leaves import LeafTable
-from .foliage import crown_bases_m, crown_hull, dbhs_m, foliage_summary, polygon_area_m2
+from .foliage import crown_bases_m, crown_hull, dbhs_m, foliage_summary, polygon_area_m2, sector_radius_columns
 from .params import ForestParams, forest_params_from_scene, prototype_scale, prototype_seed, tree_seed
 from .placement import Placement, crown_overlap_share, place_trees
 from .representation import GROWN_BYTES_PER_TRIANGLE, check_memory, representation
@@ -340,7 +340,9 @@ class Forest:
                 "height_m": self.height_m, "crown_base_m": crown_bases_m(self), "dbh_m": dbhs_m(self),
                 "n_branches": self.n_branches, "n_leaves": self.n_leaves, "seed": self.geometry_seed,
                 "prototype": self.prototype, "yaw_deg": self.yaw_deg, "scale": self.scale,
-                "crown_radius_m": self.crown_radius_m, "branching": self.branching,
+                "crown_radius_m": self.crown_radius_m, **sector_radius_columns(
+                    self.hulls, self.prototype if self.instancing else np.arange(len(self)), self.yaw_deg,
+                    self.instance_scale), "branching": self.branching,
                 "leaf_area_m2": self.leaf_area_m2, "crown_projection_m2": self.crown_projection_m2,
                 **({"needle_area_m2": self.needle_area_m2}
                    if any(s.tree.shoot_star > 0 for s in self.params.species) else {})}

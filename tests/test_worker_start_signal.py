@@ -90,3 +90,76 @@ def test_a_worker_ignores_ctrl_c_and_its_parent_decides(tmp_path):
         future, pid = _held_worker(tmp_path, pool)  # blocked on its FIFO: it would wait forever
         raise KeyboardInterrupt
     assert not _status(pid), "the worker outlived its pool"  # ended and reaped
+
+
+def _landings() -> dict[str, tuple[str, object]]:
+    """Where in CPython's pool an interrupt lands: (profile event, test on the frame). Each is
+    a point where the study's SIGINT/SIGTERM landed in a loop of the group test above (read
+    from the interrupt's traceback) and gave a worker's traceback or leaked semaphores."""
+    import concurrent.futures.process as cfp
+    import multiprocessing.popen_spawn_posix as psp
+    import multiprocessing.resource_tracker as rt
+    import multiprocessing.util as mpu
+    import threading
+
+    def at(code, caller=None, cls=object):
+        return lambda f: (code is None or f.f_code is code) and (caller is None or (
+            f.f_back is not None and f.f_back.f_code is caller
+            and isinstance(f.f_back.f_locals.get("self"), cls)))
+    return {  # the worker read no start-up data: "EOFError: Ran out of input"
+        "worker spawned, its data not yet written": ("return", at(mpu.spawnv_passfds.__code__,
+                                                                   psp.Popen._launch.__code__)),
+        # not in the pool's table, so never ended; it opened semaphores the parent had unlinked
+        "worker started, not yet in the pool": ("return", at(None, cfp.ProcessPoolExecutor._spawn_process.__code__)),
+        # the manager thread not yet the pool's: never joined, and its queues never released
+        "manager thread starting": ("call", at(threading.Event.wait.__code__, threading.Thread.start.__code__,
+                                               cfp._ExecutorManagerThread)),
+        "the pool's queues being made": ("return", at(rt.ResourceTracker.register.__code__)),
+        "the pool shutting down": ("call", at(threading.Thread.join.__code__,
+                                              cfp.ProcessPoolExecutor.shutdown.__code__)),
+    }
+
+
+@pytest.mark.parametrize("landing", list(_landings()))
+def test_an_interrupt_inside_the_pool_leaves_no_semaphore_process_or_traceback(landing, capfd):
+    """Ctrl-C landing at each point of the pool's start and end (the signal's handler runs in
+    the main thread at its next instruction, as when another thread of the process took the
+    signal): KeyboardInterrupt out of the pool, every semaphore it made unlinked and every
+    worker it spawned ended, while the interrupt's traceback (its frames) is still alive, as
+    when the program reports and leaves by ``os._exit``; no worker prints anything."""
+    import _thread
+
+    from simlidar_mi._runtime.pool import worker_pool
+    event, where = _landings()[landing]
+    sems: list[str] = []
+    pids: list[int] = []
+    landed: list[bool] = []
+
+    def profile(frame, ev, arg):
+        if ev == "call" and frame.f_code.co_name == "register" and frame.f_locals.get("rtype") == "semaphore":
+            sems.append(frame.f_locals["name"])
+        if ev == "return" and frame.f_code.co_name == "spawnv_passfds" \
+                and frame.f_back.f_code.co_name == "_launch":  # a worker, not the resource tracker
+            pids.append(arg)
+        if not landed and ev == event and where(frame):
+            landed.append(True)
+            _thread.interrupt_main()  # the handler runs at the next instruction checked
+
+    sys.setprofile(profile)
+    try:
+        with pytest.raises(KeyboardInterrupt) as caught, worker_pool(2) as pool:
+            for _ in range(2):
+                pool.submit(os.getpid)
+            assert pool.submit(os.getpid).result(60) > 0
+        sys.setprofile(None)
+        assert landed and sems and caught.value is not None
+        err = capfd.readouterr().err
+        found = {"semaphores left": [s for s in sems if Path(f"/dev/shm/sem.{s.lstrip('/')}").exists()],
+                 "workers left": [p for p in pids if _status(p)],
+                 "stderr": [bad for bad in ("Traceback", "Error", "Exception", "leaked") if bad in err]}
+        assert found == {"semaphores left": [], "workers left": [], "stderr": []}, err
+    finally:
+        sys.setprofile(None)
+        for pid in pids:
+            if _status(pid):
+                os.kill(pid, signal.SIGKILL)

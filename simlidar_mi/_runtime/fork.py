@@ -12,9 +12,19 @@ A child dies with its parent (:func:`die_with_parent`: the kernel's parent-death
 Linux, even when the parent is SIGKILLed), keeps neither the parent's output-folder locks nor
 the read ends of its pipes (a write to a parent that is gone fails instead of blocking), and
 ends quietly on SIGINT and SIGTERM: the parent, interrupted too, ends it and says so.
+
+Blocking SIGINT and SIGTERM in the main thread does not keep them out of this process: the
+kernel hands them to another thread (Dr.Jit's, Dask's), and Python runs the handler in the
+main thread at its next instruction, which may be inside CPython's ``Process.start`` (after
+the fork, before the child is recorded: never ended) or between the start and the mask's
+restoration (the child never ended, both signals left blocked). So the start and
+:meth:`Forked.close` run with interrupts deferred (:func:`.signals.interrupts_deferred`): an
+interrupt is raised once the child is known (then ended) or ended; :meth:`Forked.within`
+also registers the close before one can be raised.
 """
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import signal
@@ -23,10 +33,10 @@ import threading
 import time
 import traceback
 import warnings
-from contextlib import nullcontext
 from typing import Any, Callable
 
 from ..errors import SimlidarError
+from .signals import interrupts_deferred
 from .threads import usable_cores
 
 
@@ -102,7 +112,7 @@ def _child(conn, parent_pid: int, fn: Callable, args: tuple, setup: Callable | N
             signal.pthread_sigmask(signal.SIG_UNBLOCK, _INTERRUPTS)
             if os.environ.get(HOLD_ENV):
                 _hold_for_test()
-            with setup() if setup is not None else nullcontext():
+            with setup() if setup is not None else contextlib.nullcontext():
                 msg = ("ok", fn(*args))
         except KeyboardInterrupt:  # Ctrl-C: the parent got it too (then nobody listens), or
             msg = ("interrupted", None)  # a SIGINT sent to this child alone: the parent's to raise
@@ -146,13 +156,31 @@ class Forked:
         if use_fork(parallel):
             for stream in (sys.stdout, sys.stderr):  # nothing buffered is written twice
                 stream.flush()
-            ctx = multiprocessing.get_context("fork")
-            self.recv, send = ctx.Pipe(duplex=False)
-            self.child = ctx.Process(target=_child, args=(send, os.getpid(), fn, args, setup), daemon=True)
-            # Interrupts wait until the child has set its own handlers (and here until it is
-            # known, so that close() can end it): one between fork and then printed a traceback.
-            blocked = signal.pthread_sigmask(signal.SIG_BLOCK, _INTERRUPTS)
+            try:
+                with interrupts_deferred():  # raised here once the child is known (see the module)
+                    self._start(setup)
+            except BaseException:  # the fork failed, or the interrupt that waited: end the child
+                self.close()
+                raise
+
+    @classmethod
+    def within(cls, ends: contextlib.ExitStack, what: str, fn: Callable, *args: Any, **kw: Any) -> Forked:
+        """A :class:`Forked` whose :meth:`close` is on ``ends`` before an interrupt can come
+        between them (one after the constructor's return left the child running)."""
+        with interrupts_deferred():
+            job = cls(what, fn, *args, **kw)
+            ends.callback(job.close)
+        return job
+
+    def _start(self, setup: Callable | None) -> None:
+        ctx = multiprocessing.get_context("fork")
+        self.recv, send = ctx.Pipe(duplex=False)
+        try:
             _parent_ends.add(self.recv)  # the child closes its copy of this end too
+            self.child = ctx.Process(target=_child, args=(send, os.getpid(), self.fn, self.args, setup),
+                                     daemon=True)
+            # The child starts with both blocked, until it has set its own handlers.
+            blocked = signal.pthread_sigmask(signal.SIG_BLOCK, _INTERRUPTS)
             try:
                 with warnings.catch_warnings():
                     # Python ≥ 3.12 warns on every fork of a process with threads; ours are Dr.Jit's
@@ -160,21 +188,10 @@ class Forked:
                     warnings.filterwarnings("ignore", r".*multi-threaded, use of fork\(\) may lead to deadlocks",
                                             DeprecationWarning)
                     self.child.start()
-            except BaseException:  # the fork failed, or an interrupt that another thread took
-                if getattr(self.child, "_popen", None) is not None:  # forked all the same: end it
-                    self.close()
-                else:
-                    self.child = None
-                    _parent_ends.discard(self.recv)
-                    self.recv.close()
-                raise
             finally:
-                send.close()
-                try:
-                    signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
-                except BaseException:  # the interrupt that waited: end the child, then raise
-                    self.close()
-                    raise
+                signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+        finally:
+            send.close()
 
     def wait(self) -> Any:
         if self.child is None:
@@ -201,13 +218,16 @@ class Forked:
         raise exc
 
     def close(self) -> None:
-        if self.child is None:
-            return
-        _parent_ends.discard(self.recv)
-        self.recv.close()
-        if self.child.is_alive():
-            self.child.terminate()
-        self.child.join(CLOSE_WAIT_S)
-        if self.child.exitcode is None:  # SIGTERM blocked or ignored by what the call runs
-            self.child.kill()
-            self.child.join()
+        with interrupts_deferred():  # a (second) interrupt here is raised once the child is ended
+            if self.recv is not None:
+                _parent_ends.discard(self.recv)
+                self.recv.close()
+            child = self.child
+            if child is None or getattr(child, "_popen", None) is None:  # never forked
+                return
+            if child.is_alive():
+                child.terminate()
+            child.join(CLOSE_WAIT_S)
+            if child.exitcode is None:  # SIGTERM blocked or ignored by what the call runs
+                child.kill()
+                child.join()

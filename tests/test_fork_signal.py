@@ -139,3 +139,54 @@ def test_an_interrupt_between_the_start_and_the_close_s_registration_ends_the_ch
         sys.setprofile(None)
         assert landed and pids and isinstance(caught.value, Terminated) == (sig == "TERM")
         assert _left(pids, capfd.readouterr().err) == CLEAN
+
+
+def _hold_any(*args, **kwargs):
+    _hold()
+
+
+CALLERS = ["forest pictures", "scan generation", "scan wood measures", "scan LAS"]
+
+
+@pytest.mark.parametrize("caller", CALLERS)
+def test_an_interrupt_as_a_caller_s_child_starts_ends_it_and_leaves_no_output(caller, tmp_path, monkeypatch, capfd):
+    """Each caller of Forked, interrupted the instruction after the constructor returns (the
+    child held): KeyboardInterrupt out of the command, the child ended, nothing in ``out``."""
+    from simlidar_mi.config import load_scene
+    from simlidar_mi.forest import run as forest_run
+    from simlidar_mi.lidar import survey
+    from tests.conftest import SCENES
+    init, pids = Forked.__init__, []
+
+    def interrupted_on_return(self, *a, **k):
+        init(self, *a, **k)
+        pids.append(self.child.pid)
+        if len(pids) == 1:
+            _thread.interrupt_main()  # raised at the caller's next instruction
+    monkeypatch.setattr(Forked, "__init__", interrupted_on_return)
+    monkeypatch.setattr("simlidar_mi._runtime.fork.use_fork", lambda parallel: True)
+    out = tmp_path / "out"
+    if caller == "forest pictures":
+        monkeypatch.setattr(forest_run, "_draw_pictures", _hold_any)
+        command = lambda: forest_run.run_forest(SCENES / "forest_small.toml", out)  # noqa: E731
+    else:
+        fn = {"scan generation": "_plan", "scan wood measures": "scene_measures"}.get(caller)
+        if fn is not None:
+            monkeypatch.setattr(survey, fn, _hold_any)
+        else:
+            monkeypatch.setattr("simlidar_mi.io.las.write_scan_las", _hold_any)
+        monkeypatch.setattr(survey, "_overlap_generation", lambda cfg, scheduler: caller == "scan generation")
+        monkeypatch.setattr(survey, "FORK_MEASURES_MIN", 0 if caller == "scan wood measures" else 10**9)
+        command = lambda: survey.run_scan(load_scene(SCENES / "calibration_cylinder.toml"), out)  # noqa: E731
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            command()
+        assert len(pids) == 1
+        assert _left(pids, capfd.readouterr().err) == CLEAN
+        assert not out.exists() or not list(out.iterdir())
+    finally:
+        for pid in pids:
+            if _status(pid):
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGKILL)
+                    os.waitpid(pid, 0)

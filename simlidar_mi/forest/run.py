@@ -202,15 +202,16 @@ def _use_fork(parallel: bool | None) -> bool:
     return use_fork(parallel)
 
 
-def _pictures(forest: Forest, stage: Path, max_trees: int, parallel: bool | None) -> Forked:
+def _pictures(ends: contextlib.ExitStack, forest: Forest, stage: Path, max_trees: int,
+              parallel: bool | None) -> Forked:
     """``layout.png`` and ``preview.png`` drawn into a staged folder, in a forked process when
     :func:`simlidar_mi._runtime.fork.use_fork` allows, while the caller writes the tables and meshes:
     the child shares the forest's memory and alone imports matplotlib; the bytes are those of
     drawing in turn. ``wait()`` gives the drawing's seconds; a failed or dead child raises
     :class:`~simlidar_mi.errors.SimlidarError` with its traceback (the staged folder is then
-    discarded)."""
-    return Forked("drawing layout.png and preview.png", _draw_pictures, forest, stage, max_trees,
-                  parallel=parallel, setup=_one_blas_thread)
+    discarded); ended by ``ends``."""
+    return Forked.within(ends, "drawing layout.png and preview.png", _draw_pictures, forest, stage,
+                         max_trees, parallel=parallel, setup=_one_blas_thread)
 
 
 @writes_output("out_dir")
@@ -242,11 +243,10 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
     files: dict[str, Path] = {}
     out = Path(out_dir)
     extras: ForestExtras | None = None
-    with staged_dir(out, FOREST_OUTPUTS) as stage:
-        pictures = _pictures(forest, stage, f["preview_max_trees"], parallel)
-        blas = contextlib.ExitStack()
+    with staged_dir(out, FOREST_OUTPUTS) as stage, contextlib.ExitStack() as ends:
+        pictures = _pictures(ends, forest, stage, f["preview_max_trees"], parallel)
         if pictures.child is not None:
-            blas.enter_context(_one_blas_thread())
+            ends.enter_context(_one_blas_thread())
         try:
             extras = truth(forest, cfg, stage, progress) if f["truth_rasters"] and truth is not None else None
             if extras is not None:
@@ -292,8 +292,7 @@ def run_forest(cfg: SceneConfig | str | Path, out_dir: str | Path, overrides: Se
                 st.update(2)
             seconds["plots_wait"] = time.perf_counter() - t0  # what this process waited for it
         finally:
-            blas.close()
-            pictures.close()
+            ends.close()  # BLAS's threads back, the pictures' child ended
         files["layout"], files["preview"] = out / "layout.png", out / "preview.png"
 
         summary = forest.summary()

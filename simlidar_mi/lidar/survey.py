@@ -289,8 +289,8 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
     """
     cfg = _checked_scene(cfg, overrides, scheduler, tile_rows)
     run = _ScanStages(cfg, out_dir, make_progress(progress))
-    run.generate(scheduler)
-    try:
+    with run.jobs:  # the measuring child ends with the run, however it ends
+        run.generate(scheduler)
         run.scan(scheduler, tile_rows)
         if out_dir is None:
             measures, files = run.measures(), {}
@@ -300,9 +300,6 @@ def run_scan(cfg: SceneConfig | str | Path, out_dir: str | Path | None = None,
         run.bar("written")
         results = run.results
         return ScanRun(results[0] if len(results) == 1 else results, measures, files)
-    finally:  # the measuring child ends with the run, however it ends
-        if run.geo_job is not None:
-            run.geo_job.close()
 
 
 def _checked_scene(cfg: SceneConfig | str | Path, overrides, scheduler: str | None,
@@ -333,6 +330,7 @@ class _ScanStages:
         self.bar = shown.stage("scan", len(self.STEPS), "stage").step
         self.seconds: dict[str, float] = {}
         self.geo_job = None
+        self.jobs = contextlib.ExitStack()  # the forked children's ends (Forked.within)
         self.streamed = False  # a scan to files traced and written chunk by chunk
         self.points_name = f"points.{cfg['scan']['points_format']}"  # points.las or points.laz
 
@@ -343,8 +341,8 @@ class _ScanStages:
         t = time.perf_counter()
         early = plan_from_keys(cfg)  # a scan too large is refused here, at once
         if _overlap_generation(cfg, scheduler):  # Mitsuba imported here while a forked child generates
-            with mesh_drop() as drop, contextlib.closing(Forked("generating the scene", _plan, cfg, early,
-                                                                drop)) as job:
+            with mesh_drop() as drop, contextlib.ExitStack() as ends:
+                job = Forked.within(ends, "generating the scene", _plan, cfg, early, drop)
                 mitsuba(cfg["scene"]["variant"])
                 self.geometry, self.patterns = job.wait()
                 self.geometry.primitives = unship_meshes(self.geometry.primitives, drop)
@@ -360,7 +358,7 @@ class _ScanStages:
         self.seconds["generate"] = time.perf_counter() - t
         self.bar(generated_line(geometry))
         if self.out_dir is not None and len(geometry.branches) + len(geometry.leaves) >= FORK_MEASURES_MIN:
-            self.geo_job = Forked("measuring the wood", scene_measures, cfg, geometry, patterns)
+            self.geo_job = Forked.within(self.jobs, "measuring the wood", scene_measures, cfg, geometry, patterns)
 
     def scan(self, scheduler: str | None, tile_rows: int | None) -> None:
         """Build and trace: in row tiles on a cluster, or here (held in memory, or left to
@@ -423,10 +421,9 @@ class _ScanStages:
                 if write_las:  # the longest file: on the second core (simlidar_mi._runtime.fork)
                     from ..io.las import write_scan_las  # noqa: PLC0415
                     results = self.results
-                    las_job = Forked(f"writing {self.points_name}",
-                                     functools.partial(write_scan_las, crs=cfg["scene"]["crs"]),
-                                     results if len(results) > 1 else results[0], stage / self.points_name)
-                    jobs.callback(las_job.close)
+                    las_job = Forked.within(jobs, f"writing {self.points_name}",
+                                            functools.partial(write_scan_las, crs=cfg["scene"]["crs"]),
+                                            results if len(results) > 1 else results[0], stage / self.points_name)
                 measures = self.measures()
                 # two EXR threads even beside the LAS child: a core is never idle when one writer
                 # ends first (fwf, 76 channels: 3.97 -> 2.44 s; single ray 0.41 -> 0.35 s, §8f)

@@ -146,7 +146,8 @@ class Forked:
     same exception (KeyboardInterrupt when the child alone was interrupted), as a call in turn would (with a note naming ``what`` and the child's
     traceback on Python ≥ 3.11); if that exception cannot be sent back, or the child died, a
     :class:`SimlidarError` naming ``what``. :meth:`close` ends a child still running (the
-    caller failed or was interrupted) and must always follow. ``setup``: a context-manager
+    caller failed or was interrupted) and must always follow (:meth:`within` registers it at
+    the start). ``setup``: a context-manager
     factory entered around the call in the child only."""
 
     def __init__(self, what: str, fn: Callable, *args: Any, parallel: bool | None = None,

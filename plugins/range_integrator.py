@@ -110,9 +110,9 @@ class RangeIntegrator(mi.SamplingIntegrator):
         triangles share can miss both, and a scan's regular rows meet a regular grid's edges
         exactly (rows 0.2 m apart over 1 m cells lost 0.8 % of their pulses, BENCHMARKS §18).
         Rays that meet nothing are cast again from an origin nudged sideways (a ten-thousandth
-        of a cell, or a few float32 steps of the origin; up to three directions); a terrain hit of that cast gives the
-        triangle, and the range is the *original* ray's distance to that triangle's plane,
-        which holds the edge.  Only escaped rays pay for it."""
+        of a cell, or a few float32 steps of the origin; up to three directions); a terrain hit
+        of that cast gives the triangle, and the range is the *original* ray's distance to that
+        triangle's plane, which holds the edge.  Only escaped rays pay for it."""
         self._terrain = (mesh.vertex_positions_buffer(), mesh.faces_buffer(), int(shape_id),
                          float(cell_m) * 1e-4)
 

@@ -180,19 +180,16 @@ def _largest_box(camera: Camera, zs, region, half: float, square: float) -> tupl
     all: widening one axis after the other (what this did before) kept a 0.15 m square on a
     1.4 m strip at 15°.  For each width a, the longest height b(a) is found (monotone: a box
     inside the region holds every smaller one), and the pair of largest area kept."""
-    def longest(a: float) -> float:
-        if not _box_inside(camera, a, 1e-9, zs, region):
-            return 0.0
-        return _grow(lambda y: _box_inside(camera, a, y, zs, region), 1e-9, half)
     a_max = _grow(lambda x: _box_inside(camera, x, 1e-9, zs, region), square, half)
     # the square widened along one axis and then the other is a candidate too (on a plot
     # near square it is the largest, and the windows stay what they were)
     a0 = _grow(lambda x: _box_inside(camera, x, square, zs, region), square, half)
     b0 = _grow(lambda y: _box_inside(camera, a0, y, zs, region), square, half)
     best = (a0 * b0, a0, b0)
-    for a in np.linspace(a_max / _BOX_WIDTHS, a_max, _BOX_WIDTHS):
-        b = longest(float(a))
-        best = max(best, (a * b, float(a), b))
+    for a in np.linspace(a_max / _BOX_WIDTHS, a_max, _BOX_WIDTHS):  # each fits: a ≤ a_max
+        a = float(a)
+        b = _grow(lambda y: _box_inside(camera, a, y, zs, region), 1e-9, half)
+        best = max(best, (a * b, a, b))
     return best[1], best[2]
 
 

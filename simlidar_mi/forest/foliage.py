@@ -81,12 +81,15 @@ def hull_radii_m(hull: np.ndarray, direction_xy: np.ndarray) -> np.ndarray:
 def sector_radius_columns(hulls, prototype, yaw_deg, scale) -> dict[str, np.ndarray]:
     """``trees.csv``'s crown radii by compass sector: tree i's hull is ``hulls[prototype[i]]`` in
     its own frame, turned by ``yaw_deg[i]`` (counter-clockwise) and scaled by ``scale[i]``."""
-    bearing = np.deg2rad(45.0 * np.arange(len(SECTORS)))
+    prototype = np.asarray(prototype)
+    yaw, scale = np.asarray(yaw_deg, np.float64), np.asarray(scale, np.float64)
+    ccw = np.pi / 2 - np.deg2rad(45.0 * np.arange(len(SECTORS)))  # compass bearing → ccw from +x
     out = np.zeros((len(prototype), len(SECTORS)))
-    for i, (j, yaw, sc) in enumerate(zip(prototype, yaw_deg, scale)):
-        a = np.pi / 2 - bearing - np.deg2rad(float(yaw))  # compass → own frame (ccw from +x, less the yaw)
-        own = np.column_stack([np.cos(a), np.sin(a)])
-        out[i] = float(sc) * hull_radii_m(hulls[int(j)], own)
+    for j in np.unique(prototype):  # one call a hull: its trees' bearings in its own frame at once
+        m = prototype == j
+        a = ccw[None, :] - np.deg2rad(yaw[m])[:, None]
+        own = np.stack([np.cos(a), np.sin(a)], axis=-1).reshape(-1, 2)
+        out[m] = scale[m, None] * hull_radii_m(hulls[int(j)], own).reshape(-1, len(SECTORS))
     return {f"crown_radius_{name}_m": out[:, k] for k, name in enumerate(SECTORS)}
 
 
